@@ -1,0 +1,94 @@
+"""Pre-processing of recordings (seed appendix C.1): anti-alias low-pass, downsampling,
+per-position statistics.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+from imurig.errors import RecordingError
+from imurig.recording import Recording
+
+
+def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,
+                       zero_phase: bool = True) -> Recording:
+    """Digital low-pass then keep every k-th sample, per contiguous block (seed C.1.1).
+
+    The seed filters 1 kHz data with a 5th-order Butterworth, Wn = 50 / (1000 / 2), then
+    downsamples to 100 Hz. ``zero_phase`` runs the filter forwards and backwards
+    (scipy ``sosfiltfilt``), which keeps the per-position windows aligned in time.
+    Truth signals are filtered the same way so that they stay comparable.
+    """
+    fs = rec.sample_rate_hz
+    k = fs / rate_hz
+    if abs(k - round(k)) > 1e-6 or round(k) < 1:
+        raise RecordingError(f"cannot downsample {fs:g} Hz to {rate_hz:g} Hz: the ratio must be a whole number")
+    k = int(round(k))
+    if cutoff_hz >= fs / 2:
+        raise RecordingError(f"cut-off {cutoff_hz} Hz must lie below the Nyquist frequency {fs / 2:g} Hz")
+    sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
+    keep_idx, blocks = [], rec.blocks()
+    names = list(rec.channels)
+    tnames = list(rec.truth_signals)
+    x = rec.stack(names) if names else np.zeros((rec.n, 0))
+    xt = np.stack([rec.truth_signals[n] for n in tnames], 1) if tnames else np.zeros((rec.n, 0))
+    out_x, out_t = [], []
+    for b in blocks:
+        seg = x[b]
+        segt = xt[b]
+        padlen = min(3 * (2 * len(sos) + 1), seg.shape[0] - 1)
+        if zero_phase:
+            fx = signal.sosfiltfilt(sos, seg, axis=0, padlen=padlen) if seg.shape[1] else seg
+            ft = signal.sosfiltfilt(sos, segt, axis=0, padlen=padlen) if segt.shape[1] else segt
+        else:
+            fx = signal.sosfilt(sos, seg, axis=0)
+            ft = signal.sosfilt(sos, segt, axis=0)
+        idx = np.arange(b.start, b.stop, k)
+        keep_idx.append(idx)
+        out_x.append(fx[::k])
+        out_t.append(ft[::k])
+    idx = np.concatenate(keep_idx)
+    fx = np.concatenate(out_x)
+    ft = np.concatenate(out_t)
+    # set-point channels are step functions: decimate them without filtering
+    setpoints = set(rec.meta.get("setpoints", []))
+    channels = {n: (rec.channels[n][idx] if n in setpoints else fx[:, i]) for i, n in enumerate(names)}
+    meta = dict(rec.meta)
+    meta["sample_rate_hz"] = rate_hz
+    meta["preprocessing"] = list(meta.get("preprocessing", [])) + [
+        {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
+         "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}]
+    return Recording(time_s=rec.time_s[idx], channels=channels, units=dict(rec.units),
+                     segments=dict(rec.segments), segment_units=dict(rec.segment_units), meta=meta,
+                     truth=rec.truth, truth_signals={n: ft[:, i] for i, n in enumerate(tnames)},
+                     truth_units=dict(rec.truth_units))
+
+
+def segment_statistic(rec: Recording, names, statistic: str = "median", source: str = "channels") -> np.ndarray:
+    """Per-segment statistic (n_seg, len(names)) of channels (or truth signals).
+
+    statistic: 'median' (seed C.1.1, robust to spikes), 'mean' or 'std'.
+    """
+    if not rec.n_segments:
+        raise RecordingError("the recording has no segments (set-point windows); add a 'segment' column "
+                             "or name the set-point columns in the '# setpoints:' metadata")
+    data = rec.channels if source == "channels" else rec.truth_signals
+    fn = {"median": np.median, "mean": np.mean, "std": np.std}.get(statistic)
+    if fn is None:
+        raise ValueError(f"statistic must be median, mean or std; got {statistic!r}")
+    x = np.stack([data[n] for n in names], axis=1)
+    out = np.empty((rec.n_segments, len(names)))
+    for i, s in enumerate(rec.segment_slices()):
+        if s.stop - s.start < 1:
+            raise RecordingError(f"segment {i} ({rec.segments['start_s'][i]:.3f}-{rec.segments['stop_s'][i]:.3f} s)"
+                                 " holds no samples; check the segment times against time_s")
+        out[i] = fn(x[s], axis=0)
+    return out
+
+
+def segment_samples(rec: Recording, names) -> tuple[np.ndarray, np.ndarray]:
+    """All samples inside segments: (values (m, len(names)), segment index (m,))."""
+    sl = rec.segment_slices()
+    idx = np.concatenate([np.arange(s.start, s.stop) for s in sl])
+    seg = np.concatenate([np.full(s.stop - s.start, i) for i, s in enumerate(sl)])
+    return rec.stack(names)[idx], seg

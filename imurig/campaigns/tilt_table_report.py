@@ -1,0 +1,276 @@
+"""Run the tilt-table campaign and write its report folder.
+
+Folder contents: ``report.md`` (seed-style tables and figures), ``summary.json`` (every
+estimated parameter as {name, unit, injected, estimate, std_error, z}), ``recording.h5``
+(the 1 kHz recording with truth), ``campaign.rrd`` (rerun), and PNG figures.
+"""
+from __future__ import annotations
+
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import imurig
+from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration, indicated
+from imurig.calibration.preprocess import lowpass_downsample
+from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, compare_with_truth,
+                                         tilt_table_reference)
+from imurig.errors import UnidentifiableTermsError
+from imurig.recording import Recording, save_h5
+from imurig.report import OutputFolder, clean_json, fmt, md_table, published_figures
+
+def peak_rss_bytes() -> int:
+    """Peak resident memory of this process so far (bytes)."""
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(r if sys.platform == "darwin" else r * 1024)
+
+
+SEED_MODELS = ("linear", "cross", "seed_final")
+SEED_TABLE = {"linear": "4.4", "cross": "4.5", "seed_final": "4.6"}
+
+
+def analyse(rec: Recording, model: str = "physical") -> dict:
+    """All fits the report shows, on one recording (simulated or measured)."""
+    rec100 = lowpass_downsample(rec)
+    out = {"rec100": rec100}
+    out["main"] = calibrate(rec, model=model, processed=rec100)
+    out["parameters"] = compare_with_truth(out["main"], rec.truth)
+    out["stepwise"] = calibrate(rec, model="stepwise", processed=rec100)
+    out["seed_models"] = {}
+    for m in SEED_MODELS:
+        try:
+            out["seed_models"][m] = calibrate(rec, model=m, processed=rec100)
+        except UnidentifiableTermsError as e:
+            out["seed_models"][m] = e
+    out["raw"] = calibrate(rec, model="linear", statistic="raw", processed=rec100)
+    out["median_linear"] = out["seed_models"]["linear"]
+    return out
+
+
+def _stats_rows(cal: AccelerometerCalibration):
+    rows = []
+    for key, label in (("sigma_res", "σ_res (m/s²)"), ("ms_res", "MS_res (m²/s⁴)"), ("R", "R"),
+                       ("R_adj", "R_adj"), ("condition_number", "condition number")):
+        rows.append([label] + [getattr(cal.results_[a], key) for a in AXES])
+    return rows
+
+
+def _coef_table(cal: AccelerometerCalibration) -> str:
+    names = []
+    for a in AXES:
+        for n in cal.results_[a].names:
+            if n not in names:
+                names.append(n)
+    rows = []
+    for i, n in enumerate(names):
+        row = [f"β{i} ({n})"]
+        for a in AXES:
+            r = cal.results_[a]
+            row.append(f"{r.coef(n):.8f} ± {r.std_error(n):.1e}" if n in r.names else "–")
+        rows.append(row)
+    return md_table(["term", "A_x", "A_y", "A_z"], rows + _stats_rows(cal))
+
+
+def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figs = {}
+    rec100 = res["rec100"]
+    seg = rec100.segments
+    # Fig 4.10: raw channels at theta = 40 deg, last run
+    theta40 = np.flatnonzero(np.isclose(seg["theta"], np.radians(40)) & (seg["run"] == seg["run"].max()))
+    if theta40.size:
+        sl = rec100.segment_slices()
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for c, col in zip(ACC, ("C0", "C3", "C2")):
+            y = np.concatenate([rec100.channels[c][sl[i]] for i in theta40])
+            ax.plot(y, col, lw=0.6, label=c)
+        ax.set(xlabel="samples (100 Hz, 12 phi positions)", ylabel="volts",
+               title="Raw accelerometer outputs at θ = 40° (cf. seed Fig. 4.10)")
+        ax.legend()
+        ax.grid(alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(out.file("fig_4_10_raw_theta40.png"), dpi=110)
+        plt.close(fig)
+        figs["raw_theta40"] = "fig_4_10_raw_theta40.png"
+    # Fig 4.14: residuals of the final model per position, beside the seed's sigma
+    pub = published_figures()
+    cal = res["main"]
+    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for j, a in enumerate(AXES):
+        r = cal.results_[a].residuals_
+        axs[j].plot(r, ".-", ms=3, lw=0.5, label=f"imurig ({cal.model}), σ = {np.std(r, ddof=1):.2e}")
+        s = pub["table_4_6"]["sigma_res"][j]
+        axs[j].axhspan(-s, s, color="orange", alpha=0.2, label=f"seed Table 4.6 ±σ_res = {s:.2e}")
+        axs[j].set_ylim(-0.015, 0.015)
+        axs[j].set_ylabel(f"{a.upper()} error, m/s²")
+        axs[j].grid(alpha=0.3)
+        axs[j].legend(loc="upper right", fontsize=7)
+    axs[-1].set_xlabel("position")
+    axs[0].set_title("Calibration residuals per position (cf. seed Fig. 4.14)")
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_14_residuals.png"), dpi=110)
+    plt.close(fig)
+    figs["residuals"] = "fig_4_14_residuals.png"
+    # Reference data (Fig 4.9)
+    ref, _, _ = tilt_table_reference(rec100)
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for j, a in enumerate(AXES):
+        ax.plot(ref[:, j], ".-", ms=3, lw=0.6, label=f"f_{a}")
+    ax.set(xlabel="position", ylabel="m/s²", title="Reference specific force per position (cf. seed Fig. 4.9)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_9_reference.png"), dpi=110)
+    plt.close(fig)
+    figs["reference"] = "fig_4_9_reference.png"
+    # z-scores of recovered parameters
+    params = [p for p in res["parameters"] if p.get("z") is not None]
+    if params:
+        fig, ax = plt.subplots(figsize=(8, 3.8))
+        z = [p["z"] for p in params]
+        ax.bar(range(len(z)), z, color=["C0" if abs(v) <= Z_BOUND else "C3" for v in z])
+        ax.axhline(Z_BOUND, color="k", ls="--", lw=0.8)
+        ax.axhline(-Z_BOUND, color="k", ls="--", lw=0.8)
+        ax.set_xticks(range(len(z)), [p["name"] for p in params], rotation=60, ha="right", fontsize=7)
+        ax.set_ylabel("(estimate − injected) / std. error")
+        ax.set_title(f"Recovered vs injected parameters (bound ±{Z_BOUND:g}σ)")
+        fig.tight_layout()
+        fig.savefig(out.file("fig_truth_z.png"), dpi=110)
+        plt.close(fig)
+        figs["truth_z"] = "fig_truth_z.png"
+    return figs
+
+
+def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str:
+    pub = published_figures()
+    cal = res["main"]
+    L = [f"# Tilt-table accelerometer calibration — imurig {imurig.__version__}\n"]
+    p = camp.protocol if camp else None
+    if p:
+        L.append(f"Protocol: θ = {list(p.theta_deg)} deg, φ = {list(p.phi_deg)} deg, runs {list(p.runs)}, "
+                 f"{p.dwell_s:g} s per position at {p.sample_rate_hz:g} Hz "
+                 f"({rec.n_segments} positions, {rec.n:,} samples). Seed {camp.seed}, start {camp.start_time}. "
+                 f"ADC: {camp.grounding}, f_mux = {camp.mux_frequency_hz / 1e3:g} kHz.\n")
+    L.append("## Recovered vs injected (forward-model parameters)\n")
+    L.append(f"Model `{cal.model}` fitted on per-position medians of the 100 Hz data. z = (estimate − injected)"
+             f" / std. error; std. errors include the table survey's uncertainty. Bound |z| ≤ {Z_BOUND:g}.\n")
+    rows = [[q["name"], q["unit"], q["injected"], q["estimate"], q["std_error"], q["z"], q["within_bound"]]
+            for q in res["parameters"]]
+    L.append(md_table(["parameter", "unit", "injected", "estimate", "std. error", "z", "within bound"], rows))
+    if "truth_z" in figs:
+        L.append(f"\n![z-scores]({figs['truth_z']})\n")
+    L.append("\n## Model statistics next to the seed (Tables 4.4-4.6)\n")
+    t46 = pub["table_4_6"]
+    L.append(md_table(["", "imurig A_x", "A_y", "A_z", "seed A_x", "A_y", "A_z"], [
+        ["σ_res (m/s²)"] + [cal.results_[a].sigma_res for a in AXES] + t46["sigma_res"],
+        ["R"] + [cal.results_[a].R for a in AXES] + t46["r"],
+        ["R_adj"] + [cal.results_[a].R_adj for a in AXES] + t46["r_adj"],
+        ["scale (own axis β)"] + [cal.results_[a].coef(f"a{a}") for a in AXES] + t46["scale_factor"],
+    ]))
+    L.append("\nThe seed's MS_res (e.g. 0.00125 for A_x) is not σ_res²: its MATLAB code (appendix C.1.1) forms "
+             "SS_res from raw volts minus calibrated values. Here MS_res = SS_res/(n−p) of the residuals.\n")
+    for m, c in res["seed_models"].items():
+        L.append(f"\n### Seed Table {SEED_TABLE[m]} model (`{m}`)\n")
+        if isinstance(c, Exception):
+            L.append(f"Not identifiable on this schedule: {c}\n")
+            continue
+        L.append(_coef_table(c))
+        if m == "seed_final":
+            L.append("\nOn a ±1 g tilt table |f| = g at every position, so 1, a_x², a_y², a_z² are nearly "
+                     "collinear (exactly so without noise): see the condition number. This is why the seed's "
+                     "A_y model shows β0 = 0.412 with compensating square terms.\n")
+    L.append(f"\n### Main model (`{cal.model}`)\n")
+    L.append(_coef_table(cal))
+    st = res["stepwise"]
+    L.append("\n### Forward selection (BIC, from the linear model, degree-2 library)\n")
+    L.append(md_table(["axis", "selected terms", "σ_res", "R_adj"],
+                      [[a, ", ".join(st.results_[a].names), st.results_[a].sigma_res, st.results_[a].R_adj]
+                       for a in AXES]))
+    L.append("\n## Medians vs raw samples (cf. seed Table 4.2)\n")
+    raw, med = res["raw"], res["median_linear"]
+    t42 = pub["table_4_2"]
+    L.append(md_table(["axis", "σ raw 100 Hz samples", "σ per-position medians", "seed raw", "seed medians"],
+                      [[a, raw.results_[a].sigma_res, med.results_[a].sigma_res, t42["raw_sigma"][j],
+                        t42["median_sigma"][j]] for j, a in enumerate(AXES)]))
+    L.append("\n## Figures\n")
+    for k in ("reference", "raw_theta40", "residuals"):
+        if k in figs:
+            L.append(f"![{k}]({figs[k]})\n")
+    if timing:
+        L.append("\n## Run\n")
+        L.append(md_table(["step", "value"], [[k, v] for k, v in timing.items()]))
+    return "\n".join(L)
+
+
+def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> dict:
+    cal = res["main"]
+    models = {}
+    for name, c in [("main", cal), ("stepwise", res["stepwise"]), ("raw_linear", res["raw"])] + \
+            list(res["seed_models"].items()):
+        if isinstance(c, Exception):
+            models[name] = {"error": str(c), "unidentifiable_terms": getattr(c, "terms", [])}
+            continue
+        models[name] = {"model": c.model, "statistic": c.statistic,
+                        "axes": {a: {"terms": [{"name": t["name"], "estimate": t["estimate"],
+                                                "std_error": t["std_error"]} for t in c.results_[a].table()],
+                                     "sigma_res": c.results_[a].sigma_res, "ms_res": c.results_[a].ms_res,
+                                     "R": c.results_[a].R, "R_adj": c.results_[a].R_adj, "r2": c.results_[a].r2,
+                                     "r2_adj": c.results_[a].r2_adj, "bic": c.results_[a].bic,
+                                     "condition_number": c.results_[a].condition_number, "n": c.results_[a].n}
+                                 for a in AXES}}
+    return clean_json({
+        "campaign": "tilt-table", "imurig_version": imurig.__version__,
+        "settings": camp.to_dict() if camp else None,
+        "z_bound": Z_BOUND,
+        "parameters": res["parameters"],
+        "all_within_bound": all(p["within_bound"] for p in res["parameters"] if p["within_bound"] is not None),
+        "models": models, "seed_published": {k: published_figures()[k] for k in ("table_4_2", "table_4_6")},
+        "timing": timing, "files": files,
+        "n_samples": rec.n, "n_positions": rec.n_segments,
+    })
+
+
+def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
+        save_recording: bool = True) -> dict:
+    """Simulate, calibrate and report. Returns the summary dict."""
+    out = OutputFolder(out_dir, overwrite=overwrite)
+    try:
+        t0 = time.perf_counter()
+        rec = camp.simulate()
+        t_sim = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        res = analyse(rec, camp.model)
+        t_cal = time.perf_counter() - t1
+        t2 = time.perf_counter()
+        files = {"report": "report.md", "summary": "summary.json"}
+        figs = make_figures(out, rec, res)
+        files.update({f"figure_{k}": v for k, v in figs.items()})
+        if save_recording:
+            save_h5(rec, out.file("recording.h5"), overwrite=True)
+            files["recording"] = "recording.h5"
+        if rrd:
+            from imurig.campaigns.tilt_table_rrd import write_rrd
+
+            write_rrd(out.file("campaign.rrd"), rec, res)
+            files["rrd"] = "campaign.rrd"
+        t_out = time.perf_counter() - t2
+        peak = peak_rss_bytes()
+        timing = {"simulate_s": round(t_sim, 2), "analyse_s": round(t_cal, 2), "outputs_s": round(t_out, 2),
+                  "total_s": round(time.perf_counter() - t0, 2),
+                  "simulated_samples_per_s": round(rec.n / t_sim),
+                  "peak_rss_MB": round(peak / 2**20, 1)}
+        summary = summary_dict(camp, rec, res, timing, files)
+        out.write_json("summary.json", summary)
+        out.write_text("report.md", _report_md(camp, rec, res, figs, timing))
+        out.commit()
+    except BaseException:
+        out.abort()
+        raise
+    return summary

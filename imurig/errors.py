@@ -1,0 +1,31 @@
+"""Exceptions raised on bad input. Each message says what is wrong and how to fix it."""
+
+
+class ImurigError(Exception):
+    """Base class of every error the bench raises on purpose."""
+
+
+class RecordingError(ImurigError, ValueError):
+    """A recording is malformed: NaNs, missing or mislabelled channels, wrong units."""
+
+
+class ScheduleError(ImurigError, ValueError):
+    """A protocol or schedule cannot be executed or cannot identify the requested model."""
+
+
+class UnidentifiableTermsError(ImurigError, ValueError):
+    """The design matrix is rank deficient: some model terms cannot be separated.
+
+    Attributes
+    ----------
+    terms : list[str]
+        Names of the terms that take part in the linear dependency.
+    """
+
+    def __init__(self, message: str, terms: list[str]):
+        super().__init__(message)
+        self.terms = list(terms)
+
+
+class OutputExistsError(ImurigError, FileExistsError):
+    """An output would overwrite existing results without --overwrite."""

@@ -1,0 +1,231 @@
+"""The plain lab CSV format (import and export).
+
+A file is a block of ``# key: value`` metadata lines, then one header row, then
+numbers::
+
+    # imurig_format: 1
+    # rig: tilt_table
+    # site.latitude_deg: 52.0
+    # site.longitude_deg: 4.37
+    # site.altitude_m: 0.0
+    # site.gravity_m_s2: 9.81242231
+    # start_time: 2005-06-01T18:00:00+00:00
+    # setpoints: ["theta", "phi"]
+    time_s,segment,run,theta_deg,phi_deg,acc_x_V,acc_y_V,acc_z_V,temp_box_V
+    0.000,-1,0,0.0,0.0,0.00218,-0.00113,0.99731,2.98201
+    ...
+
+Rules
+- Every column but ``segment`` and ``run`` ends in a unit suffix (``_V``, ``_deg``,
+  ``_dps``, ``_m_s2``, ``_degC``, ``_nT`` ...; see :mod:`imurig.units`). Values are
+  converted to SI on import.
+- ``time_s`` is required and must increase strictly.
+- ``segment`` (optional, integer): the acquisition window a row belongs to, ``-1`` while
+  the rig moves. Without it, segments are the runs of constant set-point values.
+- ``setpoints`` (metadata): the columns that hold commanded values (constant within a
+  segment); they become the segments table, and stay channels too.
+- Metadata values are JSON when they parse as JSON, text otherwise; dotted keys nest.
+- ``#`` lines without ``key: value`` are comments.
+"""
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from imurig.errors import RecordingError
+from imurig.recording import Recording, atomic_write
+from imurig.units import from_si, split_column, to_si
+
+INDEX_COLUMNS = ("segment", "run")
+
+
+def _parse_value(text: str):
+    try:
+        return json.loads(text)
+    except (json.JSONDecodeError, ValueError):
+        return text
+
+
+def _nest(flat: dict) -> dict:
+    out: dict = {}
+    for key, val in flat.items():
+        d = out
+        parts = key.split(".")
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+            if not isinstance(d, dict):
+                raise RecordingError(f"metadata key '{key}' clashes with a plain value of '{p}'")
+        d[parts[-1]] = val
+    return out
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def read_csv(path) -> Recording:
+    """Read a lab CSV into a Recording (SI inside). Raises RecordingError with the fix."""
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path} does not exist")
+    meta_flat: dict = {}
+    header = None
+    n_head = 0
+    with open(path, "r", encoding="utf-8") as fh:
+        for line in fh:
+            n_head += 1
+            s = line.strip()
+            if not s:
+                continue
+            if s.startswith("#"):
+                body = s[1:].strip()
+                if ":" in body:
+                    key, _, val = body.partition(":")
+                    key = key.strip()
+                    if key and " " not in key:
+                        meta_flat[key] = _parse_value(val.strip())
+                continue
+            header = [h.strip() for h in s.split(",")]
+            break
+    if header is None:
+        raise RecordingError(f"{path}: no header row found after the '#' metadata block")
+    if "time_s" not in header:
+        raise RecordingError(f"{path}: no 'time_s' column; the lab format needs a time column in seconds "
+                             f"(header is {header})")
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise RecordingError(f"{path}: duplicate columns {dup}")
+    specs = {}
+    for h in header:
+        if h in INDEX_COLUMNS:
+            continue
+        specs[h] = split_column(h)
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=n_head, ndmin=2, dtype=float)
+    except ValueError as exc:
+        raise RecordingError(f"{path}: a value is not a number ({exc}); use '.' as decimal point and "
+                             "'nan' for missing values") from None
+    if data.shape[1] != len(header):
+        raise RecordingError(f"{path}: {data.shape[1]} values per row but {len(header)} header names")
+    cols = {h: data[:, i] for i, h in enumerate(header)}
+    time_s = cols.pop("time_s")
+    channels, units = {}, {}
+    for h, x in cols.items():
+        if h in INDEX_COLUMNS:
+            continue
+        name, spec = specs[h]
+        if name in channels:
+            raise RecordingError(f"{path}: channel '{name}' appears twice with different units")
+        channels[name] = to_si(x, spec)
+        units[name] = spec.si
+    meta = _nest(meta_flat)
+    setpoints = meta.get("setpoints", [])
+    if isinstance(setpoints, str):
+        setpoints = [s.strip() for s in setpoints.split(",") if s.strip()]
+        meta["setpoints"] = setpoints
+    for sp in setpoints:
+        if sp not in channels:
+            raise RecordingError(f"{path}: metadata names set-point '{sp}' but there is no column '{sp}_<unit>'")
+    rec = Recording(time_s=time_s, channels=channels, units=units, meta=meta)
+    rec.meta.setdefault("source", str(path.name))
+    rec.validate()
+    seg_id = cols.get("segment")
+    run = cols.get("run")
+    rec.segments, rec.segment_units = _segments_from_columns(rec, seg_id, run, setpoints)
+    return rec.validate()
+
+
+def _segments_from_columns(rec: Recording, seg_id, run, setpoints):
+    t = rec.time_s
+    dt = float(np.median(np.diff(t)))
+    if seg_id is not None:
+        if not np.all(np.isfinite(seg_id)) or np.any(seg_id != np.round(seg_id)):
+            raise RecordingError("the 'segment' column must hold integers (-1 while the rig moves)")
+        key = seg_id
+        valid = seg_id >= 0
+    elif setpoints:
+        sp = np.stack([rec.channels[s] for s in setpoints], axis=1)
+        change = np.any(np.diff(sp, axis=0) != 0, axis=1)
+        key = np.concatenate(([0], np.cumsum(change)))
+        valid = np.ones(t.size, bool)
+    else:
+        return {}, {}
+    brk = np.flatnonzero((np.diff(key) != 0) | (np.diff(valid.astype(int)) != 0)) + 1
+    starts = np.concatenate(([0], brk))
+    stops = np.concatenate((brk, [t.size]))
+    keep = valid[starts]
+    starts, stops = starts[keep], stops[keep]
+    seg = {"start_s": t[starts], "stop_s": t[stops - 1] + dt}
+    units = {"start_s": "s", "stop_s": "s"}
+    if run is not None:
+        seg["run"] = run[starts].astype(int)
+        units["run"] = "1"
+    for s in setpoints:
+        x = rec.channels[s]
+        seg[s] = np.array([np.median(x[a:b]) for a, b in zip(starts, stops)])
+        units[s] = rec.units[s]
+    return seg, units
+
+
+def write_csv(rec: Recording, path, overwrite: bool = False, include_truth_signals: bool = False) -> Path:
+    """Write ``rec`` in the lab CSV format (no truth parameters; see module doc)."""
+    rec.validate()
+    meta = dict(rec.meta)
+    meta["imurig_format"] = 1
+    cols = {"time_s": (rec.time_s, "%.6f")}
+    sl = rec.segment_slices() if rec.n_segments else []
+    if sl:
+        seg = np.full(rec.n, -1, dtype=np.int64)
+        for i, s in enumerate(sl):
+            seg[s] = i
+        cols["segment"] = (seg, "%d")
+        if "run" in rec.segments:
+            run = np.zeros(rec.n, dtype=np.int64)
+            for r, s in zip(rec.segments["run"], sl):
+                run[s] = r
+            # rows between segments take the run of the following segment
+            cols["run"] = (_fill_between(run, seg), "%d")
+    sources = [(rec.channels, rec.units)]
+    if include_truth_signals:
+        sources.append(({"true_" + k: v for k, v in rec.truth_signals.items()},
+                        {"true_" + k: u for k, u in rec.truth_units.items()}))
+    for arrays, units in sources:
+        for name, x in arrays.items():
+            vals, suf = from_si(x, units[name])
+            cols[f"{name}_{suf}"] = (vals, "%.10g")
+    header = ",".join(cols)
+    fmts = [f for _, f in cols.values()]
+    table = np.column_stack([np.asarray(v, dtype=float) for v, _ in cols.values()])
+
+    def writer(tmp: Path):
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            for k, v in _flatten(meta).items():
+                fh.write(f"# {k}: {json.dumps(v) if not isinstance(v, str) else v}\n")
+            fh.write(header + "\n")
+            buf = io.StringIO()
+            np.savetxt(buf, table, fmt=fmts, delimiter=",")
+            fh.write(buf.getvalue())
+
+    return atomic_write(Path(path), writer, overwrite)
+
+
+def _fill_between(run: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Give rows outside segments (seg == -1) the run of the next segment (last one at the end)."""
+    out = run.copy()
+    idx = np.flatnonzero(seg >= 0)
+    if idx.size == 0:
+        return out
+    nxt = np.searchsorted(idx, np.arange(run.size))
+    nxt = np.clip(nxt, 0, idx.size - 1)
+    out[seg < 0] = run[idx[nxt]][seg < 0]
+    return out

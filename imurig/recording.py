@@ -1,0 +1,274 @@
+"""One kind of object for simulated and measured data: the Recording.
+
+A Recording holds
+- ``time_s`` (n,): sample times in seconds, strictly increasing; gaps are allowed
+  (e.g. between two runs when the IMU is remounted) and split the record into blocks;
+- ``channels``: name -> (n,) float64 array in SI, with ``units[name]`` its SI unit;
+- ``segments``: a small table (one row per experiment position / rate / step) with
+  ``start_s`` and ``stop_s`` (the acquisition window) and the set-points of that
+  row (e.g. ``theta``, ``phi`` in rad, ``run``); units in ``segment_units``;
+- ``meta``: rig, site, start time, sample rate, seed, lab settings (JSON-like);
+- ``truth`` (simulation only): every injected parameter, JSON-like, and
+  ``truth_signals``: name -> (n,) SI arrays (e.g. true specific force).
+
+Storage: HDF5 (h5py), see :func:`save_h5`; lab exchange: CSV with ``# key: value``
+metadata lines, see :mod:`imurig.labcsv`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from imurig.errors import OutputExistsError, RecordingError
+
+FORMAT_NAME = "imurig-recording"
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Recording:
+    """Time series of named SI channels, their set-points, metadata and (simulated) truth."""
+
+    time_s: np.ndarray
+    channels: dict[str, np.ndarray]
+    units: dict[str, str]
+    segments: dict[str, np.ndarray] = field(default_factory=dict)
+    segment_units: dict[str, str] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+    truth: dict[str, Any] | None = None
+    truth_signals: dict[str, np.ndarray] = field(default_factory=dict)
+    truth_units: dict[str, str] = field(default_factory=dict)
+    channel_quantum: dict[str, float] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ checks
+    def __post_init__(self):
+        self.time_s = np.asarray(self.time_s, dtype=float)
+        self.channels = {k: np.asarray(v, dtype=float) for k, v in self.channels.items()}
+        self.segments = {k: np.asarray(v) for k, v in self.segments.items()}
+
+    @property
+    def n(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def n_segments(self) -> int:
+        return int(len(self.segments.get("start_s", ())))
+
+    def validate(self) -> "Recording":
+        """Check shapes, units, finiteness and time order; raise RecordingError with a fix."""
+        t = self.time_s
+        if t.ndim != 1 or t.size < 2:
+            raise RecordingError("time_s must be a 1-D array with at least two samples")
+        if not np.all(np.isfinite(t)):
+            bad = np.flatnonzero(~np.isfinite(t))
+            raise RecordingError(f"time_s has {bad.size} non-finite values (first at sample {bad[0]}); "
+                                 "remove those rows or fill in the time stamps")
+        if np.any(np.diff(t) <= 0):
+            i = int(np.flatnonzero(np.diff(t) <= 0)[0])
+            raise RecordingError(f"time_s must increase strictly; it does not at sample {i + 1} "
+                                 f"({t[i]!r} -> {t[i + 1]!r}); sort the rows or fix the clock")
+        for name, x in self.channels.items():
+            if x.shape != t.shape:
+                raise RecordingError(f"channel '{name}' has {x.shape[0]} samples but time_s has {t.size}")
+            if name not in self.units:
+                raise RecordingError(f"channel '{name}' has no unit; give it one (e.g. name the CSV column "
+                                     f"'{name}_V')")
+            if not np.all(np.isfinite(x)):
+                bad = np.flatnonzero(~np.isfinite(x))
+                raise RecordingError(
+                    f"channel '{name}' has {bad.size} NaN/inf samples (first at t = {t[bad[0]]:.6g} s, "
+                    f"sample {bad[0]}); drop or interpolate them before use, or remove the channel")
+        if self.segments:
+            for col in ("start_s", "stop_s"):
+                if col not in self.segments:
+                    raise RecordingError(f"segments table lacks '{col}'")
+            m = self.n_segments
+            for k, v in self.segments.items():
+                if v.shape[0] != m:
+                    raise RecordingError(f"segment column '{k}' has {v.shape[0]} rows, expected {m}")
+            if np.any(self.segments["stop_s"] <= self.segments["start_s"]):
+                raise RecordingError("a segment ends before it starts; check start_s/stop_s")
+        return self
+
+    def require(self, needed: Mapping[str, str]) -> None:
+        """Check that each channel in ``needed`` (name -> SI unit) exists with that unit.
+
+        Raises RecordingError naming the missing or mislabelled channel and the fix.
+        """
+        missing = [k for k in needed if k not in self.channels]
+        if missing:
+            raise RecordingError(
+                f"recording lacks channel(s) {missing}; it has {sorted(self.channels)}. "
+                f"Add them (CSV columns such as '{missing[0]}_V') or rename the existing columns")
+        for k, unit in needed.items():
+            if self.units[k] != unit:
+                raise RecordingError(
+                    f"channel '{k}' is in {self.units[k]} but {unit} is needed; if the data are really "
+                    f"in {unit}, fix the unit suffix of the CSV column, otherwise convert them")
+
+    # --------------------------------------------------------------- helpers
+    def blocks(self, max_gap_factor: float = 1.5) -> list[slice]:
+        """Contiguous sample blocks: a gap longer than ``max_gap_factor`` sample periods splits."""
+        dt = np.diff(self.time_s)
+        nominal = float(np.median(dt))
+        cuts = np.flatnonzero(dt > max_gap_factor * nominal) + 1
+        edges = np.concatenate(([0], cuts, [self.n]))
+        return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return float(1.0 / np.median(np.diff(self.time_s)))
+
+    def segment_slices(self) -> list[slice]:
+        """Sample index range of each segment's acquisition window [start_s, stop_s)."""
+        lo = np.searchsorted(self.time_s, self.segments["start_s"], side="left")
+        hi = np.searchsorted(self.time_s, self.segments["stop_s"], side="left")
+        return [slice(int(a), int(b)) for a, b in zip(lo, hi)]
+
+    def stack(self, names) -> np.ndarray:
+        """Channels ``names`` as an (n, len(names)) array."""
+        return np.stack([self.channels[k] for k in names], axis=1)
+
+    def replace(self, **changes) -> "Recording":
+        return dataclasses.replace(self, **changes)
+
+    def without_truth(self) -> "Recording":
+        """A copy that holds no truth (what an outside estimator may see)."""
+        return self.replace(truth=None, truth_signals={}, truth_units={})
+
+
+# ---------------------------------------------------------------------- HDF5
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def to_json(obj) -> str:
+    return json.dumps(obj, default=_json_default, sort_keys=True)
+
+
+def atomic_write(path: Path, writer, overwrite: bool) -> Path:
+    """Run ``writer(tmp_path)`` then rename onto ``path``; never leaves a half-written file.
+
+    Raises OutputExistsError if ``path`` exists and ``overwrite`` is false.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputExistsError(f"{path} exists; pass overwrite=True (CLI: --overwrite) to replace it")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
+    os.close(fd)
+    try:
+        writer(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return path
+
+
+def _write_group(grp, arrays: Mapping[str, np.ndarray], units: Mapping[str, str],
+                 quantum: Mapping[str, float] | None = None):
+    for name, x in arrays.items():
+        x = np.asarray(x)
+        q = (quantum or {}).get(name)
+        stored = x
+        if q:
+            codes = np.round(x / q)
+            if np.all(np.abs(codes) < 2**31) and np.array_equal(codes * q, x):
+                stored = codes.astype(np.int32)
+            else:
+                q = None
+        kw = dict(compression="gzip", compression_opts=1, shuffle=True) if x.size > 4096 else {}
+        ds = grp.create_dataset(name, data=stored, **kw)
+        ds.attrs["unit"] = units.get(name, "")
+        if q and stored is not x:
+            ds.attrs["quantum"] = q
+
+
+def _read_group(grp):
+    arrays, units, quantum = {}, {}, {}
+    for name, ds in grp.items():
+        x = ds[()]
+        if "quantum" in ds.attrs:
+            q = float(ds.attrs["quantum"])
+            x = x.astype(np.float64) * q
+            quantum[name] = q
+        arrays[name] = x
+        units[name] = str(ds.attrs.get("unit", ""))
+    return arrays, units, quantum
+
+
+def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
+    """Save losslessly to HDF5.
+
+    Layout: root attrs ``format``, ``version``, ``meta`` (JSON), ``truth`` (JSON or absent);
+    datasets ``/time_s``, ``/channels/<name>``, ``/segments/<col>``, ``/truth_signals/<name>``,
+    each with an attribute ``unit``. ADC channels whose values are exact multiples of their
+    quantum (one LSB, attribute ``quantum``) are stored as integer codes, which is lossless.
+    """
+    import h5py
+
+    rec.validate()
+
+    def writer(tmp: Path):
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = FORMAT_NAME
+            f.attrs["version"] = FORMAT_VERSION
+            f.attrs["meta"] = to_json(rec.meta)
+            if rec.truth is not None:
+                f.attrs["truth"] = to_json(rec.truth)
+            f.create_dataset("time_s", data=rec.time_s, compression="gzip", compression_opts=1, shuffle=True)
+            _write_group(f.create_group("channels"), rec.channels, rec.units, rec.channel_quantum)
+            _write_group(f.create_group("segments"), rec.segments, rec.segment_units)
+            _write_group(f.create_group("truth_signals"), rec.truth_signals, rec.truth_units)
+
+    return atomic_write(Path(path), writer, overwrite)
+
+
+def load_h5(path) -> Recording:
+    """Load a recording written by :func:`save_h5` (bit-exact)."""
+    import h5py
+
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(f"{path} does not exist")
+    with h5py.File(path, "r") as f:
+        if f.attrs.get("format") != FORMAT_NAME:
+            raise RecordingError(f"{path} is not an imurig recording (no format attribute '{FORMAT_NAME}')")
+        meta = json.loads(f.attrs["meta"])
+        truth = json.loads(f.attrs["truth"]) if "truth" in f.attrs else None
+        channels, units, quantum = _read_group(f["channels"])
+        segments, seg_units, _ = _read_group(f["segments"])
+        tsig, tunits, _ = _read_group(f["truth_signals"])
+        time_s = f["time_s"][()]
+    return Recording(time_s=time_s, channels=channels, units=units, segments=segments,
+                     segment_units=seg_units, meta=meta, truth=truth, truth_signals=tsig,
+                     truth_units=tunits, channel_quantum=quantum)
+
+
+def load(path) -> Recording:
+    """Load a recording from ``.h5`` (project format) or ``.csv`` (lab format)."""
+    p = Path(path)
+    if p.suffix.lower() in (".h5", ".hdf5"):
+        return load_h5(p)
+    if p.suffix.lower() == ".csv":
+        from imurig.labcsv import read_csv
+
+        return read_csv(p)
+    raise RecordingError(f"unknown recording type '{p.suffix}' for {p}; use .h5 or .csv")

@@ -1,0 +1,110 @@
+"""Report helpers: output folders written atomically, Markdown tables, published seed figures."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from imurig.errors import OutputExistsError
+from imurig.recording import to_json
+
+
+def published_figures() -> dict:
+    """The seed's published figures (assets/published_figures.toml)."""
+    text = resources.files("imurig.assets").joinpath("published_figures.toml").read_text()
+    return tomllib.loads(text)
+
+
+class OutputFolder:
+    """Write a report folder atomically: everything goes to a hidden temp folder that is
+    renamed onto ``path`` on success. An existing ``path`` is refused unless ``overwrite``."""
+
+    def __init__(self, path, overwrite: bool = False):
+        self.path = Path(path)
+        self.overwrite = overwrite
+        if self.path.exists() and not overwrite:
+            raise OutputExistsError(f"{self.path} exists; choose another --out or pass --overwrite to replace it")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = Path(tempfile.mkdtemp(prefix="." + self.path.name + ".", dir=self.path.parent))
+
+    def file(self, name: str) -> Path:
+        return self.tmp / name
+
+    def write_json(self, name: str, obj) -> Path:
+        p = self.file(name)
+        p.write_text(json.dumps(json.loads(to_json(obj)), indent=2, allow_nan=False) + "\n")
+        return p
+
+    def write_text(self, name: str, text: str) -> Path:
+        p = self.file(name)
+        p.write_text(text)
+        return p
+
+    def commit(self) -> Path:
+        if self.path.exists():
+            if not self.overwrite:
+                raise OutputExistsError(f"{self.path} appeared while writing; pass --overwrite")
+            old = self.path.with_name("." + self.path.name + ".old")
+            if old.exists():
+                shutil.rmtree(old)
+            os.replace(self.path, old)
+            os.replace(self.tmp, self.path)
+            shutil.rmtree(old)
+        else:
+            os.replace(self.tmp, self.path)
+        return self.path
+
+    def abort(self):
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.commit()
+        else:
+            self.abort()
+        return False
+
+
+def fmt(v, digits: int = 6) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "**NO**"
+    if isinstance(v, (int, np.integer)):
+        return str(v)
+    if isinstance(v, (float, np.floating)):
+        if not np.isfinite(v):
+            return "–"
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def md_table(header: list[str], rows: list[list]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    for r in rows:
+        out.append("| " + " | ".join(fmt(c) for c in r) + " |")
+    return "\n".join(out) + "\n"
+
+
+def clean_json(obj):
+    """Replace non-finite floats by None so that summary.json is strict JSON."""
+    if isinstance(obj, dict):
+        return {k: clean_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [clean_json(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.ndarray):
+        return clean_json(obj.tolist())
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj

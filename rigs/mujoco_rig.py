@@ -1,0 +1,67 @@
+"""Shared MuJoCo plumbing for rigs: load an MJCF asset, roll out servo commands in chunks.
+
+MuJoCo's site sensors are noise-free; they give the ideal truth at the IMU. Errors are
+added later by the sensor chain (:mod:`imurig.sensors`).
+"""
+from __future__ import annotations
+
+from importlib import resources
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from imurig.progress import progress
+
+
+def load_model(asset: str) -> mujoco.MjModel:
+    """Compile ``imurig/assets/<asset>`` (an MJCF file shipped with the package)."""
+    xml = resources.files("imurig.assets").joinpath(asset).read_text()
+    return mujoco.MjModel.from_xml_string(xml)
+
+
+def sensor_slices(model: mujoco.MjModel) -> dict[str, slice]:
+    """Name -> slice into ``sensordata`` for every named sensor."""
+    out = {}
+    for i in range(model.nsensor):
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SENSOR, i)
+        adr, dim = int(model.sensor_adr[i]), int(model.sensor_dim[i])
+        out[name] = slice(adr, adr + dim)
+    return out
+
+
+def rollout_servo(models: list[mujoco.MjModel], qpos0: np.ndarray, ctrl: np.ndarray,
+                  chunk: int = 200_000, desc: str = "MuJoCo rollout") -> np.ndarray:
+    """Roll out position-servo commands on a batch of models, in time chunks.
+
+    Parameters
+    ----------
+    models : nbatch models of identical size (e.g. one per IMU mounting).
+    qpos0 : (nbatch, nq) initial joint positions (velocities start at zero).
+    ctrl : (nbatch, nstep, nu) servo commands, one row per time step.
+
+    Returns
+    -------
+    sensordata : (nbatch, nstep, nsensordata). Row i is evaluated at time i * timestep,
+        before step i integrates (MuJoCo computes sensors in mj_forward inside mj_step).
+    """
+    nbatch, nstep, _ = ctrl.shape
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    nthread = min(nbatch, 2)
+    datas = [mujoco.MjData(models[0]) for _ in range(nthread)]
+    state = np.zeros((nbatch, mujoco.mj_stateSize(models[0], spec)))
+    for b, m in enumerate(models):
+        d = mujoco.MjData(m)
+        d.qpos[:] = qpos0[b]
+        d.ctrl[:] = ctrl[b, 0]
+        mujoco.mj_forward(m, d)
+        mujoco.mj_getState(m, d, state[b], spec)
+    out = np.empty((nbatch, nstep, models[0].nsensordata))
+    with progress(total=nstep, desc=desc, unit="step") as bar:
+        for a in range(0, nstep, chunk):
+            b = min(nstep, a + chunk)
+            st, sd = rollout.rollout(models, datas, state, np.ascontiguousarray(ctrl[:, a:b]))
+            out[:, a:b] = sd
+            state = st[:, -1].copy()
+            bar.update(b - a)
+    return out

@@ -1,0 +1,156 @@
+"""Honeywell Q-Flex QA700 accelerometer triad (seed appendix A.1), and its temperature sensors.
+
+Measurement equation, per sample n and axis i (SI inside):
+
+    a_S  = (I + M) f_C                                   [m/s^2, (n,3)] sensed along the input axes
+    a_i' = a_S,i + b_i + k2_i a_S,i^2 + kb_i (T - T0)    [m/s^2]
+    I_i  = K1_i (1 + ks_i (T - T0)) a_i' + i_noise       [A]
+    V_i  = R_L,i I_i                                     [V]  voltage over the load resistor
+
+f_C: true specific force in the IMU case frame C. M: input-axis misalignment (zero
+diagonal, rad). b: bias (m/s^2). k2: second-order nonlinearity (1/(m/s^2)). K1: current
+scale factor (A per m/s^2). kb, ks: bias and scale-factor temperature coefficients.
+i_noise: output current noise in the datasheet's three bands.
+
+Datasheet units (mA/g, ug, ug/g^2, ppm/C, mrad) appear only in ``from_datasheet``.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from imurig.units import G_STANDARD
+from imurig.sensors.noise import band_noise
+
+AXES = ("x", "y", "z")
+
+
+def _vec(x) -> np.ndarray:
+    return np.broadcast_to(np.asarray(x, float), (3,)).copy()
+
+
+@dataclass
+class QFlexTriad:
+    """Three QA700 accelerometers with their load resistors (parameters in SI)."""
+
+    bias_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    k1_A_per_m_s2: np.ndarray = field(default_factory=lambda: np.full(3, 1.33e-3 / G_STANDARD))
+    misalignment_rad: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    k2_per_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_tempco_m_s2_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    scale_tempco_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    load_resistor_ohm: np.ndarray = field(default_factory=lambda: np.full(3, 750.0))
+    noise_bands: tuple = ((0.0, 10.0, 10e-9), (10.0, 500.0, 100e-9), (500.0, 10e3, 2e-6))
+    reference_temperature_K: float = 298.15
+    noise_enabled: bool = True
+
+    def __post_init__(self):
+        for name in ("bias_m_s2", "k1_A_per_m_s2", "k2_per_m_s2", "bias_tempco_m_s2_per_K",
+                     "scale_tempco_per_K", "load_resistor_ohm"):
+            setattr(self, name, _vec(getattr(self, name)))
+        self.misalignment_rad = np.asarray(self.misalignment_rad, float).reshape(3, 3).copy()
+        np.fill_diagonal(self.misalignment_rad, 0.0)
+
+    # ------------------------------------------------------------ datasheet
+    @classmethod
+    def from_datasheet(cls, rng: np.random.Generator | None = None, *, scale_factor_mA_per_g=1.33,
+                       scale_factor_spread=0.01, bias_max_ug=8000.0, misalignment_max_mrad=2.0,
+                       nonlinearity_max_ug_per_g2=48.0, bias_tempco_max_ug_per_C=70.0,
+                       scale_tempco_max_ppm_per_C=200.0, load_resistor_ohm=750.0,
+                       noise_nA_rms=(10.0, 100.0, 2000.0)) -> "QFlexTriad":
+        """A triad in datasheet units; with ``rng``, each error is drawn uniformly within its limit.
+
+        ``scale_factor_spread`` is the relative spread of K1 about its data-sheet value (the
+        lab converts with the nominal value, so the calibration sees 1 +- spread).
+        Without ``rng`` the triad is ideal apart from its nominal scale factor and noise.
+        """
+        g = G_STANDARD
+        bands = ((0.0, 10.0, noise_nA_rms[0] * 1e-9), (10.0, 500.0, noise_nA_rms[1] * 1e-9),
+                 (500.0, 10e3, noise_nA_rms[2] * 1e-9))
+        k1 = np.full(3, scale_factor_mA_per_g * 1e-3 / g)
+        if rng is None:
+            return cls(k1_A_per_m_s2=k1, load_resistor_ohm=np.full(3, load_resistor_ohm), noise_bands=bands)
+        u = lambda lim, shape=3: rng.uniform(-lim, lim, size=shape)  # noqa: E731
+        return cls(
+            bias_m_s2=u(bias_max_ug * 1e-6 * g),
+            k1_A_per_m_s2=k1 * (1 + u(scale_factor_spread)),
+            misalignment_rad=u(misalignment_max_mrad * 1e-3, (3, 3)),
+            k2_per_m_s2=u(nonlinearity_max_ug_per_g2 * 1e-6 / g),
+            bias_tempco_m_s2_per_K=u(bias_tempco_max_ug_per_C * 1e-6 * g),
+            scale_tempco_per_K=u(scale_tempco_max_ppm_per_C * 1e-6),
+            load_resistor_ohm=np.full(3, load_resistor_ohm),
+            noise_bands=bands,
+        )
+
+    # ------------------------------------------------------------- physics
+    def nominal_sensitivity_V_per_m_s2(self) -> np.ndarray:
+        """What the lab would use to turn volts into indicated m/s^2: nominal K1 * R_L."""
+        return np.full(3, 1.33e-3 / G_STANDARD) * self.load_resistor_ohm
+
+    def ideal_voltage(self, f_C: np.ndarray, temperature_K: np.ndarray | float | None = None) -> np.ndarray:
+        """Noise-free output voltages (n, 3) for specific force ``f_C`` (n, 3) m/s^2."""
+        f_C = np.asarray(f_C, float)
+        a_S = f_C + f_C @ self.misalignment_rad.T
+        dT = 0.0 if temperature_K is None else np.asarray(temperature_K, float).reshape(-1, 1) - \
+            self.reference_temperature_K
+        a = a_S + self.bias_m_s2 + self.k2_per_m_s2 * a_S**2 + self.bias_tempco_m_s2_per_K * dT
+        current = self.k1_A_per_m_s2 * (1 + self.scale_tempco_per_K * dT) * a
+        return current * self.load_resistor_ohm
+
+    def noise_current(self, n: int, fs: float, rng: np.random.Generator) -> np.ndarray:
+        """Output current noise (n, 3) A. Bands above fs/2 alias into the sampled band (no
+        analog anti-alias filter before the ADC), so their rms is kept as white noise."""
+        out = np.zeros((n, 3))
+        if not self.noise_enabled:
+            return out
+        for lo, hi, rms in self.noise_bands:
+            if rms <= 0:
+                continue
+            if lo >= fs / 2:
+                out += rng.standard_normal((n, 3)) * rms
+            else:
+                out += band_noise(rng, (n, 3), fs, (lo, min(hi, fs / 2)), rms)
+        return out
+
+    def output_voltage(self, f_C: np.ndarray, fs: float, rng: np.random.Generator,
+                       temperature_K=None) -> np.ndarray:
+        """Voltages (n, 3) over the load resistors, with current noise."""
+        v = self.ideal_voltage(f_C, temperature_K)
+        return v + self.noise_current(v.shape[0], fs, rng) * self.load_resistor_ohm
+
+    def truth(self) -> dict:
+        """Every injected parameter, SI, JSON-ready."""
+        d = asdict(self)
+        d = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+        d["sensitivity_V_per_m_s2"] = (self.k1_A_per_m_s2 * self.load_resistor_ohm).tolist()
+        d["model"] = "Honeywell Q-Flex QA700"
+        return d
+
+
+@dataclass
+class CurrentTemperatureSensor:
+    """A 1 uA/K current-output temperature sensor over a load resistor (Q-Flex internal, AD590-like).
+
+    V = R_L (I_0 + k_T (T - T_0)) + noise    [V];  I_0 = 298.2 uA at T_0 = 298.15 K, k_T = 1 uA/K.
+    """
+
+    uA_per_K: float = 1.0
+    uA_at_reference: float = 298.2
+    reference_temperature_K: float = 298.15
+    load_resistor_ohm: float = 10e3
+    offset_K: float = 0.0  # absolute error of this sensor (datasheet +-3 C before calibration)
+    noise_V_rms: float = 50e-6
+
+    def voltage(self, temperature_K: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        T = np.asarray(temperature_K, float)
+        i = 1e-6 * (self.uA_at_reference + self.uA_per_K * (T + self.offset_K - self.reference_temperature_K))
+        return i * self.load_resistor_ohm + self.noise_V_rms * rng.standard_normal(T.shape)
+
+    def temperature_K(self, volts: np.ndarray) -> np.ndarray:
+        """Invert the nominal characteristic: volts -> kelvin."""
+        i_uA = np.asarray(volts) / self.load_resistor_ohm * 1e6
+        return self.reference_temperature_K + (i_uA - self.uA_at_reference) / self.uA_per_K
+
+    def truth(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,115 @@
+"""The DAQ-6036E analog-to-digital chain (seed sections 2, 3 and 4.3.4).
+
+One multiplexed 16-bit converter scans the channels of ``scan_list`` in order at the
+multiplexing frequency f_mux, once per sample period. Per sample n and scan slot j:
+
+    t_j   = t_n + j / f_mux                                    [s]   channel skew
+    u_j   = x_j(t_j) + g(t_n) + c_mode(t_n)                    [V]   ground loop, common mode
+    u_j  += c_x (u_{j-1} - u_j),  c_x = exp(-1 / (f_mux tau))  [V]   settling crosstalk from the
+                                                                       previously scanned channel
+    code  = clip(round((u_j + e_adc) / q), -2^15, 2^15 - 1)   [-]   q = 2 range / 2^16
+    V     = code * q                                           [V]
+
+g: 50 Hz ground-loop pickup, present only with ground-referenced single-ended wiring
+(GRSE) of grounded sources (seed 3.4). c_mode: common-mode noise, rejected by the
+differential configuration (DIFF). e_adc: converter input noise. The crosstalk grows
+with f_mux because the amplifier has less time to settle (seed Table 4.3).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+GROUNDINGS = ("GRSE", "NRSE", "DIFF")
+
+
+@dataclass
+class DAQ6036E:
+    scan_list: tuple[str, ...]
+    range_V: float = 5.0
+    bits: int = 16
+    sample_rate_hz: float = 1000.0
+    mux_frequency_hz: float = 20e3
+    settling_tau_s: float = 0.59e-6
+    crosstalk_enabled: bool = True
+    skew_enabled: bool = True
+    grounding: str = "NRSE"
+    ground_loop_V: float = 2e-3
+    mains_hz: float = 50.0
+    common_mode_noise_V_rms: float = 30e-6
+    input_noise_lsb_rms: float = 0.6
+
+    def validate(self):
+        if self.grounding not in GROUNDINGS:
+            raise ValueError(f"grounding must be one of {GROUNDINGS}, got {self.grounding!r}")
+        if self.range_V not in (10.0, 5.0, 0.5, 0.05):
+            raise ValueError(f"DAQ-6036E input ranges are +-10, 5, 0.5, 0.05 V; got {self.range_V}")
+        if len(self.scan_list) > 16 or (self.grounding == "DIFF" and len(self.scan_list) > 8):
+            raise ValueError(f"{len(self.scan_list)} channels do not fit: 16 single-ended or 8 differential")
+        if len(self.scan_list) / self.mux_frequency_hz > 1 / self.sample_rate_hz:
+            raise ValueError(f"scanning {len(self.scan_list)} channels at {self.mux_frequency_hz:g} Hz takes "
+                             f"longer than one sample period at {self.sample_rate_hz:g} Hz; raise f_mux or "
+                             "lower the sample rate")
+        return self
+
+    @property
+    def lsb_V(self) -> float:
+        return 2 * self.range_V / 2**self.bits
+
+    def crosstalk_coefficient(self) -> float:
+        """Fraction of the previous channel's difference left when this one is sampled."""
+        if not self.crosstalk_enabled:
+            return 0.0
+        return math.exp(-1.0 / (self.mux_frequency_hz * self.settling_tau_s))
+
+    def convert(self, analog: dict[str, np.ndarray], time_s: np.ndarray, rng: np.random.Generator
+                ) -> tuple[dict[str, np.ndarray], dict]:
+        """Digitise ``analog`` (name -> (n,) volts). Returns (volts per channel, report dict)."""
+        self.validate()
+        missing = [c for c in self.scan_list if c not in analog]
+        if missing:
+            raise ValueError(f"scan list names {missing} but no such analog signals exist")
+        x = np.stack([analog[c] for c in self.scan_list], axis=1)  # (n, k)
+        n, k = x.shape
+        if self.skew_enabled:
+            # skew acts on the signal, not on its wideband noise: differentiate a 25 Hz low-pass copy
+            from scipy import signal as _sig
+
+            sos = _sig.butter(2, 25.0 / (self.sample_rate_hz / 2), output="sos")
+            dxdt = np.gradient(_sig.sosfiltfilt(sos, x, axis=0), time_s, axis=0)
+            x = x + dxdt * (np.arange(k) / self.mux_frequency_hz)
+        common = np.zeros(n)
+        if self.grounding != "DIFF" and self.common_mode_noise_V_rms > 0:
+            common = common + self.common_mode_noise_V_rms * rng.standard_normal(n)
+        if self.grounding == "GRSE" and self.ground_loop_V > 0:
+            phase = rng.uniform(0, 2 * np.pi)
+            common = common + self.ground_loop_V * (np.sin(2 * np.pi * self.mains_hz * time_s + phase)
+                                                    + 0.3 * np.sin(2 * np.pi * 3 * self.mains_hz * time_s))
+        u = x + common[:, None]
+        c = self.crosstalk_coefficient()
+        if c > 0:
+            prev = np.empty_like(u)
+            prev[:, 1:] = u[:, :-1]
+            prev[1:, 0] = u[:-1, -1]  # first slot follows the last slot of the previous scan
+            prev[0, 0] = u[0, 0]
+            u = u + c * (prev - u)
+        q = self.lsb_V
+        u = u + self.input_noise_lsb_rms * q * rng.standard_normal(u.shape)
+        lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
+        codes = np.clip(np.round(u / q), lo, hi)
+        saturated = {c_: int(np.count_nonzero((codes[:, j] == lo) | (codes[:, j] == hi)))
+                     for j, c_ in enumerate(self.scan_list)}
+        volts = codes * q
+        out = {c_: volts[:, j] for j, c_ in enumerate(self.scan_list)}
+        report = {"lsb_V": q, "crosstalk_coefficient": c,
+                  "saturated_samples": {k_: v for k_, v in saturated.items() if v}}
+        return out, report
+
+    def settings(self) -> dict:
+        d = asdict(self)
+        d["scan_list"] = list(self.scan_list)
+        d["lsb_V"] = self.lsb_V
+        d["crosstalk_coefficient"] = self.crosstalk_coefficient()
+        return d
