@@ -29,7 +29,9 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
     keep_idx, blocks = [], rec.blocks()
     names = list(rec.channels)
-    tnames = list(rec.truth_signals)
+    # truth signals: filter the measured quantities the same way; decimate the rest unfiltered
+    tnames = [n for n in rec.truth_signals if rec.truth_units.get(n) in ("m/s^2", "rad/s", "T")]
+    others = [n for n in rec.truth_signals if n not in tnames]
     x = rec.stack(names) if names else np.zeros((rec.n, 0))
     xt = np.stack([rec.truth_signals[n] for n in tnames], 1) if tnames else np.zeros((rec.n, 0))
     out_x, out_t = [], []
@@ -60,7 +62,8 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
          "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}]
     return Recording(time_s=rec.time_s[idx], channels=channels, units=dict(rec.units),
                      segments=dict(rec.segments), segment_units=dict(rec.segment_units), meta=meta,
-                     truth=rec.truth, truth_signals={n: ft[:, i] for i, n in enumerate(tnames)},
+                     truth=rec.truth, truth_signals={**{n: ft[:, i] for i, n in enumerate(tnames)},
+                                                     **{n: rec.truth_signals[n][idx] for n in others}},
                      truth_units=dict(rec.truth_units))
 
 

@@ -29,3 +29,7 @@ class UnidentifiableTermsError(ImurigError, ValueError):
 
 class OutputExistsError(ImurigError, FileExistsError):
     """An output would overwrite existing results without --overwrite."""
+
+
+class ConfigError(ImurigError, ValueError):
+    """A rig, sensor or acquisition setting is impossible (e.g. too many ADC channels)."""

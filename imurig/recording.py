@@ -186,6 +186,12 @@ def _write_group(grp, arrays: Mapping[str, np.ndarray], units: Mapping[str, str]
                  quantum: Mapping[str, float] | None = None):
     for name, x in arrays.items():
         x = np.asarray(x)
+        if x.dtype.kind in "US":
+            import h5py
+
+            ds = grp.create_dataset(name, data=x.astype(str).astype(object), dtype=h5py.string_dtype())
+            ds.attrs["unit"] = units.get(name, "")
+            continue
         q = (quantum or {}).get(name)
         stored = x
         if q:
@@ -205,6 +211,8 @@ def _read_group(grp):
     arrays, units, quantum = {}, {}, {}
     for name, ds in grp.items():
         x = ds[()]
+        if ds.dtype.kind == "O":
+            x = np.array([v.decode() if isinstance(v, bytes) else v for v in x], dtype=str)
         if "quantum" in ds.attrs:
             q = float(ds.attrs["quantum"])
             x = x.astype(np.float64) * q

@@ -84,6 +84,8 @@ def fmt(v, digits: int = 6) -> str:
     if isinstance(v, (float, np.floating)):
         if not np.isfinite(v):
             return "–"
+        if 0.999 < abs(v) < 1.0:  # correlation coefficients: show the digits that matter
+            return f"{v:.10f}"
         return f"{v:.{digits}g}"
     return str(v)
 

@@ -94,11 +94,15 @@ class RrdWriter:
         os.close(fd)
         self._tmp = Path(tmp)
         self._open = True
-        self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
-        bp = default_blueprint() if blueprint is True else (blueprint or None)
-        self.stream.save(self._tmp, default_blueprint=bp)
-        if recording_name:
-            self.stream.send_recording_name(recording_name)
+        try:
+            self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
+            bp = default_blueprint() if blueprint is True else (blueprint or None)
+            self.stream.save(self._tmp, default_blueprint=bp)
+            if recording_name:
+                self.stream.send_recording_name(recording_name)
+        except BaseException:
+            self._tmp.unlink(missing_ok=True)
+            raise
 
     def _check_target(self) -> None:
         if self.path.exists() and not self.overwrite:

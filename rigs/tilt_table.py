@@ -292,8 +292,7 @@ class TiltTable:
         w_C = sd[:, :, sl["w_C"]].reshape(n_total, 3)
         B_C = sd[:, :, sl["B_C"]].reshape(n_total, 3)
         q_WC = sd[:, :, sl["q_WC"]].reshape(n_total, 4)
-        R_WC = _quat_to_mat(q_WC)
-        w_C = w_C + np.einsum("nji,j->ni", R_WC, self.site.earth_rate_W())  # Earth rate, R_CW Omega_W
+        w_C = w_C + rotate_to_body(q_WC, self.site.earth_rate_W())  # Earth rate, R_CW Omega_W
 
         seg_start, seg_stop, seg_run, seg_mount = [], [], [], []
         for i, r in enumerate(runs):
@@ -318,9 +317,6 @@ class TiltTable:
             for j, ax in enumerate("xyz"):
                 truth_signals[f"{name}_{ax}"] = arr[:, j]
                 units[f"{name}_{ax}"] = unit
-        for j, c in enumerate("wxyz"):
-            truth_signals[f"q_WC_{c}"] = q_WC[:, j]
-            units[f"q_WC_{c}"] = "1"
 
         meta = {
             "rig": "tilt_table",
@@ -355,14 +351,16 @@ def _copy_model(m):
     return copy.copy(m)
 
 
-def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """(n, 4) wxyz unit quaternions -> (n, 3, 3) rotation matrices R_WC."""
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+def rotate_to_body(q_WC: np.ndarray, v_W: np.ndarray) -> np.ndarray:
+    """Express a world vector in the body: R_CW v_W for (n, 4) wxyz quaternions q_WC -> (n, 3).
+
+    Uses v' = v + 2 w (u x v) + 2 u x (u x v) with the conjugate quaternion (w, u) = (w, -q_xyz).
+    """
+    w = q_WC[:, :1]
+    u = -q_WC[:, 1:]
+    v = np.broadcast_to(v_W, u.shape)
+    t = 2 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
 
 
 def reference_with_jacobian(segments: dict, g: float, survey: TableSurvey | dict):

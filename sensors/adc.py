@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from imurig.errors import ConfigError
+
 GROUNDINGS = ("GRSE", "NRSE", "DIFF")
 
 
@@ -43,13 +45,13 @@ class DAQ6036E:
 
     def validate(self):
         if self.grounding not in GROUNDINGS:
-            raise ValueError(f"grounding must be one of {GROUNDINGS}, got {self.grounding!r}")
+            raise ConfigError(f"grounding must be one of {GROUNDINGS}, got {self.grounding!r}")
         if self.range_V not in (10.0, 5.0, 0.5, 0.05):
-            raise ValueError(f"DAQ-6036E input ranges are +-10, 5, 0.5, 0.05 V; got {self.range_V}")
+            raise ConfigError(f"DAQ-6036E input ranges are +-10, 5, 0.5, 0.05 V; got {self.range_V}")
         if len(self.scan_list) > 16 or (self.grounding == "DIFF" and len(self.scan_list) > 8):
-            raise ValueError(f"{len(self.scan_list)} channels do not fit: 16 single-ended or 8 differential")
+            raise ConfigError(f"{len(self.scan_list)} channels do not fit: 16 single-ended or 8 differential")
         if len(self.scan_list) / self.mux_frequency_hz > 1 / self.sample_rate_hz:
-            raise ValueError(f"scanning {len(self.scan_list)} channels at {self.mux_frequency_hz:g} Hz takes "
+            raise ConfigError(f"scanning {len(self.scan_list)} channels at {self.mux_frequency_hz:g} Hz takes "
                              f"longer than one sample period at {self.sample_rate_hz:g} Hz; raise f_mux or "
                              "lower the sample rate")
         return self
@@ -64,22 +66,24 @@ class DAQ6036E:
             return 0.0
         return math.exp(-1.0 / (self.mux_frequency_hz * self.settling_tau_s))
 
-    def convert(self, analog: dict[str, np.ndarray], time_s: np.ndarray, rng: np.random.Generator
-                ) -> tuple[dict[str, np.ndarray], dict]:
-        """Digitise ``analog`` (name -> (n,) volts). Returns (volts per channel, report dict)."""
+    def convert(self, analog: dict[str, np.ndarray], time_s: np.ndarray, rng: np.random.Generator,
+                slope: dict[str, np.ndarray] | None = None) -> tuple[dict[str, np.ndarray], dict]:
+        """Digitise ``analog`` (name -> (n,) volts). Returns (volts per channel, report dict).
+
+        ``slope`` (name -> (n,) V/s, the noise-free signal's time derivative) enables the
+        channel skew; channels without a slope are taken as constant over one scan.
+        """
         self.validate()
         missing = [c for c in self.scan_list if c not in analog]
         if missing:
-            raise ValueError(f"scan list names {missing} but no such analog signals exist")
+            raise ConfigError(f"scan list names {missing} but no such analog signals exist")
         x = np.stack([analog[c] for c in self.scan_list], axis=1)  # (n, k)
         n, k = x.shape
-        if self.skew_enabled:
-            # skew acts on the signal, not on its wideband noise: differentiate a 25 Hz low-pass copy
-            from scipy import signal as _sig
-
-            sos = _sig.butter(2, 25.0 / (self.sample_rate_hz / 2), output="sos")
-            dxdt = np.gradient(_sig.sosfiltfilt(sos, x, axis=0), time_s, axis=0)
-            x = x + dxdt * (np.arange(k) / self.mux_frequency_hz)
+        if self.skew_enabled and slope:
+            # channel j is sampled j / f_mux after the scan starts: first-order shift of the
+            # noise-free signal (wideband noise is not differentiated; its samples stay i.i.d.)
+            d = np.stack([slope.get(c, np.zeros(n)) for c in self.scan_list], axis=1)
+            x = x + d * (np.arange(k) / self.mux_frequency_hz)
         common = np.zeros(n)
         if self.grounding != "DIFF" and self.common_mode_noise_V_rms > 0:
             common = common + self.common_mode_noise_V_rms * rng.standard_normal(n)

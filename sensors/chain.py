@@ -70,8 +70,7 @@ class ImuLab:
         fs = float(rig.meta["sample_rate_hz"])
         start = parse_time(rig.meta["start_time"])
         hour = (start.hour + start.minute / 60 + start.second / 3600 + (t - t[0]) / 3600.0) % 24.0
-        f_C = rig.stack([f"f_C_{a}" for a in AXES]) if False else np.stack(
-            [rig.truth_signals[f"f_C_{a}"] for a in AXES], axis=1)
+        f_C = np.stack([rig.truth_signals[f"f_C_{a}"] for a in AXES], axis=1)
         B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
 
         f_dist = (self.pump.specific_force(t, hour, fs, child_rng(seed, "pump"))
@@ -79,12 +78,16 @@ class ImuLab:
         T_imu = self.climate.imu_temperature_K(t)
 
         analog = {}
-        v_acc = self.accelerometers.output_voltage(f_C + f_dist, fs, child_rng(seed, "accelerometers"), T_imu)
-        for j, a in enumerate(AXES):
-            analog[f"acc_{a}"] = v_acc[:, j]
+        slope = {}
+        acc = self.accelerometers
+        v_acc = acc.ideal_voltage(f_C + f_dist, T_imu)
+        d_acc = np.gradient(v_acc, t, axis=0)
+        v_acc += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers")) * acc.load_resistor_ohm
         v_mag = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
+        d_mag = np.gradient(v_mag, t, axis=0)  # fluxgate noise is small: no separate noise-free path
         for j, a in enumerate(AXES):
-            analog[f"mag_{a}"] = v_mag[:, j]
+            analog[f"acc_{a}"], slope[f"acc_{a}"] = v_acc[:, j], d_acc[:, j]
+            analog[f"mag_{a}"], slope[f"mag_{a}"] = v_mag[:, j], d_mag[:, j]
         for name, sensor in self.temp_sensors.items():
             analog[name] = sensor.voltage(T_imu, child_rng(seed, name))
         if self.cable.enabled:
@@ -94,7 +97,7 @@ class ImuLab:
             analog[self.cable.channel] = analog[self.cable.channel] + self.cable.voltage(
                 t.size, fs, child_rng(seed, "cable"))
 
-        volts, adc_report = self.adc.convert(analog, t, child_rng(seed, "adc"))
+        volts, adc_report = self.adc.convert(analog, t, child_rng(seed, "adc"), slope)
 
         channels = dict(rig.channels)
         units = dict(rig.units)

@@ -1,0 +1,176 @@
+"""The ``imurig`` command.
+
+    imurig campaign tilt-table            simulate, calibrate and report the seed's protocol
+    imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
+    imurig convert IN OUT                 HDF5 <-> lab CSV
+    imurig info REC                       what a recording holds
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from imurig.errors import ImurigError
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _words(text: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in text.split(",") if v.strip())
+
+
+def _add_tilt_table(sub):
+    from imurig.rigs.tilt_table import TiltTableProtocol
+
+    d = TiltTableProtocol()
+    p = sub.add_parser("tilt-table", help="accelerometer calibration on the two-axis tilt table (seed 4.3)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       description="Simulate the tilt-table campaign, calibrate the accelerometers and write a "
+                                   "report folder (report.md, summary.json, recording.h5, campaign.rrd).")
+    p.add_argument("--out", default="imurig-out/tilt-table", help="report folder")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report folder")
+    p.add_argument("--seed", type=int, default=2005, help="master random seed (same seed, same data)")
+    p.add_argument("--theta", type=_floats, default=d.theta_deg, metavar="DEG,...", help="tilt angles")
+    p.add_argument("--phi", type=_floats, default=d.phi_deg, metavar="DEG,...", help="rotation angles")
+    p.add_argument("--runs", type=_words, default=d.runs, metavar="MOUNT,...", help="mountings: z_down, z_up")
+    p.add_argument("--dwell", type=float, default=d.dwell_s, help="seconds acquired per position")
+    p.add_argument("--rate", type=float, default=d.sample_rate_hz, help="ADC sample rate, Hz")
+    p.add_argument("--start-time", default="2005-06-14T18:00:00+02:00",
+                   help="local start time (ISO 8601); the pump runs in working hours 07:30-17:30")
+    p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "stepwise"],
+                   help="main calibration model")
+    p.add_argument("--mux-khz", type=float, default=20.0, help="ADC multiplexing frequency, kHz")
+    p.add_argument("--grounding", default="NRSE", choices=["GRSE", "NRSE", "DIFF"], help="ADC wiring")
+    p.add_argument("--no-pump", action="store_true", help="switch the basement pump off entirely")
+    p.add_argument("--no-people", action="store_true", help="no door/chair transients")
+    p.add_argument("--loose-cable", action="store_true", help="the faulty y-channel connector of seed 4.3.3")
+    p.add_argument("--no-crosstalk", action="store_true", help="ideal multiplexer settling")
+    p.add_argument("--ideal-sensors", action="store_true", help="no drawn sensor errors (datasheet nominal)")
+    p.add_argument("--no-rrd", action="store_true", help="skip the rerun file")
+    p.add_argument("--no-recording", action="store_true", help="skip saving recording.h5")
+    p.set_defaults(func=_run_tilt_table)
+
+
+def _run_tilt_table(a):
+    from imurig.campaigns.tilt_table import TiltTableCampaign
+    from imurig.campaigns.tilt_table_report import run
+    from imurig.rigs.tilt_table import TiltTableProtocol
+
+    proto = TiltTableProtocol(theta_deg=a.theta, phi_deg=a.phi, runs=a.runs, dwell_s=a.dwell,
+                              sample_rate_hz=a.rate)
+    camp = TiltTableCampaign(protocol=proto, seed=a.seed, start_time=a.start_time, model=a.model,
+                             mux_frequency_hz=a.mux_khz * 1e3, grounding=a.grounding, pump=not a.no_pump,
+                             people=not a.no_people, loose_cable=a.loose_cable, crosstalk=not a.no_crosstalk,
+                             draw_sensor_errors=not a.ideal_sensors)
+    print(f"imurig: tilt-table campaign, {proto.n_positions} positions, seed {a.seed} -> {a.out}", file=sys.stderr)
+    s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording)
+    _print_summary(s, a.out)
+
+
+def _print_summary(s: dict, out):
+    print(f"{'parameter':22s} {'injected':>14s} {'estimate':>14s} {'std.err':>10s} {'z':>6s}")
+    for p in s["parameters"]:
+        inj = "–" if p["injected"] is None else f"{p['injected']:+.6e}"
+        z = "–" if p["z"] is None else f"{p['z']:+.2f}"
+        print(f"{p['name']:22s} {inj:>14s} {p['estimate']:+.6e} {p['std_error']:.2e} {z:>6s}")
+    main = s["models"]["main"]["axes"]
+    print("sigma_res (m/s^2): " + ", ".join(f"{a}={main[a]['sigma_res']:.3e}" for a in "xyz"))
+    if s.get("timing"):
+        print("timing: " + ", ".join(f"{k}={v}" for k, v in s["timing"].items()))
+    print(f"report: {Path(out) / 'report.md'}")
+
+
+def _run_calibrate(a):
+    from imurig.campaigns.tilt_table_report import analyse, make_figures, summary_dict, _report_md
+    from imurig.recording import load
+    from imurig.report import OutputFolder
+
+    rec = load(a.recording).validate()
+    if a.rig != "tilt-table":
+        raise ImurigError(f"rig {a.rig!r} is not supported yet; use --rig tilt-table")
+    with OutputFolder(a.out, overwrite=a.overwrite) as out:
+        res = analyse(rec, a.model)
+        figs = make_figures(out, rec, res)
+        files = {"report": "report.md", "summary": "summary.json", **{f"figure_{k}": v for k, v in figs.items()}}
+        s = summary_dict(None, rec, res, {}, files)
+        out.write_json("summary.json", s)
+        out.write_text("report.md", _report_md(None, rec, res, figs, {}))
+    _print_summary(s, a.out)
+
+
+def _run_convert(a):
+    from imurig.labcsv import write_csv
+    from imurig.recording import load, save_h5
+
+    rec = load(a.input)
+    dst = Path(a.output)
+    if dst.suffix.lower() == ".csv":
+        write_csv(rec, dst, overwrite=a.overwrite)
+    elif dst.suffix.lower() in (".h5", ".hdf5"):
+        save_h5(rec, dst, overwrite=a.overwrite)
+    else:
+        raise ImurigError(f"output must end in .csv or .h5, got {dst.name}")
+    print(f"wrote {dst}")
+
+
+def _run_info(a):
+    from imurig.recording import load
+
+    rec = load(a.recording)
+    info = {"samples": rec.n, "duration_s": float(rec.time_s[-1] - rec.time_s[0]),
+            "sample_rate_hz": rec.sample_rate_hz, "blocks": len(rec.blocks()),
+            "channels": {k: rec.units[k] for k in rec.channels}, "segments": rec.n_segments,
+            "segment_columns": sorted(rec.segments), "meta_keys": sorted(rec.meta),
+            "has_truth": rec.truth is not None}
+    print(json.dumps(info, indent=2))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="imurig", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+    camp = sub.add_parser("campaign", help="simulate a calibration campaign and report it")
+    csub = camp.add_subparsers(dest="campaign", required=True)
+    _add_tilt_table(csub)
+
+    cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    cal.add_argument("recording", help=".csv (lab format, see README) or .h5")
+    cal.add_argument("--rig", default="tilt-table")
+    cal.add_argument("--model", default="physical",
+                     choices=["physical", "linear", "cross", "seed_final", "stepwise"])
+    cal.add_argument("--out", default="imurig-out/calibration")
+    cal.add_argument("--overwrite", action="store_true")
+    cal.set_defaults(func=_run_calibrate)
+
+    conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")
+    conv.add_argument("input")
+    conv.add_argument("output")
+    conv.add_argument("--overwrite", action="store_true")
+    conv.set_defaults(func=_run_convert)
+
+    info = sub.add_parser("info", help="summarise a recording")
+    info.add_argument("recording")
+    info.set_defaults(func=_run_info)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except ImurigError as e:
+        print(f"imurig: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
