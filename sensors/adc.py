@@ -77,38 +77,42 @@ class DAQ6036E:
         missing = [c for c in self.scan_list if c not in analog]
         if missing:
             raise ConfigError(f"scan list names {missing} but no such analog signals exist")
-        x = np.stack([analog[c] for c in self.scan_list], axis=1)  # (n, k)
-        n, k = x.shape
-        if self.skew_enabled and slope:
-            # channel j is sampled j / f_mux after the scan starts: first-order shift of the
-            # noise-free signal (wideband noise is not differentiated; its samples stay i.i.d.)
-            d = np.stack([slope.get(c, np.zeros(n)) for c in self.scan_list], axis=1)
-            x = x + d * (np.arange(k) / self.mux_frequency_hz)
+        n, k = time_s.size, len(self.scan_list)
         common = np.zeros(n)
         if self.grounding != "DIFF" and self.common_mode_noise_V_rms > 0:
-            common = common + self.common_mode_noise_V_rms * rng.standard_normal(n)
+            common += self.common_mode_noise_V_rms * rng.standard_normal(n)
         if self.grounding == "GRSE" and self.ground_loop_V > 0:
             phase = rng.uniform(0, 2 * np.pi)
-            common = common + self.ground_loop_V * (np.sin(2 * np.pi * self.mains_hz * time_s + phase)
-                                                    + 0.3 * np.sin(2 * np.pi * 3 * self.mains_hz * time_s))
-        u = x + common[:, None]
+            common += self.ground_loop_V * (np.sin(2 * np.pi * self.mains_hz * time_s + phase)
+                                            + 0.3 * np.sin(2 * np.pi * 3 * self.mains_hz * time_s))
         c = self.crosstalk_coefficient()
-        if c > 0:
-            prev = np.empty_like(u)
-            prev[:, 1:] = u[:, :-1]
-            prev[1:, 0] = u[:-1, -1]  # first slot follows the last slot of the previous scan
-            prev[0, 0] = u[0, 0]
-            u = u + c * (prev - u)
         q = self.lsb_V
-        u = u + self.input_noise_lsb_rms * q * rng.standard_normal(u.shape)
         lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
-        codes = np.clip(np.round(u / q), lo, hi)
-        saturated = {c_: int(np.count_nonzero((codes[:, j] == lo) | (codes[:, j] == hi)))
-                     for j, c_ in enumerate(self.scan_list)}
-        volts = codes * q
-        out = {c_: volts[:, j] for j, c_ in enumerate(self.scan_list)}
-        report = {"lsb_V": q, "crosstalk_coefficient": c,
-                  "saturated_samples": {k_: v for k_, v in saturated.items() if v}}
+        out, saturated = {}, {}
+        held = None  # the previous slot's input, u_{j-1}
+        # one channel at a time (vectorised over time) keeps memory at a few (n,) arrays
+        for j, name in enumerate(self.scan_list):
+            u = analog[name] + common
+            if self.skew_enabled and slope and name in slope:
+                # slot j is sampled j / f_mux after the scan starts: first-order shift of the
+                # noise-free signal (wideband noise is not differentiated; its samples stay i.i.d.)
+                u = u + slope[name] * (j / self.mux_frequency_hz)
+            u_in = u
+            if c > 0:
+                if j == 0:  # the first slot follows the last slot of the previous scan
+                    last = analog[self.scan_list[-1]] + common
+                    prev = np.concatenate(([u[0]], last[:-1]))
+                else:
+                    prev = held
+                u = u + c * (prev - u)
+            held = u_in
+            u = u + self.input_noise_lsb_rms * q * rng.standard_normal(n)
+            codes = np.clip(np.round(u / q), lo, hi)
+            nsat = int(np.count_nonzero((codes == lo) | (codes == hi)))
+            if nsat:
+                saturated[name] = nsat
+            out[name] = codes * q
+        report = {"lsb_V": q, "crosstalk_coefficient": c, "saturated_samples": saturated}
         return out, report
 
     def settings(self) -> dict:

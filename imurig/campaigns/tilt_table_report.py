@@ -83,16 +83,18 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
     figs = {}
     rec100 = res["rec100"]
     seg = rec100.segments
-    # Fig 4.10: raw channels at theta = 40 deg, last run
-    theta40 = np.flatnonzero(np.isclose(seg["theta"], np.radians(40)) & (seg["run"] == seg["run"].max()))
+    # Fig 4.10: raw channels at theta = 40 deg (or the tilt nearest to it), last run
+    last = seg["run"] == seg["run"].max() if "run" in seg else np.ones(rec100.n_segments, bool)
+    th_near = seg["theta"][last][np.argmin(np.abs(seg["theta"][last] - np.radians(40)))]
+    theta40 = np.flatnonzero(np.isclose(seg["theta"], th_near) & last)
     if theta40.size:
         sl = rec100.segment_slices()
         fig, ax = plt.subplots(figsize=(8, 4))
         for c, col in zip(ACC, ("C0", "C3", "C2")):
             y = np.concatenate([rec100.channels[c][sl[i]] for i in theta40])
             ax.plot(y, col, lw=0.6, label=c)
-        ax.set(xlabel="samples (100 Hz, 12 phi positions)", ylabel="volts",
-               title="Raw accelerometer outputs at θ = 40° (cf. seed Fig. 4.10)")
+        ax.set(xlabel=f"samples (100 Hz, {theta40.size} phi positions)", ylabel="volts",
+               title=f"Raw accelerometer outputs at θ = {np.degrees(th_near):.0f}° (cf. seed Fig. 4.10)")
         ax.legend()
         ax.grid(alpha=0.3)
         fig.tight_layout()
