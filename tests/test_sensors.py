@@ -1,0 +1,136 @@
+"""Sensor-chain stages against closed forms: Q-Flex equation, ADC crosstalk, grounding,
+quantisation, anti-alias filter, band-limited noise, temperature sensor."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imurig.calibration.preprocess import lowpass_downsample
+from imurig.recording import Recording
+from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
+from imurig.sensors.adc import DAQ6036E
+from imurig.sensors.noise import band_noise
+from imurig.units import G_STANDARD
+
+FS = 1000.0
+
+
+def test_qflex_measurement_equation_closed_form():
+    M = np.array([[0, 1e-3, -2e-3], [5e-4, 0, 1e-3], [-1e-3, 2e-3, 0]])
+    acc = QFlexTriad(bias_m_s2=[0.01, -0.02, 0.03], k1_A_per_m_s2=np.array([1.30, 1.33, 1.36]) * 1e-3 / G_STANDARD,
+                     misalignment_rad=M, k2_per_m_s2=[4e-6, -3e-6, 2e-6], load_resistor_ohm=750.0)
+    f = np.array([[1.0, -9.0, 3.0], [0.0, 0.0, 9.81]])
+    a = f @ (np.eye(3) + M).T
+    expect = 750.0 * acc.k1_A_per_m_s2 * (a + acc.bias_m_s2 + acc.k2_per_m_s2 * a**2)
+    np.testing.assert_allclose(acc.ideal_voltage(f), expect, rtol=1e-15, atol=1e-16)
+    # datasheet nominal: 1.33 mA/g over 750 ohm is 0.9975 V per g
+    assert QFlexTriad.from_datasheet().nominal_sensitivity_V_per_m_s2()[0] * G_STANDARD == pytest.approx(0.9975)
+
+
+def test_temperature_sensor_datasheet_point():
+    s = CurrentTemperatureSensor(noise_V_rms=0.0)
+    v = s.voltage(np.array([298.15, 308.15]), np.random.default_rng(0))
+    np.testing.assert_allclose(v, [2.982, 3.082], rtol=1e-12)  # 1 uA/K over 10 kohm: 0.1 V per 10 K
+    np.testing.assert_allclose(s.temperature_K(v), [298.15, 308.15], rtol=1e-12)
+
+
+def _quiet_adc(**kw):
+    kw.setdefault("input_noise_lsb_rms", 0.0)
+    kw.setdefault("common_mode_noise_V_rms", 0.0)
+    kw.setdefault("skew_enabled", False)
+    return DAQ6036E(**kw)
+
+
+@pytest.mark.parametrize("f_mux", [200e3, 50e3, 20e3])
+def test_crosstalk_is_settling_residual_of_previous_channel(f_mux):
+    n = 2000
+    t = np.arange(n) / FS
+    analog = {"a": np.full(n, 4.0), "b": np.full(n, 1.0)}
+    adc = _quiet_adc(scan_list=("a", "b"), mux_frequency_hz=f_mux)
+    out, rep = adc.convert(analog, t, np.random.default_rng(0))
+    c = np.exp(-1 / (f_mux * 0.59e-6))
+    assert rep["crosstalk_coefficient"] == pytest.approx(c, rel=1e-12)
+    expect_b = np.round((1.0 + c * 3.0) / adc.lsb_V) * adc.lsb_V
+    assert np.all(out["b"] == expect_b)
+    # slot 0 follows slot 1 of the previous scan
+    expect_a = np.round((4.0 + c * (1.0 - 4.0)) / adc.lsb_V) * adc.lsb_V
+    assert np.all(out["a"][1:] == expect_a)
+
+
+def test_quantisation_is_16_bit_over_the_range():
+    adc = _quiet_adc(scan_list=("a",), range_V=5.0, crosstalk_enabled=False)
+    x = np.linspace(-6, 6, 10001)
+    out, rep = adc.convert({"a": x}, np.arange(x.size) / FS, np.random.default_rng(0))
+    q = 10.0 / 65536
+    assert rep["lsb_V"] == q
+    inside = np.abs(x) < 4.99
+    assert np.max(np.abs(out["a"][inside] - x[inside])) <= q / 2 + 1e-15
+    assert out["a"].max() == 32767 * q and out["a"].min() == -32768 * q
+    assert rep["saturated_samples"]["a"] > 0
+
+
+def test_grounding_ground_loop_and_common_mode():
+    """GRSE adds the 50 Hz ground loop (seed 3.4); NRSE does not; DIFF rejects common mode."""
+    n = 20000
+    t = np.arange(n) / FS
+    x = {"a": np.zeros(n)}
+    amp = {}
+    for g in ("GRSE", "NRSE", "DIFF"):
+        adc = DAQ6036E(scan_list=("a",), grounding=g, input_noise_lsb_rms=0.0, range_V=0.5,
+                       common_mode_noise_V_rms=100e-6, ground_loop_V=2e-3)
+        v = adc.convert(x, t, np.random.default_rng(1))[0]["a"]
+        amp[g] = 2 * np.abs(np.mean(v * np.exp(-2j * np.pi * 50.0 * t)))
+        if g == "DIFF":
+            assert np.std(v) < adc.lsb_V  # only quantisation of zero is left
+        else:
+            assert np.std(v) > 50e-6
+    # 50 Hz amplitude estimate; its noise is 100 uV * sqrt(2/n) ~ 1 uV
+    assert amp["GRSE"] == pytest.approx(2e-3, abs=10e-6)
+    assert amp["NRSE"] < 10e-6
+
+
+def test_scan_too_slow_and_bad_settings_refused():
+    from imurig.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="input ranges"):
+        _quiet_adc(scan_list=("a",), range_V=3.0).validate()
+    with pytest.raises(ConfigError, match="8 differential"):
+        _quiet_adc(scan_list=tuple("abcdefghi"), grounding="DIFF").validate()
+    with pytest.raises(ConfigError, match="grounding"):
+        _quiet_adc(scan_list=("a",), grounding="floating").validate()
+
+
+@pytest.mark.parametrize("band", [(0.0, 10.0), (10.0, 490.0), (20.0, 40.0)])
+def test_band_noise_has_requested_rms_and_band(band):
+    rng = np.random.default_rng(4)
+    n = 200_000
+    x = band_noise(rng, (n, 2), FS, band, 3.0)
+    # rms of a long coloured series: allow 5 % (the effective number of independent samples
+    # for a 10 Hz band over 200 s is ~4000, so the relative std of the rms is ~1 %)
+    np.testing.assert_allclose(np.sqrt(np.mean(x**2, axis=0)), 3.0, rtol=0.05)
+    spec = np.abs(np.fft.rfft(x[:, 0])) ** 2
+    f = np.fft.rfftfreq(n, 1 / FS)
+    inband = (f >= band[0]) & (f <= band[1])
+    assert spec[inband].sum() / spec.sum() > 0.9
+
+
+def test_antialias_filter_matches_butterworth_response():
+    """sosfiltfilt applies |H(f)|^2 of the 5th-order 50 Hz Butterworth: at 50 Hz a tone keeps
+    half its amplitude (-3 dB twice), at 10 Hz essentially all."""
+    t = np.arange(20000) / FS
+    for f0, gain in ((10.0, 1.0 / (1 + (10 / 50) ** 10)), (50.0, 0.5)):
+        rec = Recording(time_s=t, channels={"a": np.sin(2 * np.pi * f0 * t)}, units={"a": "V"}, meta={})
+        out = lowpass_downsample(rec, rate_hz=500.0)  # keep 50 Hz below the new Nyquist
+        y = out.channels["a"][200:-200]
+        tt = out.time_s[200:-200]
+        a = 2 * np.abs(np.mean(y * np.exp(-2j * np.pi * f0 * tt)))
+        assert a == pytest.approx(gain, rel=2e-3)
+
+
+def test_downsample_ratio_must_be_whole():
+    from imurig.errors import RecordingError
+
+    t = np.arange(100) / FS
+    rec = Recording(time_s=t, channels={"a": np.zeros(100)}, units={"a": "V"}, meta={})
+    with pytest.raises(RecordingError, match="whole number"):
+        lowpass_downsample(rec, rate_hz=300.0)
