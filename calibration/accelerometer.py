@@ -22,7 +22,7 @@ import numpy as np
 
 from imurig.calibration.preprocess import segment_samples, segment_statistic
 from imurig.calibration.regression import RegressionResult, fit_ols
-from imurig.calibration.stepwise import forward_selection
+from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import TermLibrary, polynomial, seed_accelerometer_terms
 from imurig.errors import RecordingError
 from imurig.recording import Recording
@@ -74,7 +74,8 @@ class AccelerometerCalibration:
     """Inverse-model calibration of an accelerometer triad (sklearn-like: settings in __init__,
     ``fit`` returns self, fitted attributes end in ``_``).
 
-    model: 'linear', 'cross', 'seed_final', 'physical', 'stepwise', or {axis: TermLibrary}.
+    model: 'linear', 'cross', 'seed_final', 'physical', 'stepwise' (forward selection from the linear
+    model over the degree-2 library), 'backward' (backward elimination), or {axis: TermLibrary}.
     statistic: 'median' (per position, seed), 'mean', or 'raw' (every sample in the windows).
     """
 
@@ -87,12 +88,15 @@ class AccelerometerCalibration:
     sensitivity_: np.ndarray | None = field(default=None, init=False)
     reference_cov_: np.ndarray | None = field(default=None, init=False)
 
+    def __post_init__(self):
+        self.loaded_ = None
+
     def _library(self, axis: str) -> TermLibrary:
         if isinstance(self.model, dict):
             lib = self.model[axis]
             return lib if isinstance(lib, TermLibrary) else TermLibrary.from_names(lib)
         if self.model not in MODELS:
-            raise ValueError(f"unknown model {self.model!r}; choose from {sorted(MODELS) + ['stepwise']}")
+            raise ValueError(f"unknown model {self.model!r}; choose from {sorted(MODELS) + ['stepwise', 'backward']}")
         return MODELS[self.model](axis)
 
     def fit(self, rec: Recording, reference: np.ndarray, reference_jacobian: np.ndarray | None = None,
@@ -114,10 +118,14 @@ class AccelerometerCalibration:
         inputs = {n: u[:, j] for j, n in enumerate(INPUTS)}
         self.results_, self.selection_ = {}, {}
         for j, a in enumerate(AXES):
-            if self.model == "stepwise":
+            if self.model in ("stepwise", "backward"):
                 lib = polynomial(INPUTS, self.stepwise_library_degree)
-                sel = forward_selection(lib, inputs, y_all[:, j], start=("1", "ax", "ay", "az"),
-                                        criterion=self.stepwise_criterion)
+                if self.model == "stepwise":
+                    sel = forward_selection(lib, inputs, y_all[:, j], start=("1", "ax", "ay", "az"),
+                                            criterion=self.stepwise_criterion)
+                else:
+                    sel = backward_elimination(lib, inputs, y_all[:, j], keep=("1", "ax", "ay", "az"),
+                                               criterion=self.stepwise_criterion)
                 self.selection_[a] = sel
                 self.results_[a] = sel.result
             else:
@@ -189,16 +197,45 @@ class AccelerometerCalibration:
         return [{"name": n, "unit": u, "estimate": float(e), "std_error": float(s)}
                 for (n, u), e, s in zip(labels, est, se) if np.isfinite(e)]
 
+    def models(self) -> dict:
+        """{axis: (term names, coefficients)} of the fitted (or loaded) inverse models."""
+        if self.results_:
+            return {a: (list(r.names), np.asarray(r.coef_)) for a, r in self.results_.items()}
+        if getattr(self, "loaded_", None):
+            return self.loaded_
+        raise ValueError("the calibration is not fitted; call fit() or load one with from_dict()")
+
     def predict(self, u: np.ndarray) -> np.ndarray:
         """Calibrated specific force (m,3) for indicated specific force u (m,3)."""
         inputs = {n: u[:, j] for j, n in enumerate(INPUTS)}
-        return np.stack([self.results_[a].predict(TermLibrary.from_names(self.results_[a].names).design(inputs))
-                         for a in AXES], axis=1)
+        return np.stack([TermLibrary.from_names(names).design(inputs) @ coef
+                         for names, coef in (self.models()[a] for a in AXES)], axis=1)
+
+    def to_dict(self) -> dict:
+        """What is needed to apply the calibration elsewhere (JSON-ready)."""
+        return {"kind": "imurig.accelerometer_inverse_model", "version": 1, "model": str(self.model),
+                "statistic": self.statistic,
+                "nominal_sensitivity_V_per_m_s2": None if self.sensitivity_ is None else self.sensitivity_.tolist(),
+                "equation": "f_ref,i [m/s^2] = sum_k coef_ik * term_k(u), u = volts / nominal_sensitivity",
+                "axes": {a: {"terms": n, "coef": c.tolist()} for a, (n, c) in self.models().items()}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "AccelerometerCalibration":
+        if d.get("kind") != "imurig.accelerometer_inverse_model":
+            raise ValueError("not an imurig accelerometer calibration (kind must be "
+                             "'imurig.accelerometer_inverse_model'); use the calibration.json of a report folder")
+        cal = cls(model=d.get("model", "loaded"), statistic=d.get("statistic", "median"))
+        s = d.get("nominal_sensitivity_V_per_m_s2")
+        cal.sensitivity_ = None if s is None else np.asarray(s, float)
+        cal.loaded_ = {a: (list(v["terms"]), np.asarray(v["coef"], float)) for a, v in d["axes"].items()}
+        return cal
 
     def apply(self, rec: Recording) -> Recording:
         """Add calibrated channels ``acc_cal_x/y/z`` (m/s^2) to a copy of ``rec``."""
         rec.require({c: "V" for c in ACC})
-        s = self.sensitivity_ if self.sensitivity_ is not None else rec.meta["acc_nominal_sensitivity_V_per_m_s2"]
+        s = self.sensitivity_ if self.sensitivity_ is not None else rec.meta.get("acc_nominal_sensitivity_V_per_m_s2")
+        if s is None:
+            raise RecordingError("no nominal sensitivity in the calibration or the recording's metadata")
         u = rec.stack(ACC) / np.asarray(s, float)
         f = self.predict(u)
         channels, units = dict(rec.channels), dict(rec.units)

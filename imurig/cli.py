@@ -2,6 +2,7 @@
 
     imurig campaign tilt-table            simulate, calibrate and report the seed's protocol
     imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
+    imurig apply CAL.json REC --out OUT   apply a calibration to a new recording
     imurig convert IN OUT                 HDF5 <-> lab CSV
     imurig info REC                       what a recording holds
 """
@@ -44,7 +45,7 @@ def _add_tilt_table(sub):
     p.add_argument("--rate", type=float, default=d.sample_rate_hz, help="ADC sample rate, Hz")
     p.add_argument("--start-time", default="2005-06-14T18:00:00+02:00",
                    help="local start time (ISO 8601); the pump runs in working hours 07:30-17:30")
-    p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "stepwise"],
+    p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "stepwise", "backward"],
                    help="main calibration model")
     p.add_argument("--mux-khz", type=float, default=20.0, help="ADC multiplexing frequency, kHz")
     p.add_argument("--grounding", default="NRSE", choices=["GRSE", "NRSE", "DIFF"], help="ADC wiring")
@@ -98,11 +99,33 @@ def _run_calibrate(a):
     with OutputFolder(a.out, overwrite=a.overwrite) as out:
         res = analyse(rec, a.model)
         figs = make_figures(out, rec, res)
-        files = {"report": "report.md", "summary": "summary.json", **{f"figure_{k}": v for k, v in figs.items()}}
+        files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
+                 **{f"figure_{k}": v for k, v in figs.items()}}
+        out.write_json("calibration.json", res["main"].to_dict())
         s = summary_dict(None, rec, res, {}, files)
         out.write_json("summary.json", s)
         out.write_text("report.md", _report_md(None, rec, res, figs, {}))
     _print_summary(s, a.out)
+
+
+def _run_apply(a):
+    from imurig.calibration.accelerometer import AccelerometerCalibration
+    from imurig.labcsv import write_csv
+    from imurig.recording import load, save_h5
+
+    try:
+        d = json.loads(Path(a.calibration).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ImurigError(f"cannot read calibration {a.calibration}: {e}") from None
+    try:
+        cal = AccelerometerCalibration.from_dict(d)
+    except (ValueError, KeyError) as e:
+        raise ImurigError(str(e)) from None
+    rec = cal.apply(load(a.recording).validate())
+    dst = Path(a.out)
+    writer = write_csv if dst.suffix.lower() == ".csv" else save_h5
+    writer(rec, dst, overwrite=a.overwrite)
+    print(f"wrote {dst} with channels acc_cal_x, acc_cal_y, acc_cal_z (m/s^2)")
 
 
 def _run_convert(a):
@@ -145,10 +168,17 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("recording", help=".csv (lab format, see README) or .h5")
     cal.add_argument("--rig", default="tilt-table")
     cal.add_argument("--model", default="physical",
-                     choices=["physical", "linear", "cross", "seed_final", "stepwise"])
+                     choices=["physical", "linear", "cross", "seed_final", "stepwise", "backward"])
     cal.add_argument("--out", default="imurig-out/calibration")
     cal.add_argument("--overwrite", action="store_true")
     cal.set_defaults(func=_run_calibrate)
+
+    app = sub.add_parser("apply", help="apply a calibration.json to a recording (adds acc_cal_* channels)")
+    app.add_argument("calibration", help="calibration.json from a report folder")
+    app.add_argument("recording", help=".csv or .h5")
+    app.add_argument("--out", required=True, help="output recording, .h5 or .csv")
+    app.add_argument("--overwrite", action="store_true")
+    app.set_defaults(func=_run_apply)
 
     conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")
     conv.add_argument("input")

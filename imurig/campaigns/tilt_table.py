@@ -78,7 +78,7 @@ class TiltTableCampaign:
     def check_identifiable(self) -> None:
         """Refuse a protocol whose positions cannot separate the model's terms (before simulating)."""
         self.protocol.validate()
-        if self.model == "stepwise":
+        if self.model in ("stepwise", "backward"):
             model = "linear"
         else:
             model = self.model

@@ -19,6 +19,7 @@ from imurig.calibration.preprocess import lowpass_downsample
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, compare_with_truth,
                                          tilt_table_reference)
 from imurig.errors import UnidentifiableTermsError
+from imurig.progress import progress
 from imurig.recording import Recording, save_h5
 from imurig.report import OutputFolder, clean_json, fmt, md_table, published_figures
 
@@ -39,6 +40,7 @@ def analyse(rec: Recording, model: str = "physical") -> dict:
     out["main"] = calibrate(rec, model=model, processed=rec100)
     out["parameters"] = compare_with_truth(out["main"], rec.truth)
     out["stepwise"] = calibrate(rec, model="stepwise", processed=rec100)
+    out["backward"] = calibrate(rec, model="backward", processed=rec100)
     out["seed_models"] = {}
     for m in SEED_MODELS:
         try:
@@ -191,10 +193,11 @@ def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str
     L.append(f"\n### Main model (`{cal.model}`)\n")
     L.append(_coef_table(cal))
     st = res["stepwise"]
-    L.append("\n### Forward selection (BIC, from the linear model, degree-2 library)\n")
-    L.append(md_table(["axis", "selected terms", "σ_res", "R_adj"],
-                      [[a, ", ".join(st.results_[a].names), st.results_[a].sigma_res, st.results_[a].R_adj]
-                       for a in AXES]))
+    bw = res["backward"]
+    L.append("\n### Stepwise selection (BIC, degree-2 library, linear terms always kept)\n")
+    L.append(md_table(["axis", "method", "selected terms", "σ_res", "R_adj", "BIC"],
+                      [[a, meth, ", ".join(c.results_[a].names), c.results_[a].sigma_res, c.results_[a].R_adj,
+                        c.results_[a].bic] for a in AXES for meth, c in (("forward", st), ("backward", bw))]))
     L.append("\n## Medians vs raw samples (cf. seed Table 4.2)\n")
     raw, med = res["raw"], res["median_linear"]
     t42 = pub["table_4_2"]
@@ -214,7 +217,8 @@ def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str
 def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> dict:
     cal = res["main"]
     models = {}
-    for name, c in [("main", cal), ("stepwise", res["stepwise"]), ("raw_linear", res["raw"])] + \
+    for name, c in [("main", cal), ("stepwise", res["stepwise"]), ("backward", res["backward"]),
+                    ("raw_linear", res["raw"])] + \
             list(res["seed_models"].items()):
         if isinstance(c, Exception):
             models[name] = {"error": str(c), "unidentifiable_terms": getattr(c, "terms", [])}
@@ -243,34 +247,53 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
         save_recording: bool = True) -> dict:
     """Simulate, calibrate and report. Returns the summary dict."""
     out = OutputFolder(out_dir, overwrite=overwrite)
+    stages = ["simulate", "analyse", "figures"] + (["recording.h5"] if save_recording else []) + \
+        (["campaign.rrd"] if rrd else []) + ["report"]
     try:
-        t0 = time.perf_counter()
-        rec = camp.simulate()
-        t_sim = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        res = analyse(rec, camp.model)
-        t_cal = time.perf_counter() - t1
-        t2 = time.perf_counter()
-        files = {"report": "report.md", "summary": "summary.json"}
-        figs = make_figures(out, rec, res)
-        files.update({f"figure_{k}": v for k, v in figs.items()})
-        if save_recording:
-            save_h5(rec, out.file("recording.h5"), overwrite=True)
-            files["recording"] = "recording.h5"
-        if rrd:
-            from imurig.campaigns.tilt_table_rrd import write_rrd
+        with progress(total=len(stages), desc="tilt-table campaign", unit="stage") as bar:
+            def stage(name):
+                bar.set_postfix_str(name)
 
-            write_rrd(out.file("campaign.rrd"), rec, res)
-            files["rrd"] = "campaign.rrd"
-        t_out = time.perf_counter() - t2
-        peak = peak_rss_bytes()
-        timing = {"simulate_s": round(t_sim, 2), "analyse_s": round(t_cal, 2), "outputs_s": round(t_out, 2),
-                  "total_s": round(time.perf_counter() - t0, 2),
-                  "simulated_samples_per_s": round(rec.n / t_sim),
-                  "peak_rss_MB": round(peak / 2**20, 1)}
-        summary = summary_dict(camp, rec, res, timing, files)
-        out.write_json("summary.json", summary)
-        out.write_text("report.md", _report_md(camp, rec, res, figs, timing))
+            t0 = time.perf_counter()
+            stage("simulate")
+            rec = camp.simulate()
+            t_sim = time.perf_counter() - t0
+            bar.update()
+            t1 = time.perf_counter()
+            stage("analyse")
+            res = analyse(rec, camp.model)
+            t_cal = time.perf_counter() - t1
+            bar.update()
+            t2 = time.perf_counter()
+            files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
+            out.write_json("calibration.json", res["main"].to_dict())
+            stage("figures")
+            figs = make_figures(out, rec, res)
+            files.update({f"figure_{k}": v for k, v in figs.items()})
+            bar.update()
+            if save_recording:
+                stage("recording.h5")
+                save_h5(rec, out.file("recording.h5"), overwrite=True)
+                files["recording"] = "recording.h5"
+                bar.update()
+            if rrd:
+                from imurig.campaigns.tilt_table_rrd import write_rrd
+
+                stage("campaign.rrd")
+                write_rrd(out.file("campaign.rrd"), rec, res)
+                files["rrd"] = "campaign.rrd"
+                bar.update()
+            stage("report")
+            t_out = time.perf_counter() - t2
+            peak = peak_rss_bytes()
+            timing = {"simulate_s": round(t_sim, 2), "analyse_s": round(t_cal, 2), "outputs_s": round(t_out, 2),
+                      "total_s": round(time.perf_counter() - t0, 2),
+                      "simulated_samples_per_s": round(rec.n / t_sim),
+                      "peak_rss_MB": round(peak / 2**20, 1)}
+            summary = summary_dict(camp, rec, res, timing, files)
+            out.write_json("summary.json", summary)
+            out.write_text("report.md", _report_md(camp, rec, res, figs, timing))
+            bar.update()
         out.commit()
     except BaseException:
         out.abort()
