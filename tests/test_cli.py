@@ -28,6 +28,9 @@ def test_campaign_writes_complete_report(report):
     for p in s["parameters"]:
         assert {"name", "unit", "injected", "estimate", "std_error"} <= set(p)
         assert abs(p["estimate"] - p["injected"]) <= 4 * p["std_error"], p
+    assert len(s["coefficients"]) == 15  # 3 axes x (1, ax, ay, az, own square)
+    for c in s["coefficients"]:
+        assert c["injected"] is not None and abs(c["z"]) <= 4, c
     md = (report / "report.md").read_text()
     assert "Table 4.6" in md and "σ_res" in md
 

@@ -153,3 +153,41 @@ def compare_with_truth(cal: AccelerometerCalibration, truth: dict | None) -> lis
             p["z"] = None
             p["within_bound"] = None
     return params
+
+
+def coefficient_table(cal: AccelerometerCalibration, rec100: Recording) -> list[dict]:
+    """Every inverse-model coefficient as {name, unit, injected, estimate, std_error, z}.
+
+    'injected' is what the same model gives on the noise-free twin of the experiment: the
+    true sensor (from the recording's truth) fed with the true static specific force of
+    each position (truth-signal medians), regressed on the same reference. It is None for
+    a recording without truth.
+    """
+    from imurig.calibration.preprocess import segment_statistic
+    from imurig.calibration.regression import fit_ols
+    from imurig.calibration.terms import TermLibrary
+    from imurig.sensors.accelerometer import QFlexTriad
+
+    twin = None
+    if rec100.truth and "f_C_x" in rec100.truth_signals:
+        t = rec100.truth["sensors"]["accelerometers"]
+        fields = {k: t[k] for k in QFlexTriad.__dataclass_fields__ if k in t and k != "noise_bands"}
+        triad = QFlexTriad(**fields)
+        f_true = segment_statistic(rec100, [f"f_C_{a}" for a in AXES], "median", source="truth_signals")
+        u_true = triad.ideal_voltage(f_true) / cal.sensitivity_
+        ref, _, _ = tilt_table_reference(rec100)
+        inputs = {n: u_true[:, j] for j, n in enumerate(INPUTS)}
+        twin = {}
+        for j, a in enumerate(AXES):
+            lib = TermLibrary.from_names(cal.results_[a].names)
+            twin[a] = fit_ols(lib.design(inputs), ref[:, j], lib.names)
+    rows = []
+    for a in AXES:
+        r = cal.results_[a]
+        lib = TermLibrary.from_names(r.names)
+        for term, est, se in zip(lib, r.coef_, r.std_error_):
+            unit = {0: "m/s^2", 1: "1"}.get(term.degree, f"(m/s^2)^{1 - term.degree}")
+            inj = None if twin is None else float(twin[a].coef(term.name))
+            rows.append({"name": f"A_{a}:{term.name}", "unit": unit, "injected": inj, "estimate": float(est),
+                         "std_error": float(se), "z": None if inj is None or se == 0 else (est - inj) / se})
+    return rows

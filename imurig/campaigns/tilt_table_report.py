@@ -16,8 +16,8 @@ import numpy as np
 import imurig
 from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration, indicated
 from imurig.calibration.preprocess import lowpass_downsample
-from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, compare_with_truth,
-                                         tilt_table_reference)
+from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
+                                         compare_with_truth, tilt_table_reference)
 from imurig.errors import UnidentifiableTermsError
 from imurig.progress import progress
 from imurig.recording import Recording, save_h5
@@ -39,6 +39,7 @@ def analyse(rec: Recording, model: str = "physical") -> dict:
     out = {"rec100": rec100}
     out["main"] = calibrate(rec, model=model, processed=rec100)
     out["parameters"] = compare_with_truth(out["main"], rec.truth)
+    out["coefficients"] = coefficient_table(out["main"], rec100)
     out["stepwise"] = calibrate(rec, model="stepwise", processed=rec100)
     out["backward"] = calibrate(rec, model="backward", processed=rec100)
     out["seed_models"] = {}
@@ -170,6 +171,12 @@ def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str
     L.append(md_table(["parameter", "unit", "injected", "estimate", "std. error", "z", "within bound"], rows))
     if "truth_z" in figs:
         L.append(f"\n![z-scores]({figs['truth_z']})\n")
+    if any(c["injected"] is not None for c in res["coefficients"]):
+        L.append("\nInverse-model coefficients against the noise-free twin (the same model fitted to the true "
+                 "sensor's output at the true specific force of each position):\n")
+        L.append(md_table(["coefficient", "unit", "noise-free twin", "estimate", "std. error", "z"],
+                          [[c["name"], c["unit"], c["injected"], c["estimate"], c["std_error"], c["z"]]
+                           for c in res["coefficients"]]))
     L.append("\n## Model statistics next to the seed (Tables 4.4-4.6)\n")
     t46 = pub["table_4_6"]
     L.append(md_table(["", "imurig A_x", "A_y", "A_z", "seed A_x", "A_y", "A_z"], [
@@ -236,6 +243,7 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
         "settings": camp.to_dict() if camp else None,
         "z_bound": Z_BOUND,
         "parameters": res["parameters"],
+        "coefficients": res["coefficients"],
         "all_within_bound": all(p["within_bound"] for p in res["parameters"] if p["within_bound"] is not None),
         "models": models, "seed_published": {k: published_figures()[k] for k in ("table_4_2", "table_4_6")},
         "timing": timing, "files": files,
