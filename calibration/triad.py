@@ -1,0 +1,304 @@
+"""Inverse-model calibration of a sensor triad (seed sections 4.1.5, 4.3.5, 4.4.4).
+
+Indicated quantity u (SI, (m,3)) is the measured voltage over the nominal sensitivity,
+u_i = V_i / s_nom,i. Each axis is fitted as the inverse model
+
+    ref_i = sum_k beta_ik phi_k(u)        (seed Tables 4.4-4.6, eq. 4.39-4.41)
+
+with phi_k a polynomial term library, by least squares on per-segment statistics (seed
+C.1.1) or on all samples. The physical parameters of the forward model
+
+    u = G (I + M) q + G b + G k2 (I + M) q ** 2 ...     (q: true quantity in the case frame)
+
+follow from the linear part B and the constant c of the three inverse models:
+K = B^-1 = G (I + M), so scale G_i = K_ii, misalignment M_ij = K_ij / K_ii,
+bias b = -(I + M) c, nonlinearity k2_i = -beta_i(u_i^2) G_i^2 / [(I + M)^-1]_ii,
+with standard errors by the delta method from the joint covariance of the betas (which
+includes the reference's own uncertainty when a reference Jacobian is given).
+
+A triad is described by a :class:`TriadSpec` (channel names, input names, units);
+:mod:`imurig.calibration.accelerometer` and :mod:`imurig.calibration.gyro` define theirs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, ClassVar
+
+import numpy as np
+
+from imurig.calibration.preprocess import segment_samples, segment_statistic
+from imurig.calibration.regression import fit_ols
+from imurig.calibration.stepwise import backward_elimination, forward_selection
+from imurig.calibration.terms import TermLibrary, polynomial
+from imurig.errors import RecordingError
+from imurig.recording import Recording
+
+
+@dataclass(frozen=True)
+class TriadSpec:
+    """What distinguishes one triad from another for the calibration."""
+
+    kind: str                       # "accelerometer", "gyro"
+    axes: tuple[str, ...]           # ("x", "y", "z") or ("p", "q", "r")
+    channels: tuple[str, ...]       # volt channels, e.g. ("acc_x", "acc_y", "acc_z")
+    inputs: tuple[str, ...]         # term-library input names, e.g. ("ax", "ay", "az")
+    sensitivity_key: str            # recording metadata: nominal volts per SI unit, per axis
+    quantity_unit: str              # "m/s^2", "rad/s"
+    cal_prefix: str                 # calibrated channel prefix, e.g. "acc_cal_"
+    models: dict[str, Callable[[str], TermLibrary]] = field(default_factory=dict)
+    sensitivity_hint: str = ""
+
+    @property
+    def json_kind(self) -> str:
+        return f"imurig.{self.kind}_inverse_model"
+
+    def linear(self) -> TermLibrary:
+        return TermLibrary.from_names(["1", *self.inputs])
+
+    def physical(self, axis: str) -> TermLibrary:
+        """Linear in all three inputs plus the axis' own square."""
+        return TermLibrary.from_names(["1", *self.inputs, f"{self.inputs[self.axes.index(axis)]}^2"])
+
+
+def indicated(rec: Recording, spec: TriadSpec, statistic: str = "median", sensitivity=None):
+    """Indicated quantity u (SI) per segment (statistic='median'/'mean') or per sample ('raw').
+
+    Returns (u (m,3), segment index (m,)).
+    """
+    rec.require({c: "V" for c in spec.channels})
+    s = sensitivity if sensitivity is not None else rec.meta.get(spec.sensitivity_key)
+    if s is None:
+        raise RecordingError(f"the recording has no '{spec.sensitivity_key}' metadata (volts per "
+                             f"{spec.quantity_unit} of each {spec.kind}{spec.sensitivity_hint}); add it as "
+                             f"'# {spec.sensitivity_key}: [s_1, s_2, s_3]' or pass it")
+    s = np.broadcast_to(np.asarray(s, float), (3,))
+    if statistic == "raw":
+        v, seg = segment_samples(rec, spec.channels)
+    else:
+        v = segment_statistic(rec, spec.channels, statistic)
+        seg = np.arange(v.shape[0])
+    return v / s, seg
+
+
+@dataclass
+class TriadCalibration:
+    """Inverse-model calibration of a sensor triad (sklearn-like: settings in __init__,
+    ``fit`` returns self, fitted attributes end in ``_``). Subclasses set ``SPEC``.
+
+    model: 'linear', 'cross', 'seed_final', 'physical', 'stepwise' (forward selection from the linear
+    model over the degree-2 library), 'backward' (backward elimination), or {axis: TermLibrary}.
+    statistic: 'median' (per position, seed), 'mean', or 'raw' (every sample in the windows).
+    """
+
+    SPEC: ClassVar[TriadSpec]
+
+    model: str | dict = "physical"
+    statistic: str = "median"
+    stepwise_criterion: str = "bic"
+    stepwise_library_degree: int = 2
+    results_: dict = field(default_factory=dict, init=False)
+    selection_: dict = field(default_factory=dict, init=False)
+    sensitivity_: np.ndarray | None = field(default=None, init=False)
+    reference_cov_: np.ndarray | None = field(default=None, init=False)
+
+    def __post_init__(self):
+        self.loaded_ = None
+
+    def _library(self, axis: str) -> TermLibrary:
+        if isinstance(self.model, dict):
+            lib = self.model[axis]
+            return lib if isinstance(lib, TermLibrary) else TermLibrary.from_names(lib)
+        models = self.SPEC.models
+        if self.model not in models:
+            raise ValueError(f"unknown model {self.model!r}; choose from {sorted(models) + ['stepwise', 'backward']}")
+        return models[self.model](axis)
+
+    def fit(self, rec: Recording, reference: np.ndarray, reference_jacobian: np.ndarray | None = None,
+            reference_sigma: np.ndarray | None = None) -> "TriadCalibration":
+        """Fit the three inverse models.
+
+        reference : (n_seg, 3) reference quantity per segment, in SI (e.g. m/s^2 or rad/s, in C).
+        reference_jacobian : optional (n_seg, 3, q) d reference / d survey parameters, and
+        reference_sigma (q,) their 1-sigma uncertainty; adds the reference's uncertainty
+        to the coefficient covariance (beta = X^+ f_ref is linear in f_ref).
+        """
+        spec = self.SPEC
+        s = rec.meta.get(spec.sensitivity_key)
+        self.sensitivity_ = None if s is None else np.broadcast_to(np.asarray(s, float), (3,)).copy()
+        u, seg = indicated(rec, spec, self.statistic)
+        reference = np.asarray(reference, float)
+        if reference.shape != (rec.n_segments, 3):
+            raise ValueError(f"reference must be (n_segments, 3) = ({rec.n_segments}, 3), got {reference.shape}")
+        y_all = reference[seg]
+        inputs = {n: u[:, j] for j, n in enumerate(spec.inputs)}
+        linear = ("1",) + spec.inputs
+        self.results_, self.selection_ = {}, {}
+        for j, a in enumerate(spec.axes):
+            if self.model in ("stepwise", "backward"):
+                lib = polynomial(spec.inputs, self.stepwise_library_degree)
+                if self.model == "stepwise":
+                    sel = forward_selection(lib, inputs, y_all[:, j], start=linear,
+                                            criterion=self.stepwise_criterion)
+                else:
+                    sel = backward_elimination(lib, inputs, y_all[:, j], keep=linear,
+                                               criterion=self.stepwise_criterion)
+                self.selection_[a] = sel
+                self.results_[a] = sel.result
+            else:
+                lib = self._library(a)
+                self.results_[a] = fit_ols(lib.design(inputs), y_all[:, j], lib.names)
+        self.reference_cov_ = None
+        if reference_jacobian is not None and reference_sigma is not None:
+            self.reference_cov_ = self._reference_covariance(inputs, seg, np.asarray(reference_jacobian),
+                                                             np.asarray(reference_sigma))
+        return self
+
+    def _reference_covariance(self, inputs, seg, J, sigma) -> np.ndarray:
+        """Covariance of all betas (stacked x, y, z) caused by the reference's uncertainty."""
+        blocks = []
+        for j, a in enumerate(self.SPEC.axes):
+            lib = TermLibrary.from_names(self.results_[a].names)
+            X = lib.design(inputs)
+            pinv = np.linalg.pinv(X)
+            blocks.append(pinv @ (J[seg, j, :] * sigma))  # (p_a, q)
+        S = np.concatenate(blocks, axis=0)
+        return S @ S.T
+
+    # ------------------------------------------------------------ results
+    def coefficient_vector(self):
+        axes = self.SPEC.axes
+        names = [(a, n) for a in axes for n in self.results_[a].names]
+        beta = np.concatenate([self.results_[a].coef_ for a in axes])
+        cov = np.zeros((beta.size, beta.size))
+        i = 0
+        for a in axes:
+            p = self.results_[a].p
+            cov[i:i + p, i:i + p] = self.results_[a].cov_
+            i += p
+        if self.reference_cov_ is not None:
+            cov = cov + self.reference_cov_
+        return names, beta, cov
+
+    def physical_parameters(self) -> list[dict]:
+        """Forward-model parameters with delta-method standard errors (see module doc)."""
+        spec = self.SPEC
+        axes, inp = spec.axes, spec.inputs
+        names, beta, cov = self.coefficient_vector()
+        index = {k: i for i, k in enumerate(names)}
+        for a in axes:
+            for t in ("1",) + inp:
+                if (a, t) not in index:
+                    raise ValueError(f"model for axis {a} lacks term '{t}'; physical parameters need the full "
+                                     "linear part")
+        sens = self.sensitivity_ if self.sensitivity_ is not None else np.ones(3)
+
+        def h(b):
+            B = np.array([[b[index[(a, c)]] for c in inp] for a in axes])
+            c0 = np.array([b[index[(a, "1")]] for a in axes])
+            K = np.linalg.inv(B)
+            G = np.diag(K).copy()
+            M = K / G[:, None]
+            out = list(G * sens)
+            out += [M[i, j] for i in range(3) for j in range(3) if i != j]
+            out += list(-(M @ c0))
+            Minv = np.linalg.inv(M)
+            for i, a in enumerate(axes):
+                key = (a, f"{inp[i]}^2")
+                out.append(-b[index[key]] * G[i] ** 2 / Minv[i, i] if key in index else np.nan)
+            return np.array(out)
+
+        q = spec.quantity_unit
+        labels = ([(f"sensitivity_{a}", f"V/({q})") for a in axes]
+                  + [(f"misalignment_{axes[i]}{axes[j]}", "rad") for i in range(3) for j in range(3) if i != j]
+                  + [(f"bias_{a}", q) for a in axes]
+                  + [(f"nonlinearity_{a}", f"1/({q})") for a in axes])
+        est = h(beta)
+        se = np.sqrt(np.clip(np.diag(_delta_cov(h, beta, cov)), 0, None))
+        return [{"name": n, "unit": u, "estimate": float(e), "std_error": float(s)}
+                for (n, u), e, s in zip(labels, est, se) if np.isfinite(e)]
+
+    def models(self) -> dict:
+        """{axis: (term names, coefficients)} of the fitted (or loaded) inverse models."""
+        if self.results_:
+            return {a: (list(r.names), np.asarray(r.coef_)) for a, r in self.results_.items()}
+        if getattr(self, "loaded_", None):
+            return self.loaded_
+        raise ValueError("the calibration is not fitted; call fit() or load one with from_dict()")
+
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        """Calibrated quantity (m,3) for indicated quantity u (m,3), SI."""
+        inputs = {n: u[:, j] for j, n in enumerate(self.SPEC.inputs)}
+        return np.stack([TermLibrary.from_names(names).design(inputs) @ coef
+                         for names, coef in (self.models()[a] for a in self.SPEC.axes)], axis=1)
+
+    def to_dict(self) -> dict:
+        """What is needed to apply the calibration elsewhere (JSON-ready)."""
+        spec = self.SPEC
+        return {"kind": spec.json_kind, "version": 1, "model": str(self.model),
+                "statistic": self.statistic,
+                "nominal_sensitivity": None if self.sensitivity_ is None else self.sensitivity_.tolist(),
+                "nominal_sensitivity_unit": f"V/({spec.quantity_unit})",
+                "equation": f"ref_i [{spec.quantity_unit}] = sum_k coef_ik * term_k(u), u = volts / "
+                            "nominal_sensitivity",
+                "axes": {a: {"terms": n, "coef": c.tolist()} for a, (n, c) in self.models().items()}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TriadCalibration":
+        kind = cls.SPEC.json_kind
+        if d.get("kind") != kind:
+            raise ValueError(f"not an imurig {cls.SPEC.kind} calibration (kind must be '{kind}', got "
+                             f"{d.get('kind')!r}); use the calibration.json of a report folder")
+        cal = cls(model=d.get("model", "loaded"), statistic=d.get("statistic", "median"))
+        s = d.get("nominal_sensitivity")
+        cal.sensitivity_ = None if s is None else np.asarray(s, float)
+        cal.loaded_ = {a: (list(v["terms"]), np.asarray(v["coef"], float)) for a, v in d["axes"].items()}
+        return cal
+
+    def apply(self, rec: Recording) -> Recording:
+        """Add calibrated channels ``<prefix><axis>`` (SI) to a copy of ``rec``."""
+        spec = self.SPEC
+        rec.require({c: "V" for c in spec.channels})
+        s = self.sensitivity_ if self.sensitivity_ is not None else rec.meta.get(spec.sensitivity_key)
+        if s is None:
+            raise RecordingError("no nominal sensitivity in the calibration or the recording's metadata")
+        u = rec.stack(spec.channels) / np.asarray(s, float)
+        f = self.predict(u)
+        channels, units = dict(rec.channels), dict(rec.units)
+        for j, a in enumerate(spec.axes):
+            channels[f"{spec.cal_prefix}{a}"] = f[:, j]
+            units[f"{spec.cal_prefix}{a}"] = spec.quantity_unit
+        return rec.replace(channels=channels, units=units)
+
+    def table(self) -> dict:
+        """Seed-style table: coefficients per axis and sigma_res, MS_res, R, R_adj."""
+        return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
+
+
+def _delta_cov(h, x, cov) -> np.ndarray:
+    """Covariance of h(x) by linearisation with a central-difference Jacobian."""
+    x = np.asarray(x, float)
+    step = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)) * 1e-2, 1e-10 * np.maximum(1, np.abs(x)))
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = step[i]
+        cols.append((h(x + e) - h(x - e)) / (2 * step[i]))
+    J = np.stack(cols, axis=1)
+    J = np.where(np.isfinite(J), J, 0.0)
+    return J @ cov @ J.T
+
+
+def _delta_cov(h, x, cov) -> np.ndarray:
+    """Covariance of h(x) by linearisation with a central-difference Jacobian."""
+    x = np.asarray(x, float)
+    step = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)) * 1e-2, 1e-10 * np.maximum(1, np.abs(x)))
+    cols = []
+    for i in range(x.size):
+        e = np.zeros_like(x)
+        e[i] = step[i]
+        cols.append((h(x + e) - h(x - e)) / (2 * step[i]))
+    J = np.stack(cols, axis=1)
+    J = np.where(np.isfinite(J), J, 0.0)
+    return J @ cov @ J.T
+
+
