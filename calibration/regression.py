@@ -408,3 +408,43 @@ def fit_ols(
         condition_number=float(sv[0] / sv[-1]),
         weights_=None if weights is None else weights.copy(),
     )
+
+
+def fit_gls(X: np.ndarray, y: np.ndarray, names: Sequence[str], cov: np.ndarray) -> RegressionResult:
+    """Generalised least squares for correlated errors with covariance ``cov`` (n, n).
+
+    The problem is whitened with the Cholesky factor L of ``cov`` (cov = L L'), solved by
+    :func:`fit_ols` on (L^-1 X, L^-1 y), so the coefficients are the efficient (BLUE)
+    estimates and ``cov_ = s^2 (X' cov^-1 X)^-1`` with the data-based scale
+    s^2 = ms_res of the whitened fit (about 1 when ``cov`` is right).
+
+    The goodness-of-fit statistics (residuals_, fitted_, ss_res, ms_res, r2, R, sigma_res)
+    describe the *unwhitened* residuals y - X b, so they compare with OLS fits; aic/bic and
+    the rank test come from the whitened problem.
+    """
+    X, y, names, _ = _validate(X, y, names, None)
+    cov = np.asarray(cov, dtype=np.float64)
+    n = X.shape[0]
+    if cov.shape != (n, n) or not np.all(np.isfinite(cov)):
+        raise ValueError(f"cov must be a finite ({n}, {n}) matrix, got {cov.shape}")
+    try:
+        L = np.linalg.cholesky(0.5 * (cov + cov.T))
+    except np.linalg.LinAlgError:
+        raise ValueError("cov is not positive definite; check the noise model") from None
+    Xw = scipy.linalg.solve_triangular(L, X, lower=True)
+    yw = scipy.linalg.solve_triangular(L, y, lower=True)
+    w = fit_ols(Xw, yw, names)
+    fitted = X @ w.coef_
+    resid = y - fitted
+    ss_res = float(resid @ resid)
+    dof = n - w.p
+    dev = y - y.mean()
+    ss_t = float(dev @ dev)
+    r2 = 1.0 - ss_res / ss_t if ss_t > 0 else float("nan")
+    r2_adj = 1.0 - (ss_res / dof) / (ss_t / (n - 1)) if ss_t > 0 else float("nan")
+    return RegressionResult(
+        names=list(names), coef_=w.coef_, cov_=w.cov_, std_error_=w.std_error_, t_value_=w.t_value_,
+        residuals_=resid, fitted_=fitted, n=n, p=w.p, ss_res=ss_res, ms_res=ss_res / dof, ss_t=ss_t,
+        r2=float(r2), r2_adj=float(r2_adj), R=math.sqrt(r2) if r2 >= 0 else float("nan"),
+        R_adj=math.sqrt(r2_adj) if r2_adj >= 0 else float("nan"), sigma_res=float(np.std(resid, ddof=1)),
+        loglik=w.loglik, aic=w.aic, bic=w.bic, condition_number=w.condition_number, weights_=None)

@@ -27,7 +27,7 @@ from typing import Callable, ClassVar
 import numpy as np
 
 from imurig.calibration.preprocess import segment_samples, segment_statistic
-from imurig.calibration.regression import fit_ols
+from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import TermLibrary, polynomial
 from imurig.errors import RecordingError
@@ -114,13 +114,17 @@ class TriadCalibration:
         return models[self.model](axis)
 
     def fit(self, rec: Recording, reference: np.ndarray, reference_jacobian: np.ndarray | None = None,
-            reference_sigma: np.ndarray | None = None) -> "TriadCalibration":
+            reference_sigma: np.ndarray | None = None, response_cov: np.ndarray | None = None
+            ) -> "TriadCalibration":
         """Fit the three inverse models.
 
         reference : (n_seg, 3) reference quantity per segment, in SI (e.g. m/s^2 or rad/s, in C).
         reference_jacobian : optional (n_seg, 3, q) d reference / d survey parameters, and
         reference_sigma (q,) their 1-sigma uncertainty; adds the reference's uncertainty
         to the coefficient covariance (beta = X^+ f_ref is linear in f_ref).
+        response_cov : optional (n_seg, n_seg) covariance of the per-segment errors (e.g. a
+        gyro's correlated bias instability plus white noise); the fit is then generalised
+        least squares (:func:`imurig.calibration.regression.fit_gls`), for fixed models only.
         """
         spec = self.SPEC
         s = rec.meta.get(spec.sensitivity_key)
@@ -146,7 +150,10 @@ class TriadCalibration:
                 self.results_[a] = sel.result
             else:
                 lib = self._library(a)
-                self.results_[a] = fit_ols(lib.design(inputs), y_all[:, j], lib.names)
+                if response_cov is not None:
+                    self.results_[a] = fit_gls(lib.design(inputs), y_all[:, j], lib.names, response_cov)
+                else:
+                    self.results_[a] = fit_ols(lib.design(inputs), y_all[:, j], lib.names)
         self.reference_cov_ = None
         if reference_jacobian is not None and reference_sigma is not None:
             self.reference_cov_ = self._reference_covariance(inputs, seg, np.asarray(reference_jacobian),

@@ -25,6 +25,8 @@ Rules
 - ``setpoints`` (metadata): the columns that hold commanded values (constant within a
   segment); they become the segments table, and stay channels too.
 - Metadata values are JSON when they parse as JSON, text otherwise; dotted keys nest.
+- ``event_<name>_s`` columns (optional) hold discrete event time stamps (e.g. pulse
+  times from a counter) on the row nearest each event and are empty (``nan``) elsewhere.
 - ``#`` lines without ``key: value`` are comments.
 """
 from __future__ import annotations
@@ -107,7 +109,7 @@ def read_csv(path) -> Recording:
         raise RecordingError(f"{path}: duplicate columns {dup}")
     specs = {}
     for h in header:
-        if h in INDEX_COLUMNS:
+        if h in INDEX_COLUMNS or _event_name(h):
             continue
         specs[h] = split_column(h)
     try:
@@ -118,6 +120,11 @@ def read_csv(path) -> Recording:
     if data.shape[1] != len(header):
         raise RecordingError(f"{path}: {data.shape[1]} values per row but {len(header)} header names")
     cols = {h: data[:, i] for i, h in enumerate(header)}
+    events = {}
+    for h in list(cols):
+        if _event_name(h):
+            x = cols.pop(h)
+            events[_event_name(h)] = np.sort(x[np.isfinite(x)])
     time_s = cols.pop("time_s")
     channels, units = {}, {}
     for h, x in cols.items():
@@ -136,13 +143,19 @@ def read_csv(path) -> Recording:
     for sp in setpoints:
         if sp not in channels:
             raise RecordingError(f"{path}: metadata names set-point '{sp}' but there is no column '{sp}_<unit>'")
-    rec = Recording(time_s=time_s, channels=channels, units=units, meta=meta)
+    rec = Recording(time_s=time_s, channels=channels, units=units, meta=meta, events=events)
     rec.meta.setdefault("source", str(path.name))
     rec.validate()
     seg_id = cols.get("segment")
     run = cols.get("run")
     rec.segments, rec.segment_units = _segments_from_columns(rec, seg_id, run, setpoints)
     return rec.validate()
+
+
+def _event_name(header: str) -> str | None:
+    if header.startswith("event_") and header.endswith("_s") and len(header) > 8:
+        return header[len("event_"):-2]
+    return None
 
 
 def _segments_from_columns(rec: Recording, seg_id, run, setpoints):
@@ -203,6 +216,15 @@ def write_csv(rec: Recording, path, overwrite: bool = False, include_truth_signa
         for name, x in arrays.items():
             vals, suf = from_si(x, units[name])
             cols[f"{name}_{suf}"] = (vals, "%.10g")
+    for name, ev in rec.events.items():
+        if name.startswith("true_") or name.endswith("_true"):
+            continue
+        col = np.full(rec.n, np.nan)
+        idx = np.clip(np.searchsorted(rec.time_s, ev), 0, rec.n - 1)
+        if np.unique(idx).size != idx.size:
+            raise RecordingError(f"events '{name}' are closer than one sample; the CSV cannot hold them")
+        col[idx] = ev
+        cols[f"event_{name}_s"] = (col, "%.9f")
     header = ",".join(cols)
     fmts = [f for _, f in cols.values()]
     table = np.column_stack([np.asarray(v, dtype=float) for v, _ in cols.values()])

@@ -9,7 +9,10 @@ A Recording holds
   row (e.g. ``theta``, ``phi`` in rad, ``run``); units in ``segment_units``;
 - ``meta``: rig, site, start time, sample rate, seed, lab settings (JSON-like);
 - ``truth`` (simulation only): every injected parameter, JSON-like, and
-  ``truth_signals``: name -> (n,) SI arrays (e.g. true specific force).
+  ``truth_signals``: name -> (n,) SI arrays (e.g. true specific force);
+- ``events``: name -> sorted time stamps (s) of discrete events, e.g. the turn table's
+  once-per-round pulses as time-tagged by a counter (``pulse_hp6700``); names starting
+  with ``true_`` or ending in ``_true`` are truth and are dropped by ``without_truth``.
 
 Storage: HDF5 (h5py), see :func:`save_h5`; lab exchange: CSV with ``# key: value``
 metadata lines, see :mod:`imurig.labcsv`.
@@ -46,12 +49,14 @@ class Recording:
     truth_signals: dict[str, np.ndarray] = field(default_factory=dict)
     truth_units: dict[str, str] = field(default_factory=dict)
     channel_quantum: dict[str, float] = field(default_factory=dict)
+    events: dict[str, np.ndarray] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ checks
     def __post_init__(self):
         self.time_s = np.asarray(self.time_s, dtype=float)
         self.channels = {k: np.asarray(v, dtype=float) for k, v in self.channels.items()}
         self.segments = {k: np.asarray(v) for k, v in self.segments.items()}
+        self.events = {k: np.asarray(v, dtype=float) for k, v in self.events.items()}
 
     @property
     def n(self) -> int:
@@ -141,7 +146,9 @@ class Recording:
 
     def without_truth(self) -> "Recording":
         """A copy that holds no truth (what an outside estimator may see)."""
-        return self.replace(truth=None, truth_signals={}, truth_units={})
+        return self.replace(truth=None, truth_signals={}, truth_units={},
+                            events={k: v for k, v in self.events.items()
+                                    if not (k.startswith("true_") or k.endswith("_true"))})
 
 
 # ---------------------------------------------------------------------- HDF5
@@ -227,6 +234,7 @@ def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
 
     Layout: root attrs ``format``, ``version``, ``meta`` (JSON), ``truth`` (JSON or absent);
     datasets ``/time_s``, ``/channels/<name>``, ``/segments/<col>``, ``/truth_signals/<name>``,
+    ``/events/<name>`` (time stamps),
     each with an attribute ``unit``. ADC channels whose values are exact multiples of their
     quantum (one LSB, attribute ``quantum``) are stored as integer codes, which is lossless.
     """
@@ -245,6 +253,7 @@ def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
             _write_group(f.create_group("channels"), rec.channels, rec.units, rec.channel_quantum)
             _write_group(f.create_group("segments"), rec.segments, rec.segment_units)
             _write_group(f.create_group("truth_signals"), rec.truth_signals, rec.truth_units)
+            _write_group(f.create_group("events"), rec.events, {k: "s" for k in rec.events})
 
     return atomic_write(Path(path), writer, overwrite)
 
@@ -264,10 +273,11 @@ def load_h5(path) -> Recording:
         channels, units, quantum = _read_group(f["channels"])
         segments, seg_units, _ = _read_group(f["segments"])
         tsig, tunits, _ = _read_group(f["truth_signals"])
+        events = _read_group(f["events"])[0] if "events" in f else {}
         time_s = f["time_s"][()]
     return Recording(time_s=time_s, channels=channels, units=units, segments=segments,
                      segment_units=seg_units, meta=meta, truth=truth, truth_signals=tsig,
-                     truth_units=tunits, channel_quantum=quantum)
+                     truth_units=tunits, channel_quantum=quantum, events=events)
 
 
 def load(path) -> Recording:

@@ -21,13 +21,17 @@ import numpy as np
 from imurig.recording import Recording
 from imurig.sensors.accelerometer import AXES, CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
-from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
+from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration, SlipRingNoise
+from imurig.sensors.gyro import AXES as GYRO_AXES
+from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.magnetometer import FluxgateTriad
+from imurig.sensors.timers import EventTimer, gps_mark_timer, hp6700_counter
 from imurig.sensors.noise import child_rng
 from imurig.site import parse_time
 
 DEFAULT_SCAN = ("acc_x", "mag_x", "acc_y", "mag_y", "acc_z", "mag_z",
                 "temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box")
+TURN_TABLE_SCAN = ("gyro_p", "gyro_q", "gyro_r", "acc_x", "acc_y", "acc_z", "temp_box", "pulse")
 
 
 @dataclass
@@ -48,6 +52,7 @@ class ImuLab:
 
     accelerometers: QFlexTriad = field(default_factory=QFlexTriad.from_datasheet)
     magnetometer: FluxgateTriad = field(default_factory=FluxgateTriad.from_datasheet)
+    gyros: FOGTriad = field(default_factory=FOGTriad.from_datasheet)
     temp_sensors: dict = field(default_factory=lambda: {
         "temp_acc_x": CurrentTemperatureSensor(), "temp_acc_y": CurrentTemperatureSensor(),
         "temp_acc_z": CurrentTemperatureSensor(), "temp_box": CurrentTemperatureSensor()})
@@ -56,11 +61,14 @@ class ImuLab:
     people: PeopleTransients = field(default_factory=PeopleTransients)
     cable: LooseCable = field(default_factory=LooseCable)
     climate: LabClimate = field(default_factory=LabClimate)
+    slip_rings: SlipRingNoise = field(default_factory=SlipRingNoise)
+    timers: tuple[EventTimer, ...] = field(default_factory=lambda: (gps_mark_timer(), hp6700_counter()))
 
     @classmethod
     def draw(cls, rng: np.random.Generator, **overrides) -> "ImuLab":
         """A lab whose sensors carry errors drawn from their datasheet limits."""
-        kw = dict(accelerometers=QFlexTriad.from_datasheet(rng), magnetometer=FluxgateTriad.from_datasheet(rng))
+        kw = dict(accelerometers=QFlexTriad.from_datasheet(rng), magnetometer=FluxgateTriad.from_datasheet(rng),
+                  gyros=FOGTriad.from_datasheet(rng))
         kw.update(overrides)
         return cls(**kw)
 
@@ -70,26 +78,52 @@ class ImuLab:
         fs = float(rig.meta["sample_rate_hz"])
         start = parse_time(rig.meta["start_time"])
         hour = (start.hour + start.minute / 60 + start.second / 3600 + (t - t[0]) / 3600.0) % 24.0
-        f_C = np.stack([rig.truth_signals[f"f_C_{a}"] for a in AXES], axis=1)
-        B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
+        scan = set(self.adc.scan_list)
+        ts = rig.truth_signals
+
+        def wanted(prefix, axes):
+            return any(f"{prefix}_{a}" in scan for a in axes)
 
         f_dist = (self.pump.specific_force(t, hour, fs, child_rng(seed, "pump"))
                   + self.people.specific_force(t, hour, fs, child_rng(seed, "people")))
         T_imu = self.climate.imu_temperature_K(t)
-
-        analog = {}
-        slope = {}
-        acc = self.accelerometers
-        v_acc = acc.ideal_voltage(f_C + f_dist, T_imu)
-        d_acc = np.gradient(v_acc, t, axis=0)
-        v_acc += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers")) * acc.load_resistor_ohm
-        v_mag = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
-        d_mag = np.gradient(v_mag, t, axis=0)  # fluxgate noise is small: no separate noise-free path
-        for j, a in enumerate(AXES):
-            analog[f"acc_{a}"], slope[f"acc_{a}"] = v_acc[:, j], d_acc[:, j]
-            analog[f"mag_{a}"], slope[f"mag_{a}"] = v_mag[:, j], d_mag[:, j]
+        analog, slope, used = {}, {}, []
+        if wanted("acc", AXES):
+            f_C = np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1)
+            acc = self.accelerometers
+            v = acc.ideal_voltage(f_C + f_dist, T_imu)
+            d = np.gradient(v, t, axis=0)
+            v += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers")) * acc.load_resistor_ohm
+            for j, a in enumerate(AXES):
+                analog[f"acc_{a}"], slope[f"acc_{a}"] = v[:, j], d[:, j]
+            used.append("accelerometers")
+        if wanted("mag", AXES):
+            B_C = np.stack([ts[f"B_C_{a}"] for a in AXES], axis=1)
+            v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
+            d = np.gradient(v, t, axis=0)  # fluxgate noise is small: no separate noise-free path
+            for j, a in enumerate(AXES):
+                analog[f"mag_{a}"], slope[f"mag_{a}"] = v[:, j], d[:, j]
+            used.append("magnetometer")
+        if wanted("gyro", GYRO_AXES):
+            w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
+            g = self.gyros
+            v = g.ideal_voltage(w_C, T_imu)
+            d = np.gradient(v, t, axis=0)
+            grng = child_rng(seed, "gyros")
+            for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
+                v[blk] += g.noise_rate(blk.stop - blk.start, fs, grng) * g.scale_V_per_rad_s
+            for j, a in enumerate(GYRO_AXES):
+                analog[f"gyro_{a}"], slope[f"gyro_{a}"] = v[:, j], d[:, j]
+            used.append("gyros")
         for name, sensor in self.temp_sensors.items():
-            analog[name] = sensor.voltage(T_imu, child_rng(seed, name))
+            if name in scan:
+                analog[name] = sensor.voltage(T_imu, child_rng(seed, name))
+        if self.slip_rings.enabled and "spin_angle" in ts:
+            # every IMU line crosses a slip ring; lines from the table itself do not
+            for name in list(analog):
+                analog[name] = analog[name] + self.slip_rings.voltage(ts["spin_angle"], child_rng(seed, "slip_" + name))
+        for line in rig.meta.get("analog_lines", []):
+            analog[line] = ts[line]
         if self.cable.enabled:
             if self.cable.channel not in analog:
                 raise ValueError(f"loose cable on '{self.cable.channel}', which is not an analog line; "
@@ -116,14 +150,28 @@ class ImuLab:
         meta = dict(rig.meta)
         meta["adc"] = self.adc.settings() | {"saturated_samples": adc_report["saturated_samples"]}
         meta["acc_nominal_sensitivity_V_per_m_s2"] = self.accelerometers.nominal_sensitivity_V_per_m_s2().tolist()
+        meta["gyro_nominal_sensitivity_V_per_rad_s"] = self.gyros.nominal_sensitivity().tolist()
+        meta["gyro_noise_model"] = {"arw_rad_s_per_sqrt_hz": self.gyros.arw_rad_s_per_sqrt_hz,
+                                    "bias_instability_rad_s": self.gyros.bias_instability_rad_s,
+                                    "bias_instability_tau_s": self.gyros.bias_instability_tau_s,
+                                    "source": "VG941-3AM datasheet (random walk, bias variation); tau assumed"}
+        events = dict(rig.events)
+        if "pulse_true" in rig.events:
+            for timer in self.timers:
+                events[f"pulse_{timer.name}"] = timer.measure(rig.events["pulse_true"], child_rng(seed, timer.name))
+            meta["timers"] = {tm.name: tm.settings() for tm in self.timers}
         meta["temperature_sensor"] = {"uA_per_K": 1.0, "uA_at_298_15K": 298.2, "load_resistor_ohm": 10e3}
         truth = dict(rig.truth or {})
-        truth["sensors"] = {"accelerometers": self.accelerometers.truth(),
-                            "magnetometer": self.magnetometer.truth(),
-                            "temperature_sensors": {k: s.truth() for k, s in self.temp_sensors.items()}}
+        sensors = {"accelerometers": self.accelerometers.truth(), "magnetometer": self.magnetometer.truth(),
+                   "gyros": self.gyros.truth()}
+        truth["sensors"] = {k: v for k, v in sensors.items() if k in used}
+        truth["sensors"]["temperature_sensors"] = {k: s.truth() for k, s in self.temp_sensors.items() if k in scan}
         truth["chain"] = {"adc": self.adc.settings(), "pump": asdict(self.pump), "people": asdict(self.people),
-                          "cable": asdict(self.cable), "climate": asdict(self.climate)}
+                          "cable": asdict(self.cable), "climate": asdict(self.climate),
+                          "slip_rings": asdict(self.slip_rings) if "spin_angle" in ts else None,
+                          "timers": {tm.name: tm.settings() for tm in self.timers}}
         truth["seed"] = {"entropy": str(seed.entropy), "spawn_key": list(seed.spawn_key)}
         return Recording(time_s=t, channels=channels, units=units, segments=dict(rig.segments),
                          segment_units=dict(rig.segment_units), meta=meta, truth=truth,
-                         truth_signals=truth_signals, truth_units=truth_units, channel_quantum=quantum)
+                         truth_signals=truth_signals, truth_units=truth_units, channel_quantum=quantum,
+                         events=events)

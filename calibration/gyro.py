@@ -1,0 +1,213 @@
+"""Gyro calibration on the turn table (seed sections 4.4.2-4.4.4, eq. 4.39-4.41).
+
+Reference rate. For each step, the table's rate comes from the once-per-round pulses as
+time-tagged by one timer (the seed's algorithm): with the first and last rising edges
+t_1 and t_N inside the acquisition window,
+
+    Omega_table = s * 2 pi (N - 1) / (t_N - t_1)                     [rad/s]
+
+(s: the direction from the dial's sign). The gyro output is averaged over exactly those
+whole rounds, so the Earth's horizontal rate, the once-per-round ripple and slip-ring
+noise average out; the Earth's vertical rate adds along the table axis:
+
+    w_ref,C = e_axis * (Omega_table + Omega_E sin(latitude))         [rad/s, (3,)]
+
+where e_axis is the IMU axis on the table (+-p, q or r, from the mounting).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from imurig.calibration.terms import TermLibrary, polynomial
+from imurig.calibration.triad import TriadCalibration, TriadSpec
+from imurig.errors import RecordingError
+from imurig.recording import Recording
+from imurig.site import EARTH_RATE_RAD_S, Site
+
+AXES = ("p", "q", "r")
+GYRO = tuple(f"gyro_{a}" for a in AXES)
+INPUTS = ("wp", "wq", "wr")
+
+MODELS = {
+    "linear": lambda a: TermLibrary.from_names(["1", *INPUTS]),
+    "physical": lambda a: TermLibrary.from_names(["1", *INPUTS, f"w{a}^2"]),
+    # seed eq. 4.39-4.41: bias, scale, second order, cross-axis (1st and 2nd order), cross-coupling
+    "seed_final": lambda a: polynomial(INPUTS, 2),
+}
+
+SPEC = TriadSpec(kind="gyro", axes=AXES, channels=GYRO, inputs=INPUTS,
+                 sensitivity_key="gyro_nominal_sensitivity_V_per_rad_s", quantity_unit="rad/s",
+                 cal_prefix="gyro_cal_", models=MODELS, sensitivity_hint=", e.g. 6 mV/(deg/s) = 0.3438")
+
+#: mounting -> (index of the IMU axis on the table axis, sign)
+AXIS_OF_MOUNT = {f"{a}_{d}": ("pqr".index(a), 1.0 if d == "up" else -1.0) for a in "pqr" for d in ("up", "down")}
+
+
+class GyroCalibration(TriadCalibration):
+    """Inverse-model calibration of the gyro triad (models: 'linear', 'physical',
+    'seed_final' (eq. 4.39-4.41), 'stepwise', 'backward')."""
+
+    SPEC = SPEC
+
+
+def pulse_edges(rec: Recording, channel: str = "pulse", threshold: float | None = None) -> np.ndarray:
+    """Rising edges of the index pulse as the ADC sees them: the time of the first sample at
+    or above the threshold after one below it (resolution: one sample period)."""
+    if channel not in rec.channels:
+        raise RecordingError(f"no '{channel}' channel: record the table's index pulse on an ADC channel "
+                             f"(CSV column '{channel}_V'), or use a timer's events")
+    x = rec.channels[channel]
+    thr = threshold if threshold is not None else rec.meta.get("pulse_threshold_V", 0.5 * float(np.max(x)))
+    above = x >= thr
+    idx = np.flatnonzero(~above[:-1] & above[1:]) + 1
+    # an edge across a gap between blocks is not an edge
+    gaps = np.flatnonzero(np.diff(rec.time_s) > 1.5 / rec.sample_rate_hz) + 1
+    idx = idx[~np.isin(idx, gaps)]
+    return rec.time_s[idx]
+
+
+def timer_pulses(rec: Recording, timer: str) -> np.ndarray:
+    """Pulse times from 'adc' (the pulse channel) or a timer's events (e.g. 'hp6700', 'gps_mark')."""
+    if timer == "adc":
+        return pulse_edges(rec)
+    key = f"pulse_{timer}"
+    if key not in rec.events:
+        have = ["adc"] * ("pulse" in rec.channels) + [k[6:] for k in rec.events if k.startswith("pulse_")
+                                                       and not k.endswith("true")]
+        raise RecordingError(f"no pulse times from timer '{timer}'; this recording has {have}")
+    return rec.events[key]
+
+
+def round_windows(rec: Recording, timer: str = "hp6700", min_rounds: int = 1) -> tuple[Recording, np.ndarray]:
+    """Segments narrowed to whole rounds between pulses, and the table rate of each (rad/s).
+
+    Returns (recording with segments [t_1, t_N) and a column ``rounds``, rate (n_seg,)).
+    Raises RecordingError naming a step whose window holds fewer than ``min_rounds`` rounds.
+    """
+    if "rate_dial" not in rec.segments:
+        raise RecordingError("turn-table segments need the 'rate_dial' set-point (CSV column rate_dial_dps)")
+    pulses = timer_pulses(rec, timer)
+    seg = rec.segments
+    start, stop, rate, rounds = [], [], [], []
+    for i, (a, b) in enumerate(zip(seg["start_s"], seg["stop_s"])):
+        p = pulses[(pulses >= a) & (pulses < b)]
+        n = p.size - 1
+        if n < min_rounds:
+            raise RecordingError(f"step {i} (dial {np.degrees(seg['rate_dial'][i]):.3g} deg/s, "
+                                 f"{a:.1f}-{b:.1f} s) holds {max(n, 0)} whole round(s) by timer '{timer}'; "
+                                 f"lengthen its window to at least {min_rounds + 1} pulses")
+        start.append(p[0])
+        stop.append(p[-1])
+        rate.append(np.sign(seg["rate_dial"][i]) * 2 * np.pi * n / (p[-1] - p[0]))
+        rounds.append(n)
+    new = dict(seg)
+    new["start_s"], new["stop_s"], new["rounds"] = np.array(start), np.array(stop), np.array(rounds)
+    units = dict(rec.segment_units)
+    units["rounds"] = "1"
+    return rec.replace(segments=new, segment_units=units), np.array(rate)
+
+
+def reference_rates(rec: Recording, table_rate: np.ndarray) -> np.ndarray:
+    """Reference angular rate in C (n_seg, 3) rad/s: table rate plus the Earth's vertical rate
+    along the IMU axis on the table (see module doc)."""
+    site = Site.from_dict(rec.meta.get("site", {}))
+    mounts = rec.segments.get("mount")
+    if mounts is None:
+        runs = rec.meta.get("runs", ["r_up"])
+        mounts = np.array([runs[int(i)] for i in rec.segments.get("run", np.zeros(len(table_rate), int))])
+    ref = np.zeros((len(table_rate), 3))
+    earth_up = EARTH_RATE_RAD_S * np.sin(site.latitude_rad)
+    for i, m in enumerate(mounts):
+        if str(m) not in AXIS_OF_MOUNT:
+            raise RecordingError(f"unknown mounting {m!r}; use one of {sorted(AXIS_OF_MOUNT)}")
+        j, s = AXIS_OF_MOUNT[str(m)]
+        ref[i, j] = s * (table_rate[i] + earth_up)
+    return ref
+
+
+def injected_parameters(truth: dict, mounts=None) -> dict:
+    """Forward-model gyro parameters from a simulation's truth (SI).
+
+    On a turn table the estimated misalignment of column j (the axis on the table) also holds
+    the table's wobble as seen in that mounting: M_eff[:, j] = M[:, j] + (R_CP w)_off-axis,
+    with w the spin axis in the platform frame tilted by the wobble. Pass the mountings used
+    to get those effective values (one mounting per axis; otherwise the sensor's own M).
+    """
+    from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
+
+    g = truth["sensors"]["gyros"]
+    M = np.asarray(g["misalignment_rad"], float).copy()
+    if mounts:
+        tt = truth["rig"]["turn_table"]
+        e = TurnTableErrors(**{k: v for k, v in tt.items() if k in TurnTableErrors.__dataclass_fields__})
+        R_PM = e.wobble_rotation()
+        for m in dict.fromkeys(mounts):
+            j, s = AXIS_OF_MOUNT[m]
+            # spin axis (platform z) expressed in C, signed so that it is ~ +e_j: s R_MC^T R_PM^T z
+            a_C = MOUNTS[m].T @ R_PM.T @ np.array([0.0, 0.0, 1.0]) * s
+            col = (np.eye(3) + np.asarray(g["misalignment_rad"])) @ a_C
+            for i in range(3):
+                if i != j:
+                    M[i, j] = col[i] / col[j]
+    out = {}
+    for i, a in enumerate(AXES):
+        out[f"sensitivity_{a}"] = g["scale_V_per_rad_s"][i]
+        out[f"bias_{a}"] = g["bias_rad_s"][i]
+        out[f"nonlinearity_{a}"] = g["k2_per_rad_s"][i]
+        for j, c in enumerate(AXES):
+            if i != j:
+                out[f"misalignment_{a}{c}"] = M[i, j]
+    return out
+
+
+def segment_covariance(rec_windows: Recording, table_rate: np.ndarray, noise: dict,
+                       timer_sigma_s: float) -> np.ndarray:
+    """Covariance (n_seg, n_seg), (rad/s)^2, of the per-segment errors of one axis model.
+
+    For segment windows [a_i, b_i) of length T_i:
+    - angle random walk N (rad/s/sqrt(Hz)): white, N^2 / T_i on the diagonal;
+    - bias instability, Gauss-Markov (sigma_b, tau): the covariance of window means,
+          sigma_b^2 / (T_i T_j) * int_Ii int_Ij exp(-|t - s| / tau) ds dt,
+      in closed form: for disjoint windows (b_i <= a_j)
+          tau^2 (e^-(a_j-b_i)/tau - e^-(a_j-a_i)/tau - e^-(b_j-b_i)/tau + e^-(b_j-a_i)/tau),
+      and 2 tau^2 (T/tau - 1 + e^-T/tau) for a window with itself;
+      windows in different blocks (remounts) are taken as independent;
+    - the reference rate from the timer: (Omega_i sigma_dT / T_i)^2 on the diagonal, with
+      sigma_dT the timer's error on a round-time difference.
+    """
+    a = np.asarray(rec_windows.segments["start_s"], float)
+    b = np.asarray(rec_windows.segments["stop_s"], float)
+    T = b - a
+    N = noise.get("arw_rad_s_per_sqrt_hz", 0.0)
+    sb = noise.get("bias_instability_rad_s", 0.0)
+    tau = noise.get("bias_instability_tau_s", 100.0)
+    cov = np.diag(N**2 / T + (table_rate * timer_sigma_s / T) ** 2)
+    if sb > 0:
+        # order so that i precedes j: for i < j in time use the disjoint formula
+        ai, aj = a[:, None], a[None, :]
+        bi, bj = b[:, None], b[None, :]
+        first_a, first_b = np.where(ai <= aj, ai, aj), np.where(ai <= aj, bi, bj)
+        second_a, second_b = np.where(ai <= aj, aj, ai), np.where(ai <= aj, bj, bi)
+        e = lambda x: np.exp(-np.clip(x, 0, None) / tau)  # noqa: E731
+        I = tau**2 * (e(second_a - first_b) - e(second_a - first_a) - e(second_b - first_b) + e(second_b - first_a))
+        I[np.diag_indices_from(I)] = 2 * tau**2 * (T / tau - 1 + np.exp(-T / tau))
+        block = _block_index(rec_windows, a)
+        I = np.where(block[:, None] == block[None, :], I, 0.0)
+        cov = cov + sb**2 * I / np.outer(T, T)
+    return cov
+
+
+def _block_index(rec: Recording, t: np.ndarray) -> np.ndarray:
+    starts = np.array([rec.time_s[s.start] for s in rec.blocks()])
+    return np.searchsorted(starts, t, side="right") - 1
+
+
+def timer_difference_sigma(rec: Recording, timer: str) -> float:
+    """1-sigma error of a round-time difference t_N - t_1 for a timer (s)."""
+    if timer == "adc":
+        q = 1.0 / rec.sample_rate_hz
+        return q * np.sqrt(2 / 12)
+    tm = rec.meta.get("timers", {}).get(timer, {})
+    q = tm.get("resolution_s", 1e-6)
+    j = tm.get("jitter_s", 0.0)
+    return float(np.sqrt(2 * (q**2 / 12 + j**2)))
