@@ -1,6 +1,8 @@
 """The ``imurig`` command.
 
     imurig campaign tilt-table            simulate, calibrate and report the seed's protocol
+    imurig campaign turn-table            gyro calibration, timers, arm beyond 1 g, SIMONA
+    imurig simona                         the SIMONA table (appendix B) beside its virtual twin
     imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
     imurig apply CAL.json REC --out OUT   apply a calibration to a new recording
     imurig convert IN OUT                 HDF5 <-> lab CSV
@@ -59,6 +61,71 @@ def _add_tilt_table(sub):
     p.set_defaults(func=_run_tilt_table)
 
 
+def _add_turn_table(sub):
+    from imurig.rigs.turn_table import TurnTableProtocol
+
+    d = TurnTableProtocol()
+    p = sub.add_parser("turn-table", help="gyro calibration on the Genisco C181 turn table (seed 4.4)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       description="Simulate the final gyro calibration (and, unless --no-studies, the timer "
+                                   "study of Fig. 4.20, accelerometers beyond 1 g on the arm, and the SIMONA "
+                                   "comparison of Fig. 4.19) and write a report folder.")
+    p.add_argument("--out", default="imurig-out/turn-table", help="report folder")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report folder")
+    p.add_argument("--seed", type=int, default=2005, help="master random seed")
+    p.add_argument("--rates", type=_floats, default=d.dial_rates_dps, metavar="DPS,...",
+                   help="dial rates (the table turns at 5/6 of them on 50 Hz mains)")
+    p.add_argument("--directions", type=_floats, default=d.directions, metavar="1,-1")
+    p.add_argument("--mounts", type=_words, default=d.mounts, metavar="AXIS_up,...",
+                   help="which IMU axis points up the table axis: p_up, q_up, r_up, p_down, ...")
+    p.add_argument("--min-window", type=float, default=d.min_window_s, help="least seconds of whole rounds per step")
+    p.add_argument("--timer", default="hp6700", choices=["hp6700", "gps_mark", "adc"])
+    p.add_argument("--model", default="physical", choices=["physical", "linear", "seed_final", "stepwise", "backward"])
+    p.add_argument("--mains-hz", type=float, default=50.0, help="mains frequency of the synchronous motor")
+    p.add_argument("--no-slip-rings", action="store_true", help="no slip-ring noise")
+    p.add_argument("--no-studies", action="store_true", help="skip the timer, arm and SIMONA studies")
+    p.add_argument("--no-rrd", action="store_true")
+    p.add_argument("--no-recording", action="store_true")
+    p.set_defaults(func=_run_turn_table)
+
+
+def _run_turn_table(a):
+    from imurig.campaigns.turn_table import TurnTableCampaign
+    from imurig.campaigns.turn_table_report import run
+    from imurig.rigs.turn_table import TurnTableProtocol
+
+    proto = TurnTableProtocol(dial_rates_dps=a.rates, directions=tuple(int(d) for d in a.directions),
+                              mounts=a.mounts, min_window_s=a.min_window)
+    camp = TurnTableCampaign(protocol=proto, seed=a.seed, timer=a.timer, model=a.model, mains_hz=a.mains_hz,
+                             slip_rings=not a.no_slip_rings)
+    print(f"imurig: turn-table campaign, {len(proto.steps())} steps, seed {a.seed} -> {a.out}", file=sys.stderr)
+    s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording,
+            studies=not a.no_studies)
+    _print_summary(s, a.out)
+    if s.get("timer_study"):
+        print("timer residual envelopes (deg/s): " + ", ".join(
+            f"{k}={v['envelope_dps']:.4f}" for k, v in s["timer_study"]["timers"].items()))
+    if s.get("simona"):
+        print("SIMONA own scale factor (mV/(deg/s)) real/virtual: " + ", ".join(
+            f"{g}={s['simona']['real'][g]['scale_mV_per_dps']:.3f}/{s['simona']['virtual'][g]['scale_mV_per_dps']:.3f}"
+            for g in "pqr"))
+
+
+def _run_simona(a):
+    from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
+    from imurig.campaigns.turn_table import simona_virtual
+    from imurig.report import OutputFolder
+
+    real = read_simona(a.csv)
+    virt = simona_virtual(a.seed)
+    with OutputFolder(a.out, overwrite=a.overwrite) as out:
+        plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt, gyro=a.gyro)
+        md = "# SIMONA gyro calibration: real (appendix B) and virtual\n\n" + simona_markdown(
+            fit_simona(real), fit_simona(virt)) + "\n![fig](fig_4_19_simona.png)\n"
+        out.write_text("report.md", md)
+    print(md)
+
+
 def _run_tilt_table(a):
     from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.campaigns.tilt_table_report import run
@@ -77,12 +144,16 @@ def _run_tilt_table(a):
 
 def _print_summary(s: dict, out):
     print(f"{'parameter':22s} {'injected':>14s} {'estimate':>14s} {'std.err':>10s} {'z':>6s}")
+    main = s["models"].get("main", {}).get("axes") if "main" in s["models"] else None
     for p in s["parameters"]:
         inj = "–" if p["injected"] is None else f"{p['injected']:+.6e}"
         z = "–" if p["z"] is None else f"{p['z']:+.2f}"
         print(f"{p['name']:22s} {inj:>14s} {p['estimate']:+.6e} {p['std_error']:.2e} {z:>6s}")
-    main = s["models"]["main"]["axes"]
-    print("sigma_res (m/s^2): " + ", ".join(f"{a}={main[a]['sigma_res']:.3e}" for a in "xyz"))
+    if main:
+        print("sigma_res (m/s^2): " + ", ".join(f"{a}={main[a]['sigma_res']:.3e}" for a in "xyz"))
+    else:
+        print("sigma_res (deg/s): " + ", ".join(f"{a}={57.29578 * m['sigma_res_rad_s']:.3e}"
+                                                for a, m in s["models"].items()))
     if s.get("timing"):
         print("timing: " + ", ".join(f"{k}={v}" for k, v in s["timing"].items()))
     print(f"report: {Path(out) / 'report.md'}")
@@ -162,6 +233,16 @@ def build_parser() -> argparse.ArgumentParser:
     camp = sub.add_parser("campaign", help="simulate a calibration campaign and report it")
     csub = camp.add_subparsers(dest="campaign", required=True)
     _add_tilt_table(csub)
+    _add_turn_table(csub)
+
+    sim = sub.add_parser("simona", help="the SIMONA gyro table (appendix B): real data beside the virtual twin",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    sim.add_argument("--csv", default=None, help="a table in the appendix-B format (default: the shipped one)")
+    sim.add_argument("--gyro", default="p", choices=["p", "q", "r"])
+    sim.add_argument("--seed", type=int, default=2005)
+    sim.add_argument("--out", default="imurig-out/simona")
+    sim.add_argument("--overwrite", action="store_true")
+    sim.set_defaults(func=_run_simona)
 
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)

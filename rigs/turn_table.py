@@ -111,7 +111,7 @@ class TurnTableErrors:
     slip_coeff: float = 0.03
     slip_exp: float = 0.7
     dial_setting_error: float = 0.003     # relative, 1 sigma, per step
-    ripple: float = 5e-4                  # relative once-per-round rate ripple
+    ripple: float = 1e-3                  # relative once-per-round rate ripple
     ripple_phase_rad: float = 0.3
     wobble_rad: float = 20 * ARCSEC       # platform tilt against the spin axis
     wobble_azimuth_rad: float = 1.0

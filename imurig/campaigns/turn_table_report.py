@@ -1,0 +1,314 @@
+"""Run the turn-table campaign and its studies; write the report folder.
+
+Folder: ``report.md`` (tables and figures beside the seed's), ``summary.json`` (every
+estimated parameter as {name, unit, injected, estimate, std_error, z}), ``calibration.json``
+(the gyro calibration), ``recording.h5``, ``campaign.rrd``, PNG figures.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+import imurig
+from imurig.calibration.gyro import AXES, GYRO
+from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
+from imurig.campaigns.tilt_table_report import peak_rss_bytes
+from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros,
+                                         gyro_parameters, round_time_error_at, simona_virtual, timer_study)
+from imurig.progress import progress
+from imurig.recording import Recording, save_h5
+from imurig.report import OutputFolder, clean_json, md_table, published_figures
+
+SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
+TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
+
+
+def analyse(rec: Recording, timer: str = "hp6700", model: str = "physical") -> dict:
+    cal, rw, rate, ref = calibrate_gyros(rec, timer, model)
+    return {"main": cal, "windows": rw, "rate": rate, "reference": ref,
+            "parameters": gyro_parameters(cal, rec),
+            "seed_final": calibrate_gyros(rec, timer, "seed_final", gls=False)[0]}
+
+
+def _fig_timers(out, ts: dict):
+    import matplotlib.pyplot as plt
+
+    fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
+    hp = ts["timers"]["hp6700"]
+    axs[0].plot(hp["rate_dps"], "o-", ms=3)
+    axs[0].set_ylabel("rotation rate, °/s")
+    axs[0].set_title("Timer study, r gyro (cf. seed Fig. 4.20)")
+    for ax, tm in zip(axs[1:], TIMERS):
+        r = ts["timers"][tm]["residual_dps"]
+        ax.plot(r, "o-", ms=3, label=f"imurig, envelope {np.max(np.abs(r)):.3f} °/s")
+        e = SEED_ENVELOPE[tm]
+        ax.axhspan(-e, e, color="orange", alpha=0.2, label=f"seed envelope ±{e} °/s")
+        ax.set_ylabel("residual, °/s")
+        ax.set_title(TIMER_LABEL[tm], fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
+        ax.grid(alpha=0.3)
+    axs[-1].set_xlabel("step (rates 1 … 500 °/s on the dial)")
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_20_timers.png"), dpi=110)
+    plt.close(fig)
+    return "fig_4_20_timers.png"
+
+
+def _fig_residuals(out, res: dict):
+    import matplotlib.pyplot as plt
+
+    cal = res["main"]
+    rate = np.degrees(res["rate"])
+    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    for j, a in enumerate(AXES):
+        r = np.degrees(cal.results_[a].residuals_)
+        on = res["reference"][:, j] != 0
+        axs[j].plot(np.abs(rate[on]), r[on], "o", ms=4, label="axis on the table")
+        axs[j].plot(np.abs(rate[~on]), r[~on], ".", ms=3, color="gray", label="other mountings")
+        axs[j].set_ylabel(f"residual {a.upper()}-gyro, °/s")
+        axs[j].grid(alpha=0.3)
+        axs[j].legend(fontsize=7)
+    axs[-1].set_xlabel("|table rate|, °/s")
+    axs[0].set_title(f"Residuals of the final gyro calibration, model {cal.model} (cf. seed Fig. 4.21)")
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_21_gyro_residuals.png"), dpi=110)
+    plt.close(fig)
+    return "fig_4_21_gyro_residuals.png"
+
+
+def _fig_slip_ring(out, rec: Recording):
+    """Seed Fig. 4.16: a temperature channel at 1 kHz while the table turns; noise periodic in angle."""
+    import matplotlib.pyplot as plt
+
+    seg = rec.segments
+    i = int(np.argmax(np.abs(seg["rate_dial"])))
+    sl = rec.segment_slices()[i]
+    v = rec.channels["temp_box"][sl]
+    ang = np.degrees(np.mod(rec.truth_signals["spin_angle"][sl], 2 * np.pi)) if "spin_angle" in \
+        rec.truth_signals else None
+    fig, axs = plt.subplots(1, 2 if ang is not None else 1, figsize=(10, 3.5), squeeze=False)
+    axs[0, 0].plot(np.arange(v.size), v, lw=0.4)
+    axs[0, 0].set(xlabel="samples (1 kHz)", ylabel="V",
+                  title=f"temp_box at {abs(np.degrees(seg['rate_dial'][i])):.0f}°/s dial (cf. seed Fig. 4.16)")
+    if ang is not None:
+        axs[0, 1].plot(ang, v - np.median(v), ",", alpha=0.5)
+        axs[0, 1].set(xlabel="table angle, °", ylabel="V − median", title="noise against table angle (slip rings)")
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_16_slip_rings.png"), dpi=110)
+    plt.close(fig)
+    return "fig_4_16_slip_rings.png"
+
+
+def _fig_arm(out, arm: dict):
+    import matplotlib.pyplot as plt
+
+    g = np.abs(np.asarray(arm["f_ref_m_s2"])) / 9.81242231
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(g, np.asarray(arm["residual_linear_m_s2"]) * 1e3, "o", label=f"linear, σ = {arm['sigma_res_linear']:.2e}")
+    ax.plot(g, np.asarray(arm["residual_quadratic_m_s2"]) * 1e3, "s", ms=4,
+            label=f"with second order, σ = {arm['sigma_res_quadratic']:.2e}")
+    ax.set(xlabel="centripetal acceleration, g", ylabel="residual, mm/s²",
+           title=f"Accelerometer x on the {arm['radius_m']} m arm, beyond 1 g")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out.file("fig_arm_accelerometer.png"), dpi=110)
+    plt.close(fig)
+    return "fig_arm_accelerometer.png"
+
+
+def _param_table(params) -> str:
+    return md_table(["parameter", "unit", "injected", "estimate", "std. error", "z", "within bound"],
+                    [[p["name"], p["unit"], p["injected"], p["estimate"], p["std_error"], p["z"], p["within_bound"]]
+                     for p in params])
+
+
+def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
+    pub = published_figures()
+    cal = res["main"]
+    L = [f"# Turn-table gyro calibration — imurig {imurig.__version__}\n"]
+    if camp:
+        p = camp.protocol
+        L.append(f"Schedule: dial {list(p.dial_rates_dps)} deg/s × {camp.mains_hz:g}/60 (mains), directions "
+                 f"{list(p.directions)}, mountings {list(p.mounts)}; {rec.n_segments} steps, {rec.n:,} samples at "
+                 f"{p.sample_rate_hz:g} Hz. Timer: {TIMER_LABEL[camp.timer]}. Seed {camp.seed}.\n")
+    L.append("## Recovered vs injected gyro parameters\n")
+    L.append("Whole-round means per step; generalised least squares with the gyro noise model (angle random "
+             "walk + Gauss-Markov bias instability + timer error). Misalignment on a turn table includes the "
+             "table's wobble as seen in each mounting; the injected values shown are those effective values. "
+             f"Bound |z| ≤ {Z_BOUND:g}.\n")
+    L.append(_param_table(res["parameters"]))
+    if "truth_z" in figs:
+        L.append(f"\n![z]({figs['truth_z']})\n")
+    L.append("\n## Model statistics\n")
+    rows = []
+    for name, c in (("main (" + cal.model + ")", cal), ("seed eq. 4.39-4.41", res["seed_final"])):
+        for a in AXES:
+            r = c.results_[a]
+            rows.append([name, a, ", ".join(r.names), np.degrees(r.sigma_res), r.R_adj, r.condition_number])
+    L.append(md_table(["model", "gyro", "terms", "σ_res (°/s)", "R_adj", "condition number"], rows))
+    L.append("\nThe seed's eq. 4.39-4.41 carry products ω_p ω_q … that a one-axis-at-a-time turn table barely "
+             "excites (only through misalignment); see their condition numbers.\n")
+    if ts:
+        L.append("\n## Timers (seed section 4.4.3, Fig. 4.20)\n")
+        L.append(md_table(["timer", "resolution / jitter", "residual envelope (°/s)", "σ_res (°/s)",
+                           "seed envelope (°/s)"],
+                          [[TIMER_LABEL[t], {"adc": "1 ms sampling", "gps_mark": "1 µs tags, 0.1 ms jitter",
+                                             "hp6700": "1 µs"}[t], ts["timers"][t]["envelope_dps"],
+                            ts["timers"][t]["sigma_res_dps"], SEED_ENVELOPE[t]] for t in TIMERS]))
+        e = round_time_error_at(500, 1e-3)
+        e6 = round_time_error_at(500, 1e-6)
+        L.append(f"\nRound-time resolution at 500 °/s (seed 4.4.2): 1 ms gives ±{e['angle_error_deg']:.2g}° per "
+                 f"round ({e['rate_error_dps_one_round']:.2f} °/s over one round); 1 µs gives "
+                 f"±{e6['angle_error_deg']:.2g}°. The seed: \"about ±0.0005° per round … would grow to 0.5° at "
+                 "500 °/s\".\n")
+        if "timers" in figs:
+            L.append(f"\n![timers]({figs['timers']})\n")
+    if arm:
+        L.append(f"\n## Accelerometers beyond 1 g on the arm (seed chapter 6)\n")
+        L.append(f"Radius {arm['radius_m']} m, up to {arm['max_g']:.2f} g, both directions, HP timer.\n")
+        L.append(_param_table(arm["parameters"]))
+        L.append(f"\nσ_res linear {arm['sigma_res_linear']:.3e} m/s², with the second-order term "
+                 f"{arm['sigma_res_quadratic']:.3e} m/s².\n")
+        if "arm" in figs:
+            L.append(f"\n![arm]({figs['arm']})\n")
+    if simona:
+        L.append("\n## SIMONA quick calibration (seed section 4.4.2, appendix B, Fig. 4.19)\n")
+        L.append(simona_markdown(simona["real"], simona["virtual"]))
+        L.append("\nRound times, real vs virtual (s), first rows: " + ", ".join(
+            f"{a:.1f}/{b:.1f}" for a, b in zip(simona["real_rounds"][1:7], simona["virtual_rounds"][1:7])) + "\n")
+        if "simona" in figs:
+            L.append(f"\n![simona]({figs['simona']})\n")
+    L.append("\n## Figures\n")
+    for k in ("residuals", "slip_rings"):
+        if k in figs:
+            L.append(f"![{k}]({figs[k]})\n")
+    if timing:
+        L.append("\n## Run\n")
+        L.append(md_table(["step", "value"], [[k, v] for k, v in timing.items()]))
+    return "\n".join(L)
+
+
+def _fig_z(out, params):
+    import matplotlib.pyplot as plt
+
+    ps = [p for p in params if p.get("z") is not None]
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    z = [p["z"] for p in ps]
+    ax.bar(range(len(z)), z, color=["C0" if abs(v) <= Z_BOUND else "C3" for v in z])
+    for s in (Z_BOUND, -Z_BOUND):
+        ax.axhline(s, color="k", ls="--", lw=0.8)
+    ax.set_xticks(range(len(z)), [p["name"] for p in ps], rotation=60, ha="right", fontsize=7)
+    ax.set_ylabel("(estimate − injected) / std. error")
+    ax.set_title("Gyro parameters: recovered vs injected")
+    fig.tight_layout()
+    fig.savefig(out.file("fig_truth_z.png"), dpi=110)
+    plt.close(fig)
+    return "fig_truth_z.png"
+
+
+def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
+        studies: bool = True) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    out = OutputFolder(out_dir, overwrite=overwrite)
+    stages = ["simulate", "analyse"] + (["timer study", "arm study", "SIMONA"] if studies else []) + \
+        ["figures"] + (["recording.h5"] if save_recording else []) + (["campaign.rrd"] if rrd else []) + ["report"]
+    try:
+        with progress(total=len(stages), desc="turn-table campaign", unit="stage") as bar:
+            def stage(name):
+                bar.set_postfix_str(name)
+
+            t0 = time.perf_counter()
+            stage("simulate")
+            rec = camp.simulate()
+            t_sim = time.perf_counter() - t0
+            bar.update()
+            stage("analyse")
+            res = analyse(rec, camp.timer, camp.model)
+            bar.update()
+            ts = arm = simona = None
+            figs = {}
+            if studies:
+                stage("timer study")
+                ts = timer_study(camp.seed)
+                bar.update()
+                stage("arm study")
+                arm = arm_study(camp.seed)
+                bar.update()
+                stage("SIMONA")
+                real = read_simona()
+                virt = simona_virtual(camp.seed)
+                simona = {"real": fit_simona(real), "virtual": fit_simona(virt),
+                          "real_rounds": real.channels["measured_round"].tolist(),
+                          "virtual_rounds": virt.channels["measured_round"].tolist()}
+                plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
+                figs["simona"] = "fig_4_19_simona.png"
+                bar.update()
+            stage("figures")
+            figs["residuals"] = _fig_residuals(out, res)
+            figs["slip_rings"] = _fig_slip_ring(out, rec)
+            figs["truth_z"] = _fig_z(out, res["parameters"])
+            if ts:
+                figs["timers"] = _fig_timers(out, ts)
+            if arm:
+                figs["arm"] = _fig_arm(out, arm)
+            out.write_json("calibration.json", res["main"].to_dict())
+            bar.update()
+            files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
+                     **{f"figure_{k}": v for k, v in figs.items()}}
+            if save_recording:
+                stage("recording.h5")
+                save_h5(rec, out.file("recording.h5"), overwrite=True)
+                files["recording"] = "recording.h5"
+                bar.update()
+            if rrd:
+                stage("campaign.rrd")
+                from imurig.campaigns.turn_table_rrd import write_rrd
+
+                write_rrd(out.file("campaign.rrd"), rec, res)
+                files["rrd"] = "campaign.rrd"
+                bar.update()
+            stage("report")
+            timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
+                      "simulated_samples_per_s": round(rec.n / t_sim), "samples": rec.n,
+                      "peak_rss_MB": round(peak_rss_bytes() / 2**20, 1)}
+            summary = summary_dict(camp, rec, res, ts, arm, simona, timing, files)
+            out.write_json("summary.json", summary)
+            out.write_text("report.md", _report_md(camp, rec, res, ts, arm, simona, figs, timing))
+            bar.update()
+        out.commit()
+    except BaseException:
+        out.abort()
+        raise
+    return summary
+
+
+def summary_dict(camp, rec, res, ts, arm, simona, timing, files) -> dict:
+    cal = res["main"]
+
+    def strip(d):
+        return {k: v for k, v in d.items() if k != "recording"} if d else None
+
+    def simona_clean(fits):
+        return {g: {k: v for k, v in f.items() if isinstance(v, (int, float, str))} for g, f in fits.items()}
+
+    return clean_json({
+        "campaign": "turn-table", "imurig_version": imurig.__version__,
+        "settings": camp.to_dict() if camp else None, "z_bound": Z_BOUND,
+        "parameters": res["parameters"],
+        "all_within_bound": all(p["within_bound"] for p in res["parameters"] if p["within_bound"] is not None),
+        "models": {a: {"terms": cal.results_[a].table(), "sigma_res_rad_s": cal.results_[a].sigma_res,
+                       "R_adj": cal.results_[a].R_adj} for a in AXES},
+        "steps": {"rate_rad_s": res["rate"].tolist(), "rounds": res["windows"].segments["rounds"].tolist(),
+                  "mount": [str(m) for m in res["windows"].segments["mount"]]},
+        "timer_study": strip(ts), "arm_study": strip(arm),
+        "simona": None if not simona else {"real": simona_clean(simona["real"]),
+                                           "virtual": simona_clean(simona["virtual"]),
+                                           "real_rounds_s": simona["real_rounds"],
+                                           "virtual_rounds_s": simona["virtual_rounds"]},
+        "seed_published": published_figures()["turn_table"],
+        "timing": timing, "files": files, "n_samples": rec.n, "n_steps": rec.n_segments,
+    })

@@ -1,0 +1,69 @@
+"""The turn-table campaign in rerun: the table spinning, the IMU frame, the index pulses,
+raw gyro volts and calibrated rates (10 Hz block means), references per step."""
+from __future__ import annotations
+
+import numpy as np
+
+from imurig.calibration.gyro import AXES, GYRO
+from imurig.recording import Recording
+from imurig.rigs.mujoco_rig import load_model
+from imurig.rigs.tilt_table import _quat_wxyz
+from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
+from imurig.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+
+DISPLAY_HZ = 10.0
+
+
+def block_means(rec: Recording, names, k: int, source="channels"):
+    """Means over consecutive blocks of k samples (within contiguous blocks): (times, {name: means})."""
+    data = rec.channels if source == "channels" else rec.truth_signals
+    ts, out = [], {n: [] for n in names}
+    for b in rec.blocks():
+        m = (b.stop - b.start) // k
+        if m == 0:
+            continue
+        sl = slice(b.start, b.start + m * k)
+        ts.append(rec.time_s[sl].reshape(m, k).mean(axis=1))
+        for n in names:
+            out[n].append(data[n][sl].reshape(m, k).mean(axis=1))
+    return np.concatenate(ts), {n: np.concatenate(v) for n, v in out.items()}
+
+
+def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
+    model = load_model("turn_table.xml")
+    k = max(1, int(round(rec.sample_rate_hz / DISPLAY_HZ)))
+    # poses: the angle is sampled (not averaged) so the table turns smoothly in the viewer
+    idx = np.concatenate([np.arange(b.start, b.stop, k) for b in rec.blocks()])
+    t_pose = rec.time_s[idx]
+    src = rec.truth_signals.get("spin_angle")
+    if src is None:
+        return
+    qpos = src[idx][:, None]
+    runs = rec.meta.get("runs", ["r_up"])
+    tt = (rec.truth or {}).get("rig", {}).get("turn_table", {})
+    e = TurnTableErrors(**{k_: v for k_, v in tt.items() if k_ in TurnTableErrors.__dataclass_fields__})
+    block_of = np.searchsorted([rec.time_s[b.start] for b in rec.blocks()], t_pose, side="right") - 1
+    mount_q = np.array([_quat_wxyz(e.wobble_rotation() @ MOUNTS[runs[min(i, len(runs) - 1)]]) for i in block_of])
+    cal = res["main"]
+    with RrdWriter(path, recording_name="turn-table campaign", overwrite=overwrite) as w:
+        log_mujoco_model(w, model)
+        log_body_poses(w, model, t_pose, qpos, body_quat_overrides={"imu_mount": mount_q})
+        log_frame_axes(w, body_path(model, model.body("imu_mount").id), length=0.15)
+        t, raw = block_means(rec, list(GYRO), k)
+        log_scalars(w, "signals/raw", t, raw, {c: "V" for c in GYRO})
+        calibrated = cal.apply(rec)
+        t, c = block_means(calibrated, [f"gyro_cal_{a}" for a in AXES], k)
+        log_scalars(w, "signals/calibrated", t, {f"w_{a}": np.degrees(c[f"gyro_cal_{a}"]) for a in AXES},
+                    {f"w_{a}": "deg/s" for a in AXES})
+        mid = 0.5 * (res["windows"].segments["start_s"] + res["windows"].segments["stop_s"])
+        log_scalars(w, "signals/calibrated/reference", mid,
+                    {f"w_{a}": np.degrees(res["reference"][:, j]) for j, a in enumerate(AXES)},
+                    {f"w_{a}": "deg/s" for a in AXES})
+        for name, ev in rec.events.items():
+            if name.startswith("pulse_") and ev.size:
+                log_scalars(w, "signals/pulses", ev, {name: np.ones_like(ev)}, {name: "1"})
+        lines = ["# Turn-table gyro calibration", "", "| parameter | injected | estimate | std. error |",
+                 "|---|---|---|---|"]
+        for p in res["parameters"]:
+            lines.append(f"| {p['name']} | {p['injected']} | {p['estimate']:.6g} | {p['std_error']:.2g} |")
+        log_text(w, "summary", "\n".join(lines))
