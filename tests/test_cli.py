@@ -98,3 +98,25 @@ def test_apply_calibration_to_a_new_recording(report, tmp_path):
     s = json.loads((report / "summary.json").read_text())
     sig = max(s["models"]["main"]["axes"][a]["sigma_res"] for a in "xyz")
     assert np.sqrt(np.mean((med - ref) ** 2)) < 2 * sig
+
+
+def test_turn_table_campaign_cli(tmp_path):
+    out = tmp_path / "tt"
+    assert main(["campaign", "turn-table", "--rates", "20,40,80", "--min-window", "5", "--no-studies",
+                 "--seed", "4", "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert len(s["parameters"]) == 15
+    for p in s["parameters"]:
+        assert {"name", "unit", "injected", "estimate", "std_error"} <= set(p)
+        assert abs(p["estimate"] - p["injected"]) <= 4 * p["std_error"], p
+    import rerun as rr
+
+    paths = {str(c.entity_path) for c in rr.chunk.RrdReader(str(out / "campaign.rrd")).stream()}
+    assert any("spindle" in p for p in paths) and any("signals/raw/gyro_p" in p for p in paths)
+    assert (out / "fig_4_21_gyro_residuals.png").stat().st_size > 0
+
+
+def test_simona_cli(tmp_path, capsys):
+    assert main(["simona", "--out", str(tmp_path / "s")]) == 0
+    assert (tmp_path / "s" / "fig_4_19_simona.png").stat().st_size > 0
+    assert "virtual" in capsys.readouterr().out.lower()
