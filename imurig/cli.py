@@ -181,6 +181,7 @@ def _run_calibrate(a):
 
 def _run_apply(a):
     from imurig.calibration.accelerometer import AccelerometerCalibration
+    from imurig.calibration.gyro import GyroCalibration
     from imurig.labcsv import write_csv
     from imurig.recording import load, save_h5
 
@@ -188,15 +189,17 @@ def _run_apply(a):
         d = json.loads(Path(a.calibration).read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise ImurigError(f"cannot read calibration {a.calibration}: {e}") from None
+    kinds = {c.SPEC.json_kind: c for c in (AccelerometerCalibration, GyroCalibration)}
     try:
-        cal = AccelerometerCalibration.from_dict(d)
+        cal = kinds.get(d.get("kind"), AccelerometerCalibration).from_dict(d)
     except (ValueError, KeyError) as e:
         raise ImurigError(str(e)) from None
     rec = cal.apply(load(a.recording).validate())
     dst = Path(a.out)
     writer = write_csv if dst.suffix.lower() == ".csv" else save_h5
     writer(rec, dst, overwrite=a.overwrite)
-    print(f"wrote {dst} with channels acc_cal_x, acc_cal_y, acc_cal_z (m/s^2)")
+    sp = cal.SPEC
+    print(f"wrote {dst} with channels " + ", ".join(sp.cal_prefix + x for x in sp.axes) + f" ({sp.quantity_unit})")
 
 
 def _run_convert(a):
@@ -254,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--overwrite", action="store_true")
     cal.set_defaults(func=_run_calibrate)
 
-    app = sub.add_parser("apply", help="apply a calibration.json to a recording (adds acc_cal_* channels)")
+    app = sub.add_parser("apply", help="apply a calibration.json to a recording (adds acc_cal_* or gyro_cal_*)")
     app.add_argument("calibration", help="calibration.json from a report folder")
     app.add_argument("recording", help=".csv or .h5")
     app.add_argument("--out", required=True, help="output recording, .h5 or .csv")
