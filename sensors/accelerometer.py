@@ -3,13 +3,17 @@
 Measurement equation, per sample n and axis i (SI inside):
 
     a_S  = (I + M) f_C                                   [m/s^2, (n,3)] sensed along the input axes
-    a_i' = a_S,i + b_i + k2_i a_S,i^2 + kb_i (T - T0)    [m/s^2]
-    I_i  = K1_i (1 + ks_i (T - T0)) a_i' + i_noise       [A]
+    a_i' = a_S,i + b_i + k2_i a_S,i^2 + sum_k kb_ik (T - T0)^k + Hb_i h   [m/s^2]
+    I_i  = K1_i (1 + ks_i (T - T0) + Hs_i h) a_i' + i_noise              [A]
     V_i  = R_L,i I_i                                     [V]  voltage over the load resistor
 
 f_C: true specific force in the IMU case frame C. M: input-axis misalignment (zero
 diagonal, rad). b: bias (m/s^2). k2: second-order nonlinearity (1/(m/s^2)). K1: current
-scale factor (A per m/s^2). kb, ks: bias and scale-factor temperature coefficients.
+scale factor (A per m/s^2). kb_ik (k = 1..3): bias temperature polynomial (m/s^2/K^k);
+ks: scale-factor temperature coefficient (1/K). Hb, Hs: bias (m/s^2) and scale-factor (-)
+thermal hysteresis: the gap between the heating and cooling branches; h in [-1/2, 1/2] is
+the hysteresis state of :func:`imurig.sensors.thermal.hysteresis_state`. T: the
+accelerometer's own temperature (K).
 i_noise: output current noise in the datasheet's three bands.
 
 Datasheet units (mA/g, ug, ug/g^2, ppm/C, mrad) appear only in ``from_datasheet``.
@@ -39,7 +43,12 @@ class QFlexTriad:
     misalignment_rad: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     k2_per_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     bias_tempco_m_s2_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_tempco2_m_s2_per_K2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_tempco3_m_s2_per_K3: np.ndarray = field(default_factory=lambda: np.zeros(3))
     scale_tempco_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    bias_hysteresis_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    scale_hysteresis: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    hysteresis_width_K: float = 4.0
     load_resistor_ohm: np.ndarray = field(default_factory=lambda: np.full(3, 750.0))
     noise_bands: tuple = ((0.0, 10.0, 10e-9), (10.0, 500.0, 100e-9), (500.0, 10e3, 2e-6))
     reference_temperature_K: float = 298.15
@@ -47,7 +56,8 @@ class QFlexTriad:
 
     def __post_init__(self):
         for name in ("bias_m_s2", "k1_A_per_m_s2", "k2_per_m_s2", "bias_tempco_m_s2_per_K",
-                     "scale_tempco_per_K", "load_resistor_ohm"):
+                     "bias_tempco2_m_s2_per_K2", "bias_tempco3_m_s2_per_K3", "scale_tempco_per_K",
+                     "bias_hysteresis_m_s2", "scale_hysteresis", "load_resistor_ohm"):
             setattr(self, name, _vec(getattr(self, name)))
         self.misalignment_rad = np.asarray(self.misalignment_rad, float).reshape(3, 3).copy()
         np.fill_diagonal(self.misalignment_rad, 0.0)
@@ -57,7 +67,8 @@ class QFlexTriad:
     def from_datasheet(cls, rng: np.random.Generator | None = None, *, scale_factor_mA_per_g=1.33,
                        scale_factor_spread=0.01, bias_max_ug=8000.0, misalignment_max_mrad=2.0,
                        nonlinearity_max_ug_per_g2=48.0, bias_tempco_max_ug_per_C=70.0,
-                       scale_tempco_max_ppm_per_C=200.0, load_resistor_ohm=750.0,
+                       scale_tempco_max_ppm_per_C=200.0, bias_hysteresis_max_ug=1000.0,
+                       scale_hysteresis_max_ppm=1000.0, load_resistor_ohm=750.0,
                        noise_nA_rms=(10.0, 100.0, 2000.0)) -> "QFlexTriad":
         """A triad in datasheet units; with ``rng``, each error is drawn uniformly within its limit.
 
@@ -71,42 +82,67 @@ class QFlexTriad:
         k1 = np.full(3, scale_factor_mA_per_g * 1e-3 / g)
         if rng is None:
             return cls(k1_A_per_m_s2=k1, load_resistor_ohm=np.full(3, load_resistor_ohm), noise_bands=bands)
-        u = lambda lim, shape=3: rng.uniform(-lim, lim, size=shape)  # noqa: E731
-        return cls(
+        u = lambda lim, shape=3, r=rng: r.uniform(-lim, lim, size=shape)  # noqa: E731
+        base = dict(
             bias_m_s2=u(bias_max_ug * 1e-6 * g),
             k1_A_per_m_s2=k1 * (1 + u(scale_factor_spread)),
             misalignment_rad=u(misalignment_max_mrad * 1e-3, (3, 3)),
             k2_per_m_s2=u(nonlinearity_max_ug_per_g2 * 1e-6 / g),
             bias_tempco_m_s2_per_K=u(bias_tempco_max_ug_per_C * 1e-6 * g),
             scale_tempco_per_K=u(scale_tempco_max_ppm_per_C * 1e-6),
-            load_resistor_ohm=np.full(3, load_resistor_ohm),
-            noise_bands=bands,
         )
+        # the thermal-curvature and hysteresis draws come from a spawned generator, so they do
+        # not shift the stream the other sensors of a lab draw from
+        t = rng.spawn(1)[0]
+        base.update(
+            # curvature: up to 20 % (quadratic) and 10 % (cubic) of the linear tempco's change over +-50 K
+            bias_tempco2_m_s2_per_K2=u(0.2 * bias_tempco_max_ug_per_C * 1e-6 * g / 50, r=t),
+            bias_tempco3_m_s2_per_K3=u(0.1 * bias_tempco_max_ug_per_C * 1e-6 * g / 50**2, r=t),
+            bias_hysteresis_m_s2=t.uniform(0.2, 1.0, 3) * bias_hysteresis_max_ug * 1e-6 * g,
+            scale_hysteresis=t.uniform(0.2, 1.0, 3) * scale_hysteresis_max_ppm * 1e-6,
+        )
+        return cls(load_resistor_ohm=np.full(3, load_resistor_ohm), noise_bands=bands, **base)
 
     # ------------------------------------------------------------- physics
     def nominal_sensitivity_V_per_m_s2(self) -> np.ndarray:
         """What the lab would use to turn volts into indicated m/s^2: nominal K1 * R_L."""
         return np.full(3, 1.33e-3 / G_STANDARD) * self.load_resistor_ohm
 
-    def ideal_voltage(self, f_C: np.ndarray, temperature_K: np.ndarray | float | None = None) -> np.ndarray:
-        """Noise-free output voltages (n, 3) for specific force ``f_C`` (n, 3) m/s^2."""
+    def ideal_voltage(self, f_C: np.ndarray, temperature_K: np.ndarray | float | None = None,
+                      hysteresis: np.ndarray | float = 0.0) -> np.ndarray:
+        """Noise-free output voltages (n, 3) for specific force ``f_C`` (n, 3) m/s^2, the
+        accelerometers' temperature (K, scalar, (n,) or (n,3)) and hysteresis state h ((n,) or (n,3))."""
         f_C = np.asarray(f_C, float)
         a_S = f_C + f_C @ self.misalignment_rad.T
-        dT = 0.0 if temperature_K is None else np.asarray(temperature_K, float).reshape(-1, 1) - \
-            self.reference_temperature_K
-        a = a_S + self.bias_m_s2 + self.k2_per_m_s2 * a_S**2 + self.bias_tempco_m_s2_per_K * dT
-        current = self.k1_A_per_m_s2 * (1 + self.scale_tempco_per_K * dT) * a
+        if temperature_K is None:
+            dT = 0.0
+        else:
+            T = np.asarray(temperature_K, float)
+            dT = (T.reshape(-1, 1) if T.ndim == 1 else T) - self.reference_temperature_K
+        h = np.asarray(hysteresis, float)
+        h = h.reshape(-1, 1) if h.ndim == 1 else h
+        a = (a_S + self.bias_m_s2 + self.k2_per_m_s2 * a_S**2 + self.bias_tempco_m_s2_per_K * dT
+             + self.bias_tempco2_m_s2_per_K2 * dT**2 + self.bias_tempco3_m_s2_per_K3 * dT**3
+             + self.bias_hysteresis_m_s2 * h)
+        current = self.k1_A_per_m_s2 * (1 + self.scale_tempco_per_K * dT + self.scale_hysteresis * h) * a
         return current * self.load_resistor_ohm
 
-    def noise_current(self, n: int, fs: float, rng: np.random.Generator) -> np.ndarray:
-        """Output current noise (n, 3) A. Bands above fs/2 alias into the sampled band (no
-        analog anti-alias filter before the ADC), so their rms is kept as white noise."""
+    def noise_current(self, n: int, fs: float, rng: np.random.Generator, averaged: bool = False) -> np.ndarray:
+        """Output current noise (n, 3) A. Sampled directly (``averaged`` false), bands above fs/2
+        alias into the sampled band (no analog anti-alias filter before the ADC), so their rms
+        is kept as white noise. For averaged logging (each sample the mean of many fast
+        conversions) the parts above fs/2 average out and only the in-band part is kept."""
         out = np.zeros((n, 3))
         if not self.noise_enabled:
             return out
         for lo, hi, rms in self.noise_bands:
             if rms <= 0:
                 continue
+            if averaged:
+                if lo >= fs / 2:
+                    continue
+                rms = rms * np.sqrt((min(hi, fs / 2) - lo) / (hi - lo))
+                hi = min(hi, fs / 2)
             if lo >= fs / 2:
                 out += rng.standard_normal((n, 3)) * rms
             else:
@@ -114,9 +150,9 @@ class QFlexTriad:
         return out
 
     def output_voltage(self, f_C: np.ndarray, fs: float, rng: np.random.Generator,
-                       temperature_K=None) -> np.ndarray:
+                       temperature_K=None, hysteresis=0.0) -> np.ndarray:
         """Voltages (n, 3) over the load resistors, with current noise."""
-        v = self.ideal_voltage(f_C, temperature_K)
+        v = self.ideal_voltage(f_C, temperature_K, hysteresis)
         return v + self.noise_current(v.shape[0], fs, rng) * self.load_resistor_ohm
 
     def truth(self) -> dict:

@@ -10,6 +10,10 @@ multiplexing frequency f_mux, once per sample period. Per sample n and scan slot
     code  = clip(round((u_j + e_adc) / q), -2^15, 2^15 - 1)   [-]   q = 2 range / 2^16
     V     = code * q                                           [V]
 
+With averaged logging (``averaging`` = conversions per logged sample, e.g. 100 for 10 Hz
+records of a 1 kHz converter) the logged value is the mean of dithered conversions:
+V = u_j + e, e ~ N(0, (q^2/12 + e_adc^2) / averaging), no longer on the LSB grid.
+
 g: 50 Hz ground-loop pickup, present only with ground-referenced single-ended wiring
 (GRSE) of grounded sources (seed 3.4). c_mode: common-mode noise, rejected by the
 differential configuration (DIFF). e_adc: converter input noise. The crosstalk grows
@@ -42,6 +46,7 @@ class DAQ6036E:
     mains_hz: float = 50.0
     common_mode_noise_V_rms: float = 30e-6
     input_noise_lsb_rms: float = 0.6
+    averaging: int = 1  # conversions averaged into one logged sample (slow averaged logging)
 
     def validate(self):
         if self.grounding not in GROUNDINGS:
@@ -106,8 +111,14 @@ class DAQ6036E:
                     prev = held
                 u = u + c * (prev - u)
             held = u_in
-            u = u + self.input_noise_lsb_rms * q * rng.standard_normal(n)
-            codes = np.clip(np.round(u / q), lo, hi)
+            if self.averaging > 1:
+                # the mean of `averaging` dithered conversions: quantisation and input noise
+                # average down, (q^2/12 + (e q)^2) / averaging, and the result is no longer on the grid
+                var = (q**2 / 12 + (self.input_noise_lsb_rms * q) ** 2) / self.averaging
+                codes = np.clip((u + np.sqrt(var) * rng.standard_normal(n)) / q, lo, hi)
+            else:
+                u = u + self.input_noise_lsb_rms * q * rng.standard_normal(n)
+                codes = np.clip(np.round(u / q), lo, hi)
             nsat = int(np.count_nonzero((codes == lo) | (codes == hi)))
             if nsat:
                 saturated[name] = nsat

@@ -47,6 +47,16 @@ class LabClimate:
 
 
 @dataclass
+class ThermalLags:
+    """First-order thermal time constants (s) of the sensor groups inside the IMU box, used
+    when the rig gives the air temperature (``T_air`` truth signal, e.g. a thermal chamber)."""
+
+    accelerometers_s: float = 480.0
+    gyros_s: float = 720.0
+    box_sensor_s: float = 360.0
+
+
+@dataclass
 class ImuLab:
     """The MiniSAR IMU, its junction box and the acquisition set-up, as one switchable chain."""
 
@@ -62,6 +72,7 @@ class ImuLab:
     cable: LooseCable = field(default_factory=LooseCable)
     climate: LabClimate = field(default_factory=LabClimate)
     slip_rings: SlipRingNoise = field(default_factory=SlipRingNoise)
+    thermal_lags: ThermalLags = field(default_factory=ThermalLags)
     timers: tuple[EventTimer, ...] = field(default_factory=lambda: (gps_mark_timer(), hp6700_counter()))
 
     @classmethod
@@ -86,14 +97,25 @@ class ImuLab:
 
         f_dist = (self.pump.specific_force(t, hour, fs, child_rng(seed, "pump"))
                   + self.people.specific_force(t, hour, fs, child_rng(seed, "people")))
-        T_imu = self.climate.imu_temperature_K(t)
+        if "T_air" in ts:  # a thermal chamber: each sensor group lags the air temperature
+            from imurig.sensors.thermal import first_order_lag, hysteresis_state
+
+            T_acc = first_order_lag(ts["T_air"], t, self.thermal_lags.accelerometers_s)
+            T_gyro = first_order_lag(ts["T_air"], t, self.thermal_lags.gyros_s)
+            T_box = first_order_lag(ts["T_air"], t, self.thermal_lags.box_sensor_s)
+            h_acc = hysteresis_state(T_acc, self.accelerometers.hysteresis_width_K, fs)
+        else:
+            T_acc = T_gyro = T_box = self.climate.imu_temperature_K(t)
+            h_acc = 0.0
+        T_imu = T_acc
         analog, slope, used = {}, {}, []
         if wanted("acc", AXES):
             f_C = np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1)
             acc = self.accelerometers
-            v = acc.ideal_voltage(f_C + f_dist, T_imu)
+            v = acc.ideal_voltage(f_C + f_dist, T_acc, h_acc)
             d = np.gradient(v, t, axis=0)
-            v += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers")) * acc.load_resistor_ohm
+            v += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers"),
+                                   averaged=bool(rig.meta.get("averaged_logging"))) * acc.load_resistor_ohm
             for j, a in enumerate(AXES):
                 analog[f"acc_{a}"], slope[f"acc_{a}"] = v[:, j], d[:, j]
             used.append("accelerometers")
@@ -107,7 +129,7 @@ class ImuLab:
         if wanted("gyro", GYRO_AXES):
             w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
             g = self.gyros
-            v = g.ideal_voltage(w_C, T_imu)
+            v = g.ideal_voltage(w_C, T_gyro)
             d = np.gradient(v, t, axis=0)
             grng = child_rng(seed, "gyros")
             for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
@@ -117,7 +139,7 @@ class ImuLab:
             used.append("gyros")
         for name, sensor in self.temp_sensors.items():
             if name in scan:
-                analog[name] = sensor.voltage(T_imu, child_rng(seed, name))
+                analog[name] = sensor.voltage(T_box if name == "temp_box" else T_acc, child_rng(seed, name))
         if self.slip_rings.enabled and "spin_angle" in ts:
             # every IMU line crosses a slip ring; lines from the table itself do not
             for name in list(analog):
@@ -141,8 +163,13 @@ class ImuLab:
         quantum = {k: self.adc.lsb_V for k in volts}
         truth_signals = dict(rig.truth_signals)
         truth_units = dict(rig.truth_units)
-        truth_signals["T_imu"] = T_imu
-        truth_units["T_imu"] = "K"
+        if "T_air" in ts:
+            for k, v in (("T_acc", T_acc), ("T_gyro", T_gyro), ("T_box", T_box), ("h_acc", h_acc)):
+                truth_signals[k] = v
+                truth_units[k] = "1" if k == "h_acc" else "K"
+        else:
+            truth_signals["T_imu"] = T_imu
+            truth_units["T_imu"] = "K"
         if np.any(f_dist):
             for j, a in enumerate(AXES):
                 truth_signals[f"f_dist_C_{a}"] = f_dist[:, j]
@@ -168,6 +195,7 @@ class ImuLab:
         truth["sensors"]["temperature_sensors"] = {k: s.truth() for k, s in self.temp_sensors.items() if k in scan}
         truth["chain"] = {"adc": self.adc.settings(), "pump": asdict(self.pump), "people": asdict(self.people),
                           "cable": asdict(self.cable), "climate": asdict(self.climate),
+                          "thermal_lags": asdict(self.thermal_lags),
                           "slip_rings": asdict(self.slip_rings) if "spin_angle" in ts else None,
                           "timers": {tm.name: tm.settings() for tm in self.timers}}
         truth["seed"] = {"entropy": str(seed.entropy), "spawn_key": list(seed.spawn_key)}

@@ -49,12 +49,14 @@ class PumpVibration:
         weights = np.asarray(self.harmonics, float)
         amp_each = self.rms_m_s2 * np.sqrt(2) * weights / np.sqrt(np.sum(weights**2))
         for h, a in enumerate(amp_each, start=1):
+            if h * self.fundamental_hz >= fs / 2:  # averaged out by a slow (averaging) logger
+                continue
             env = 1 + 0.5 * band_noise(rng, (n,), fs, (0, self.modulation_hz), 1.0)
             direction = band_noise(rng, (n, 3), fs, (0, self.modulation_hz), 1.0) + rng.normal(size=3)
             direction /= np.linalg.norm(direction, axis=1, keepdims=True)
             phase = rng.uniform(0, 2 * np.pi)
             out += (a * env * np.sin(2 * np.pi * h * self.fundamental_hz * time_s + phase))[:, None] * direction
-        if self.broadband_rms_m_s2 > 0:
+        if self.broadband_rms_m_s2 > 0 and fs / 2 > 40.0:
             out += band_noise(rng, (n, 3), fs, (5.0, 40.0), self.broadband_rms_m_s2)
         return out * on[:, None]
 
@@ -78,7 +80,7 @@ class PeopleTransients:
     def specific_force(self, time_s, hour_of_day, fs, rng) -> np.ndarray:
         n = time_s.size
         out = np.zeros((n, 3))
-        if not self.enabled:
+        if not self.enabled or self.frequency_hz >= fs / 2:  # averaged out by a slow logger
             return out
         on = working_mask(hour_of_day, self.work_start_h, self.work_stop_h)
         rate = np.where(on, self.rate_per_hour_working, self.rate_per_hour_evening) / 3600.0 / fs
