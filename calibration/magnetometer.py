@@ -519,6 +519,18 @@ _TUMBLE = ("tumble the sensor through more orientations (the field must point in
            "swing or a small cone is not enough)")
 
 
+def _direction_spread(d: np.ndarray) -> float:
+    """Smallest eigenvalue of the covariance of the unit vectors of ``d`` (n, 3)."""
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    return float(np.linalg.eigvalsh(np.cov(u, rowvar=False))[0])
+
+
+def _check_spread(spread: float, minimum: float, where: str = "") -> None:
+    if spread < minimum:
+        raise ScheduleError(f"the field directions{where} do not span the sphere (direction spread {spread:.3g} "
+                            f"< {minimum:g}; uniform = 0.333); " + _TUMBLE)
+
+
 def _T_from_theta(t: np.ndarray) -> np.ndarray:
     T = np.zeros((3, 3))
     for k, (i, j) in enumerate(_T_INDEX):
@@ -604,12 +616,8 @@ def fit_ellipsoid_3d(m, field_total_T: float, *, min_direction_spread: float = 0
         raise ScheduleError(f"the fitted quadric is not an ellipsoid (shape eigenvalues {ev.round(4).tolist()}); "
                             + _TUMBLE)
     b0 = c0 + L * x0
-    dirs = m - b0
-    dirs = dirs / np.linalg.norm(dirs, axis=1)[:, None]
-    spread = float(np.linalg.eigvalsh(np.cov(dirs, rowvar=False))[0])
-    if spread < min_direction_spread:
-        raise ScheduleError(f"the field directions do not span the sphere (direction spread {spread:.3g} < "
-                            f"{min_direction_spread:g}; uniform = 0.333); " + _TUMBLE)
+    spread = _direction_spread(m - b0)
+    _check_spread(spread, min_direction_spread)
     T0 = np.linalg.cholesky((F / L) ** 2 * P).T               # upper triangular, positive diagonal
     _check_semi_axes(scipy.linalg.solve_triangular(T0, np.eye(3)), scale_bounds, F, "F", _TUMBLE)
     theta0 = np.concatenate([[T0[i, j] for i, j in _T_INDEX], b0 / F])
@@ -624,6 +632,7 @@ def fit_ellipsoid_3d(m, field_total_T: float, *, min_direction_spread: float = 0
     values = theta * unit
     cov = cov_n * np.outer(unit, unit)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    _check_spread(_direction_spread(m - values[6:]), min_direction_spread, " around the fitted centre")
     T = _T_from_theta(values[:6])
     A = scipy.linalg.solve_triangular(T, np.eye(3))
     b = values[6:]

@@ -2,6 +2,8 @@
 
     imurig campaign tilt-table            simulate, calibrate and report the seed's protocol
     imurig campaign turn-table            gyro calibration, timers, arm beyond 1 g, SIMONA
+    imurig campaign thermal               thermal chamber: bias/scale vs temperature, hysteresis
+    imurig campaign magnetometer          IGRF field, two-step ellipse/ellipsoid, compass swing, heading
     imurig simona                         the SIMONA table (appendix B) beside its virtual twin
     imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
     imurig apply CAL.json REC --out OUT   apply a calibration to a new recording
@@ -126,6 +128,49 @@ def _run_simona(a):
     print(md)
 
 
+def _add_thermal(sub):
+    from imurig.rigs.thermal_chamber import ThermalProfile
+
+    d = ThermalProfile()
+    p = sub.add_parser("thermal", help="thermal-chamber calibration, two cycles, six attitudes (seed 4.5)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--out", default="imurig-out/thermal")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--seed", type=int, default=2005)
+    p.add_argument("--low", type=float, default=d.low_C, help="lowest set-point, C")
+    p.add_argument("--high", type=float, default=d.high_C, help="highest set-point, C")
+    p.add_argument("--step", type=float, default=d.step_C, help="set-point step, C")
+    p.add_argument("--cycles", type=int, default=d.cycles)
+    p.add_argument("--soak", type=float, default=d.soak_s, help="soak time per set-point, s")
+    p.add_argument("--no-rrd", action="store_true")
+    p.add_argument("--no-recording", action="store_true")
+    p.set_defaults(func=_run_thermal)
+
+
+def _run_thermal(a):
+    from imurig.campaigns.thermal import ThermalCampaign
+    from imurig.campaigns.thermal_report import run
+    from imurig.rigs.thermal_chamber import ThermalProfile
+
+    prof = ThermalProfile(low_C=a.low, high_C=a.high, step_C=a.step, cycles=a.cycles, soak_s=a.soak)
+    prof.validate()
+    print(f"imurig: thermal campaign, {len(prof.setpoints())} set-points, seed {a.seed} -> {a.out}", file=sys.stderr)
+    s = run(ThermalCampaign(profile=prof, seed=a.seed), a.out, overwrite=a.overwrite, rrd=not a.no_rrd,
+            save_recording=not a.no_recording)
+    _print_params(s["parameters"])
+    for k, v in s["hysteresis"].items():
+        print(f"hysteresis {k}: measured gap {v['measured_gap_m_s2']:.3e}, injected {v['injected_hysteresis_m_s2']:.3e} m/s^2")
+    print(f"report: {Path(a.out) / 'report.md'}")
+
+
+def _print_params(params):
+    print(f"{'parameter':30s} {'injected':>13s} {'estimate':>13s} {'std.err':>9s} {'z':>6s}")
+    for p in params:
+        inj = "–" if p.get("injected") is None else f"{p['injected']:+.5e}"
+        z = "–" if p.get("z") is None else f"{p['z']:+.2f}"
+        print(f"{p['name']:30s} {inj:>13s} {p['estimate']:+.5e} {p['std_error']:.2e} {z:>6s}")
+
+
 def _run_tilt_table(a):
     from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.campaigns.tilt_table_report import run
@@ -237,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     csub = camp.add_subparsers(dest="campaign", required=True)
     _add_tilt_table(csub)
     _add_turn_table(csub)
+    _add_thermal(csub)
 
     sim = sub.add_parser("simona", help="the SIMONA gyro table (appendix B): real data beside the virtual twin",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
