@@ -171,6 +171,37 @@ def _print_params(params):
         print(f"{p['name']:30s} {inj:>13s} {p['estimate']:+.5e} {p['std_error']:.2e} {z:>6s}")
 
 
+def _add_magnetometer(sub):
+    p = sub.add_parser("magnetometer", help="IGRF field, two-step ellipse/ellipsoid, compass swing, heading (seed 4.6-4.7)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--out", default="imurig-out/magnetometer")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--seed", type=int, default=2005)
+    p.add_argument("--start-time", default="2005-06-21T10:00:00+02:00", help="date and time (for IGRF)")
+    p.add_argument("--hard-iron-nT", type=float, default=6000.0, help="largest hard-iron bias per axis")
+    p.add_argument("--noise-nT", type=float, default=5.0)
+    p.add_argument("--no-rrd", action="store_true")
+    p.add_argument("--no-recording", action="store_true")
+    p.set_defaults(func=_run_magnetometer)
+
+
+def _run_magnetometer(a):
+    from imurig.campaigns.magnetometer import MagnetometerCampaign
+    from imurig.campaigns.magnetometer_report import run
+
+    camp = MagnetometerCampaign(seed=a.seed, start_time=a.start_time, hard_iron_max_nT=a.hard_iron_nT,
+                                noise_nT=a.noise_nT)
+    print(f"imurig: magnetometer campaign, seed {a.seed} -> {a.out}", file=sys.stderr)
+    s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording)
+    ig = s["igrf"]
+    print(f"IGRF: H = {ig['horizontal_nT']:.1f} nT (paper {ig['published_horizontal_nT']:.0f}), "
+          f"F = {ig['total_nT']:.1f} nT (paper {ig['published_total_nT']:.0f})")
+    _print_params(s["parameters"])
+    for k, v in s["heading_error_deg"].items():
+        print(f"heading error {k:36s} RMS {v['rms']:.3f} deg, max {v['max_abs']:.3f} deg")
+    print(f"report: {Path(a.out) / 'report.md'}")
+
+
 def _run_tilt_table(a):
     from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.campaigns.tilt_table_report import run
@@ -283,6 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_tilt_table(csub)
     _add_turn_table(csub)
     _add_thermal(csub)
+    _add_magnetometer(csub)
 
     sim = sub.add_parser("simona", help="the SIMONA gyro table (appendix B): real data beside the virtual twin",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)

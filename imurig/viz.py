@@ -320,3 +320,15 @@ def log_scalars(w: RrdWriter, entity_prefix: str, time_s, series: dict[str, np.n
 def log_text(w: RrdWriter, entity: str, markdown: str) -> None:
     """Static markdown TextDocument at ``entity`` (e.g. ``"summary"``)."""
     w.stream.log(entity, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def log_points(w: RrdWriter, entity: str, points: np.ndarray, color=(200, 200, 200), radius: float = 0.01) -> None:
+    """Static Points3D (n, 3) at ``entity`` (e.g. measured and calibrated magnetic field in uT)."""
+    pts = np.asarray(points, dtype=np.float32)
+    w.stream.log(entity, rr.Points3D(pts, colors=[color], radii=radius), static=True)
+
+
+def log_sphere(w: RrdWriter, entity: str, radius: float, color=(80, 200, 120, 60)) -> None:
+    """A static wire sphere of ``radius`` at the entity's origin (e.g. the IGRF field magnitude)."""
+    w.stream.log(entity, rr.Ellipsoids3D(half_sizes=[[radius] * 3], colors=[color],
+                                         fill_mode=rr.components.FillMode.MajorWireframe), static=True)

@@ -87,7 +87,7 @@ def _smooth_noise(rng, n, dt, fc, rms):
     w = rng.standard_normal((n, 2))
     sos = signal.butter(2, fc * 2 * dt, output="sos")
     y = signal.sosfiltfilt(sos, w, axis=0)
-    return y / max(np.std(y), 1e-12) * rms
+    return y / np.maximum(np.std(y, axis=0), 1e-12) * rms
 
 
 @dataclass
