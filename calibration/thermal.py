@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from imurig.calibration.preprocess import segment_statistic
-from imurig.calibration.regression import RegressionResult, fit_ols
+from imurig.calibration.regression import fit_ols
 from imurig.errors import RecordingError
 from imurig.recording import Recording
 from imurig.site import Site

@@ -220,7 +220,7 @@ class TriadCalibration:
                   + [(f"bias_{a}", q) for a in axes]
                   + [(f"nonlinearity_{a}", f"1/({q})") for a in axes])
         est = h(beta)
-        se = np.sqrt(np.clip(np.diag(_delta_cov(h, beta, cov)), 0, None))
+        se = np.sqrt(np.clip(np.diag(delta_cov(h, beta, cov)), 0, None))
         return [{"name": n, "unit": u, "estimate": float(e), "std_error": float(s)}
                 for (n, u), e, s in zip(labels, est, se) if np.isfinite(e)]
 
@@ -281,21 +281,7 @@ class TriadCalibration:
         return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
 
 
-def _delta_cov(h, x, cov) -> np.ndarray:
-    """Covariance of h(x) by linearisation with a central-difference Jacobian."""
-    x = np.asarray(x, float)
-    step = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)) * 1e-2, 1e-10 * np.maximum(1, np.abs(x)))
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e[i] = step[i]
-        cols.append((h(x + e) - h(x - e)) / (2 * step[i]))
-    J = np.stack(cols, axis=1)
-    J = np.where(np.isfinite(J), J, 0.0)
-    return J @ cov @ J.T
-
-
-def _delta_cov(h, x, cov) -> np.ndarray:
+def delta_cov(h, x, cov) -> np.ndarray:
     """Covariance of h(x) by linearisation with a central-difference Jacobian."""
     x = np.asarray(x, float)
     step = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)) * 1e-2, 1e-10 * np.maximum(1, np.abs(x)))

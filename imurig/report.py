@@ -110,3 +110,24 @@ def clean_json(obj):
     if isinstance(obj, np.integer):
         return int(obj)
     return obj
+
+
+def save_products(out: OutputFolder, rec, res, write_rrd, save_recording: bool = True, rrd: bool = True,
+                  stage=None) -> dict:
+    """Write the recording (HDF5) and the rerun file of a campaign into ``out``; returns the
+    files written. ``write_rrd(path, rec, res)`` is the campaign's own rerun writer;
+    ``stage(name)`` is called before each (progress display)."""
+    from imurig.recording import save_h5
+
+    files = {}
+    if save_recording:
+        if stage:
+            stage("recording.h5")
+        save_h5(rec, out.file("recording.h5"), overwrite=True)
+        files["recording"] = "recording.h5"
+    if rrd:
+        if stage:
+            stage("campaign.rrd")
+        write_rrd(out.file("campaign.rrd"), rec, res)
+        files["rrd"] = "campaign.rrd"
+    return files

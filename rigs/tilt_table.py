@@ -17,7 +17,6 @@ only through its inclinometer survey (:class:`TableSurvey`), which the reference
 """
 from __future__ import annotations
 
-import datetime as _dt
 import math
 from dataclasses import asdict, dataclass, field
 

@@ -82,7 +82,7 @@ class DAQ6036E:
         missing = [c for c in self.scan_list if c not in analog]
         if missing:
             raise ConfigError(f"scan list names {missing} but no such analog signals exist")
-        n, k = time_s.size, len(self.scan_list)
+        n = time_s.size
         common = np.zeros(n)
         if self.grounding != "DIFF" and self.common_mode_noise_V_rms > 0:
             common += self.common_mode_noise_V_rms * rng.standard_normal(n)

@@ -13,7 +13,6 @@ on or off leaves every other stage's realisation unchanged.
 """
 from __future__ import annotations
 
-import datetime as _dt
 from dataclasses import asdict, dataclass, field
 
 import numpy as np

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from imurig.calibration.thermal import fit_thermal, step_table
+from imurig.calibration.thermal import fit_thermal
 from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.errors import RecordingError, ScheduleError
 from imurig.rigs.thermal_chamber import ThermalProfile

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from conftest import SMALL, small_campaign
+from conftest import small_campaign
 from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
-from imurig.campaigns.tilt_table import Z_BOUND, TiltTableCampaign, calibrate, compare_with_truth
+from imurig.campaigns.tilt_table import Z_BOUND, calibrate, compare_with_truth
 from imurig.errors import ScheduleError, UnidentifiableTermsError
 from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, rotate_to_body,
                                     specific_force_C)

@@ -11,10 +11,9 @@ from imurig.calibration.gyro import pulse_edges
 from imurig.campaigns.turn_table import (Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros, gyro_parameters,
                                          round_time_error_at, simona_virtual, timer_study)
 from imurig.errors import ScheduleError, UnidentifiableTermsError
-from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol, rising_edges
+from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.gyro import FOGTriad
-from imurig.units import DEG
 
 SHORT = TurnTableProtocol(dial_rates_dps=(10, 20, 40, 80, 100), min_window_s=8.0)
 

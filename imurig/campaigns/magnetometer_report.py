@@ -10,8 +10,8 @@ import imurig
 from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse, indicated_field, manoeuvre_mask
 from imurig.campaigns.tilt_table_report import peak_rss_bytes
 from imurig.progress import progress
-from imurig.recording import Recording, save_h5
-from imurig.report import OutputFolder, clean_json, md_table
+from imurig.recording import Recording
+from imurig.report import OutputFolder, clean_json, md_table, save_products
 
 
 def _fig5(out, res) -> str:
@@ -136,12 +136,7 @@ def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_rec
             files = {"report": "report.md", "summary": "summary.json", "calibration": "magnetometer_calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
             bar.update()
-            if save_recording:
-                save_h5(rec, out.file("recording.h5"), overwrite=True)
-                files["recording"] = "recording.h5"
-            if rrd:
-                write_rrd(out.file("campaign.rrd"), rec, res)
-                files["rrd"] = "campaign.rrd"
+            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
             timing = {"total_s": round(time.perf_counter() - t0, 2), "samples": rec.n,
                       "peak_rss_MB": round(peak_rss_bytes() / 2**20, 1)}
             summary = clean_json({

@@ -11,8 +11,8 @@ from imurig.calibration.thermal import T0
 from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.campaigns.tilt_table_report import peak_rss_bytes
 from imurig.progress import progress
-from imurig.recording import Recording, save_h5
-from imurig.report import OutputFolder, clean_json, md_table
+from imurig.recording import Recording
+from imurig.report import OutputFolder, clean_json, md_table, save_products
 
 
 def _figs(out, rec: Recording, res: dict) -> dict:
@@ -123,14 +123,9 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
             out.write_json("thermal_calibration.json", thermal_calibration_dict(res))
             files = {"report": "report.md", "summary": "summary.json", "calibration": "thermal_calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            if save_recording:
-                save_h5(rec, out.file("recording.h5"), overwrite=True)
-                files["recording"] = "recording.h5"
-            if rrd:
-                from imurig.campaigns.thermal_rrd import write_rrd
+            from imurig.campaigns.thermal_rrd import write_rrd
 
-                write_rrd(out.file("campaign.rrd"), rec, res)
-                files["rrd"] = "campaign.rrd"
+            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
             bar.update()
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
                       "samples": rec.n, "simulated_hours": round(rec.time_s[-1] / 3600, 2),

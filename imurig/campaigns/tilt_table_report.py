@@ -9,19 +9,18 @@ from __future__ import annotations
 import resource
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 import imurig
-from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration, indicated
+from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
 from imurig.calibration.preprocess import lowpass_downsample
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
 from imurig.errors import UnidentifiableTermsError
 from imurig.progress import progress
-from imurig.recording import Recording, save_h5
-from imurig.report import OutputFolder, clean_json, fmt, md_table, published_figures
+from imurig.recording import Recording
+from imurig.report import OutputFolder, clean_json, md_table, published_figures, save_products
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""
@@ -279,18 +278,10 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             figs = make_figures(out, rec, res)
             files.update({f"figure_{k}": v for k, v in figs.items()})
             bar.update()
-            if save_recording:
-                stage("recording.h5")
-                save_h5(rec, out.file("recording.h5"), overwrite=True)
-                files["recording"] = "recording.h5"
-                bar.update()
-            if rrd:
-                from imurig.campaigns.tilt_table_rrd import write_rrd
+            from imurig.campaigns.tilt_table_rrd import write_rrd
 
-                stage("campaign.rrd")
-                write_rrd(out.file("campaign.rrd"), rec, res)
-                files["rrd"] = "campaign.rrd"
-                bar.update()
+            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
+            bar.update(int(save_recording) + int(rrd))
             stage("report")
             t_out = time.perf_counter() - t2
             peak = peak_rss_bytes()

@@ -22,6 +22,7 @@ from imurig.calibration.gyro import (AXIS_OF_MOUNT, INPUTS, MODELS, GyroCalibrat
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
+from imurig.calibration.triad import delta_cov
 from imurig.errors import ScheduleError, UnidentifiableTermsError
 from imurig.recording import Recording
 from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
@@ -214,10 +215,8 @@ def arm_study(seed: int = 2005, g_levels=(0.5, 1, 1.5, 2, 2.5, 3, 3.5, 4), radiu
         b0, b1, b2 = b
         return np.array([-b0, s_nom / b1, -b2 / b1**2])
 
-    from imurig.calibration.triad import _delta_cov
-
     est = h(res.coef_)
-    se = np.sqrt(np.diag(_delta_cov(h, res.coef_, cov)))
+    se = np.sqrt(np.diag(delta_cov(h, res.coef_, cov)))
     params = [{"name": "bias_x_effective", "unit": "m/s^2"}, {"name": "sensitivity_x", "unit": "V/(m/s^2)"},
               {"name": "nonlinearity_x", "unit": "1/(m/s^2)"}]
     if rec.truth:

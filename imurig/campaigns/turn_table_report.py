@@ -11,14 +11,14 @@ import time
 import numpy as np
 
 import imurig
-from imurig.calibration.gyro import AXES, GYRO
+from imurig.calibration.gyro import AXES
 from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
 from imurig.campaigns.tilt_table_report import peak_rss_bytes
 from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros,
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
 from imurig.progress import progress
-from imurig.recording import Recording, save_h5
-from imurig.report import OutputFolder, clean_json, md_table, published_figures
+from imurig.recording import Recording
+from imurig.report import OutputFolder, clean_json, md_table, published_figures, save_products
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -125,7 +125,6 @@ def _param_table(params) -> str:
 
 
 def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
-    pub = published_figures()
     cal = res["main"]
     L = [f"# Turn-table gyro calibration — imurig {imurig.__version__}\n"]
     if camp:
@@ -166,7 +165,7 @@ def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
         if "timers" in figs:
             L.append(f"\n![timers]({figs['timers']})\n")
     if arm:
-        L.append(f"\n## Accelerometers beyond 1 g on the arm (seed chapter 6)\n")
+        L.append("\n## Accelerometers beyond 1 g on the arm (seed chapter 6)\n")
         L.append(f"Radius {arm['radius_m']} m, up to {arm['max_g']:.2f} g, both directions, HP timer.\n")
         L.append(_param_table(arm["parameters"]))
         L.append(f"\nσ_res linear {arm['sigma_res_linear']:.3e} m/s², with the second-order term "
@@ -259,18 +258,10 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             bar.update()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            if save_recording:
-                stage("recording.h5")
-                save_h5(rec, out.file("recording.h5"), overwrite=True)
-                files["recording"] = "recording.h5"
-                bar.update()
-            if rrd:
-                stage("campaign.rrd")
-                from imurig.campaigns.turn_table_rrd import write_rrd
+            from imurig.campaigns.turn_table_rrd import write_rrd
 
-                write_rrd(out.file("campaign.rrd"), rec, res)
-                files["rrd"] = "campaign.rrd"
-                bar.update()
+            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
+            bar.update(int(save_recording) + int(rrd))
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
                       "simulated_samples_per_s": round(rec.n / t_sim), "samples": rec.n,
