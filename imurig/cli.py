@@ -7,6 +7,7 @@
     imurig simona                         the SIMONA table (appendix B) beside its virtual twin
     imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
     imurig apply CAL.json REC --out OUT   apply a calibration to a new recording
+    imurig diagnose REC                   where recording and twin differ; names the physics left out
     imurig convert IN OUT                 HDF5 <-> lab CSV
     imurig info REC                       what a recording holds
 """
@@ -278,6 +279,37 @@ def _run_apply(a):
     print(f"wrote {dst} with channels " + ", ".join(sp.cal_prefix + x for x in sp.axes) + f" ({sp.quantity_unit})")
 
 
+def _run_diagnose(a):
+    from imurig.diagnose.report import run
+
+    if a.recording == "simona":
+        from imurig.calibration.simona import read_simona
+
+        rec = read_simona()
+    elif a.recording.lower().endswith(".csv") and _is_appendix_b(a.recording):
+        from imurig.calibration.simona import read_simona
+
+        rec = read_simona(a.recording)
+    else:
+        from imurig.recording import load
+
+        rec = load(a.recording).validate()
+    d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed)
+    from imurig.diagnose.report import _findings_rows
+
+    for r in _findings_rows(d):
+        print(f"- {r[1]} ({r[0]}): {r[2]}\n    {r[3]}")
+    print(f"report: {Path(a.out) / 'report.md'}")
+
+
+def _is_appendix_b(path) -> bool:
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            if not line.startswith("#"):
+                return line.strip().startswith("rate_dial_dps,") and "measured_round_s" in line
+    return False
+
+
 def _run_convert(a):
     from imurig.labcsv import write_csv
     from imurig.recording import load, save_h5
@@ -341,6 +373,15 @@ def build_parser() -> argparse.ArgumentParser:
     app.add_argument("--out", required=True, help="output recording, .h5 or .csv")
     app.add_argument("--overwrite", action="store_true")
     app.set_defaults(func=_run_apply)
+
+    dg = sub.add_parser("diagnose", help="locate where a recording and its simulated twin differ, name the physics",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    dg.add_argument("recording", help="a recording (.h5/.csv), a table in the appendix-B format, or 'simona' "
+                                      "for the shipped appendix-B recording")
+    dg.add_argument("--out", default="imurig-out/diagnosis")
+    dg.add_argument("--overwrite", action="store_true")
+    dg.add_argument("--seed", type=int, default=0, help="seed of the threshold simulations")
+    dg.set_defaults(func=_run_diagnose)
 
     conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")
     conv.add_argument("input")

@@ -260,6 +260,8 @@ class SimonaSetup:
     voltmeter: AutoscaleVoltmeter = field(default_factory=AutoscaleVoltmeter)
     sample_rate_hz: float = 100.0
     stopwatch_resolution_s: float = 1e-6
+    printed_round_decimals: int | None = 2   # Table B.1 prints round times to 0.01 s
+    table: TurnTableErrors = field(default_factory=TurnTableErrors)
 
 
 def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Recording:
@@ -270,7 +272,7 @@ def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Record
     s = setup or SimonaSetup()
     ss = np.random.SeedSequence(seed, spawn_key=(5,))
     rng = np.random.default_rng(ss)
-    table = TurnTable()
+    table = TurnTable(errors=s.table)
     proto = TurnTableProtocol(dial_rates_dps=tuple(s.dial_dps), directions=(-1,), mounts=("r_down",),
                               min_window_s=1.0, sample_rate_hz=s.sample_rate_hz)
     rig = table.simulate(proto, "2005-05-20T10:00:00+02:00", rng)
@@ -285,7 +287,8 @@ def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Record
     pulses = rig.events["pulse_true"]
     for a, b in zip(rig.segments["start_s"], rig.segments["stop_s"]):
         p = pulses[(pulses >= a) & (pulses < b)]
-        rows_T.append(float(np.round((p[1] - p[0]) / s.stopwatch_resolution_s) * s.stopwatch_resolution_s))
+        T_round = float(np.round((p[1] - p[0]) / s.stopwatch_resolution_s) * s.stopwatch_resolution_s)
+        rows_T.append(round(T_round, s.printed_round_decimals) if s.printed_round_decimals is not None else T_round)
         # the voltmeter is read at some moment during the timed round
         i0 = int(np.searchsorted(rig.time_s, p[0] + rng.uniform(0, p[1] - p[0] - s.voltmeter.integration_s)))
         rows_v.append(s.voltmeter.read(v[i0:i0 + n_int].mean(axis=0), rng)[0])

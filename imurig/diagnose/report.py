@@ -1,0 +1,141 @@
+"""`imurig diagnose`: report folder with report.md, diagnosis.json, figures and an .rrd that
+overlays the recording, the nominal twin and the corrected twin."""
+from __future__ import annotations
+
+import numpy as np
+
+from imurig.diagnose.rate_table import SEED_SAYS, diagnose_rate_rows
+from imurig.errors import RecordingError
+from imurig.recording import Recording
+from imurig.report import OutputFolder, clean_json, md_table
+
+
+def diagnose(rec: Recording, seed: int = 0) -> dict:
+    """Dispatch on the recording's kind. Implemented: turn-table row recordings (appendix B)."""
+    if rec.meta.get("rig") == "turn_table" and rec.meta.get("row_recording"):
+        return {"kind": "rate_table_rows", **diagnose_rate_rows(rec, np.random.default_rng(seed))}
+    raise RecordingError(f"diagnosis of '{rec.meta.get('rig', 'unknown')}' recordings is not implemented yet; "
+                         "this version diagnoses turn-table row recordings in the appendix-B format "
+                         "(imurig.calibration.simona.read_simona)")
+
+
+def _findings_rows(d: dict) -> list[list]:
+    rows = []
+    if d.get("rate_factor"):
+        rf = d["rate_factor"]
+        rows.append(["rate (stopwatch)", "mains_rate_factor", rf["physics"],
+                     f"mean measured/dial {rf['mean_ratio']:.4f} ± {rf['mean_ratio_se']:.4f}; factor {rf['factor']:.4f}",
+                     SEED_SAYS["mains_rate_factor"]])
+    for f in d["shortfall"]["diagnosis"]["findings"]:
+        ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+        rows.append(["rate (stopwatch)", f["effect"], f["physics"],
+                     f"{ps}; {f['scan']}; mean shortfall {d['shortfall']['mean_shortfall'] * 100:.2f} %; "
+                     f"F = {f['statistic']:.1f} > {f['threshold']:.1f}", SEED_SAYS.get(f["effect"], "–")])
+    tr = d["timer_resolution"]
+    rows.append(["rate (stopwatch)", tr["effect"], tr["physics"],
+                 f"residual RMS at high rates {tr['rate_residual_rms_dps_high_rates']:.3f} °/s vs "
+                 f"{tr['rate_residual_rms_dps_low_rates']:.3f} °/s at low rates", SEED_SAYS["timer_quantisation"]])
+    rc = d.get("range_change_by_resolution")
+    if rc:
+        rows.append(["gyro voltages (display)", "instrument_range_change",
+                     "the voltmeter switched to a coarser range (autoscale)",
+                     f"readings on a {rc['resolution_after_V']:g} V grid from row {rc['first_row']} on (last "
+                     f"{rc['rows_after']} rows), {rc['resolution_before_V']:g} V before",
+                     SEED_SAYS["instrument_range_change"]])
+    for g, e in d["gyros"].items():
+        for f in e["findings"]:
+            ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+            rows.append([f"gyro {g} voltage", f["effect"], f["physics"],
+                         f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}"
+                         + (f"; indistinguishable from {f['indistinguishable_from']}" if f["indistinguishable_from"] else ""),
+                         SEED_SAYS.get(f["effect"], "–")])
+    return rows
+
+
+def _figure(out, rec: Recording, d: dict) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = np.array(d["rows"])
+    dial = np.degrees(np.abs(rec.channels["rate_dial"][rows]))
+    rate = np.degrees(2 * np.pi / rec.channels["measured_round"][rows])
+    fig, axs = plt.subplots(2, 2, figsize=(10, 7))
+    axs[0, 0].plot(dial, (rate / dial - 1) * 100, "o", label="recording vs twin (rate = dial)")
+    if d.get("rate_factor"):
+        f = d["rate_factor"]["factor"]
+        axs[0, 0].plot(dial, (rate / (f * dial) - 1) * 100, "s", mfc="none", label=f"vs twin × {f:.4f} (mains factor)")
+        after = d["shortfall"]["diagnosis"]
+        if after["findings"]:
+            axs[0, 0].axhline(0, color="k", lw=0.5)
+    axs[0, 0].set(xscale="log", xlabel="dial rate, °/s", ylabel="rate mismatch, %", title="Where: the rate")
+    axs[0, 0].legend(fontsize=7)
+    axs[0, 0].grid(alpha=0.3)
+    sh = d["shortfall"]["diagnosis"]
+    axs[0, 1].axis("off")
+    axs[0, 1].text(0, 1, "Findings\n" + "\n".join(f"• {r[1]}: {r[3][:70]}" for r in _findings_rows(d)),
+                   va="top", fontsize=7, family="monospace", wrap=True)
+    V = rec.channels.get("gyro_p")
+    if V is not None:
+        Vr = V[rows]
+        X = np.column_stack([np.ones_like(rate), rate])
+        res0 = Vr - X @ np.linalg.lstsq(X, Vr, rcond=None)[0]
+        axs[1, 0].plot(rows, res0 * 1e3, "o-", label="gyro p: linear fit residual")
+        rc = d.get("range_change_by_resolution")
+        if rc:
+            axs[1, 0].axvline(rc["first_row"] - 0.5, color="r", ls="--", label="range change (display grid)")
+        axs[1, 0].set(xlabel="row", ylabel="residual, mV", title="Where: gyro p against the stopwatch rate")
+        axs[1, 0].legend(fontsize=7)
+        axs[1, 0].grid(alpha=0.3)
+        g = d["gyros"].get("p", {})
+        axs[1, 1].bar(["before", "after"], [g.get("fit_before", {}).get("sigma_res", np.nan) * 1e3,
+                                              g.get("fit_after", {}).get("sigma_res", np.nan) * 1e3])
+        axs[1, 1].set(ylabel="σ_res, mV", title="Gyro p fit before and after the effects")
+    axs[1, 1].grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out.file("fig_diagnosis.png"), dpi=110)
+    plt.close(fig)
+    _ = sh
+    return "fig_diagnosis.png"
+
+
+def _rrd(path, rec: Recording, d: dict):
+    from imurig.viz import RrdWriter, log_scalars, log_text
+
+    rows = np.array(d["rows"])
+    dial = np.degrees(np.abs(rec.channels["rate_dial"][rows]))
+    rate = np.degrees(2 * np.pi / rec.channels["measured_round"][rows])
+    f = d["rate_factor"]["factor"] if d.get("rate_factor") else 1.0
+    t = rec.time_s[rows]
+    with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
+        log_scalars(w, "signals/rate/recording", t, {"rate": rate}, {"rate": "deg/s"})
+        log_scalars(w, "signals/rate/twin", t, {"rate": dial}, {"rate": "deg/s"})
+        mean_short = d["shortfall"]["mean_shortfall"]
+        log_scalars(w, "signals/rate/corrected_twin", t, {"rate": dial * f * (1 - mean_short)}, {"rate": "deg/s"})
+        log_text(w, "summary", "# Diagnosis\n\n" + "\n".join(f"- **{r[1]}** ({r[0]}): {r[2]}" for r in _findings_rows(d)))
+
+
+def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0) -> dict:
+    d = diagnose(rec, seed)
+    with OutputFolder(out_dir, overwrite=overwrite) as out:
+        fig = _figure(out, rec, d)
+        _rrd(out.file("diagnosis.rrd"), rec, d)
+        rows = _findings_rows(d)
+        md = ["# Diagnosis: where the recording and its twin differ\n",
+              f"Recording: {rec.meta.get('source', '–')}. Twin: {d.get('twin', '–')}.\n",
+              "## Findings, beside what the seed says\n",
+              md_table(["observable", "effect", "physics left out", "fitted / evidence", "seed"], rows),
+              "\n## Fit before and after (gyro voltages)\n",
+              md_table(["gyro", "σ_res before (V)", "σ_res after (V)", "R²adj before", "R²adj after", "BIC before",
+                        "BIC after", "residual white?"],
+                       [[g, e["fit_before"]["sigma_res"], e["fit_after"]["sigma_res"], e["fit_before"]["r2_adj"],
+                         e["fit_after"]["r2_adj"], e["fit_before"]["bic"], e["fit_after"]["bic"],
+                         e["unexplained"]["white"]] for g, e in d["gyros"].items()]),
+              "\nAn effect is accepted only when its statistic beats the max-statistic threshold simulated "
+              "under the noise model over the whole library and all scanned parameters, it improves blocked "
+              "cross-validation and lowers BIC; accepted effects are re-checked given each other.\n",
+              f"\n![diagnosis]({fig})\n"]
+        out.write_text("report.md", "\n".join(md))
+        out.write_json("diagnosis.json", clean_json(d))
+    return d
