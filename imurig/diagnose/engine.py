@@ -143,13 +143,21 @@ class Diagnosis:
 
 def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates: list[Candidate],
                    rng: np.random.Generator, alpha: float = 0.05, n_sim: int = 300, cv_blocks: int = 5,
-                   max_effects: int = 4, noise: Callable[[np.random.Generator, int], np.ndarray] | None = None
-                   ) -> Diagnosis:
+                   max_effects: int = 4, noise: Callable[[np.random.Generator, int], np.ndarray] | None = None,
+                   weights: np.ndarray | None = None) -> Diagnosis:
     """Greedy selection with a simulated max-statistic threshold (see module doc).
 
     ``noise(rng, m)`` draws one unit-variance noise vector of the residual's colour (default
-    white); it is scaled by the current fit's residual sigma.
+    white); it is scaled by the current fit's residual sigma. ``weights`` (inverse variances,
+    relative) whiten a heteroscedastic noise model first: y, X0 and every candidate's columns
+    are multiplied by sqrt(weights), and all statistics are computed in that whitened space.
     """
+    if weights is not None:
+        sw = np.sqrt(np.asarray(weights, float))
+        candidates = [Candidate(c.name, c.physics, c.param_names,
+                                (lambda th, f=c.columns: sw[:, None] * np.asarray(f(th), float).reshape(sw.size, -1)),
+                                c.scan, c.scan_name) for c in candidates]
+        y, X0 = np.asarray(y, float) * sw, np.asarray(X0, float) * sw[:, None]
     y = np.asarray(y, float)
     X = np.asarray(X0, float)
     names = list(names0)

@@ -135,7 +135,10 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
                            lambda _: r_dps**2),
                  Candidate("drift", "a drift of the gyro output in the order the rows were taken", ("drift",),
                            lambda _: idx.astype(float))]
-        dg = select_effects(V, X0, ["bias", "scale"], lib_v, rng, alpha=alpha, n_sim=n_sim)
+        # noise model first: reading resolution floor plus a part growing with the rate (the table's
+        # rate ripple read at an arbitrary moment), fitted to the nominal model's squared residuals
+        w = _variance_weights(V, X0, r_dps)
+        dg = select_effects(V, X0, ["bias", "scale"], lib_v, rng, alpha=alpha, n_sim=n_sim, weights=w)
         entry = dg.to_dict()
         for fnd in dg.findings:
             if fnd.name == "instrument_range_change":
@@ -147,6 +150,19 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
         gy[g] = entry
     out["gyros"] = gy
     return out
+
+
+def _variance_weights(V, X0, r) -> np.ndarray:
+    """Inverse variances var_i = max(a + b r_i^2, q_i^2 / 12): q_i the display step of reading i,
+    a, b >= 0 by non-negative least squares on the nominal fit's squared residuals."""
+    from scipy.optimize import nnls
+
+    e = V - X0 @ np.linalg.lstsq(X0, V, rcond=None)[0]
+    ab, _ = nnls(np.column_stack([np.ones_like(r), r**2]), e**2)
+    q = np.array([reading_resolution([v]) for v in V])
+    q = np.minimum(q, 10 * reading_resolution(V))
+    var = np.maximum(ab[0] + ab[1] * r**2, q**2 / 12)
+    return 1.0 / var
 
 
 SEED_SAYS = {

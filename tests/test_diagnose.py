@@ -1,0 +1,85 @@
+"""Mismatch discovery on the turn table's row recordings: the real SIMONA table and
+virtual ones with concealed effects, and null data that must come back clean."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imurig.calibration.simona import read_simona
+from imurig.campaigns.turn_table import SimonaSetup, simona_virtual
+from imurig.diagnose.rate_table import diagnose_rate_rows, reading_resolution, resolution_change_row
+from imurig.rigs.turn_table import TurnTableErrors
+from imurig.sensors.voltmeter import AutoscaleVoltmeter
+
+
+def test_simona_real_findings():
+    d = diagnose_rate_rows(read_simona(), np.random.default_rng(0))
+    assert d["rate_factor"]["factor"] == pytest.approx(5 / 6)
+    assert "60 Hz motor on 50 Hz mains" in d["rate_factor"]["physics"]
+    names = [f["effect"] for f in d["shortfall"]["diagnosis"]["findings"]]
+    assert names and names[0] == "table_slip"
+    assert 0.01 < d["shortfall"]["mean_shortfall"] < 0.05
+    assert d["timer_resolution"]["resolution_s"] == 0.01
+    rc = d["range_change_by_resolution"]
+    assert rc["resolution_before_V"] == 1e-5 and rc["resolution_after_V"] == 1e-4
+    assert 16 <= rc["first_row"] <= 18  # the seed says the last nine rows (16..24); the display grid says 18
+
+
+def test_resolution_helpers():
+    assert reading_resolution([0.12, 0.5, 1.25]) == 0.01
+    V = np.array([0.00123, 0.01234, 0.02345, 0.1230, 0.2340, 0.3450])
+    assert resolution_change_row(V) == 3
+    assert resolution_change_row(V[:3]) is None
+
+
+NULL = SimonaSetup(voltmeter=AutoscaleVoltmeter(gain=(1.0, 1.0, 1.0)),
+                   table=TurnTableErrors(mains_hz=60.0, slip_const=0.0, slip_coeff=0.0), scale_spread=0.003)
+
+
+def _no_k2(seed, setup):
+    """A virtual SIMONA run with gyros free of nonlinearity (so a null record has no effect)."""
+    import imurig.campaigns.turn_table as tt
+    from imurig.sensors.gyro import FOGTriad
+
+    orig = FOGTriad.from_datasheet
+
+    def patched(rng=None, **kw):
+        g = orig(rng, **kw)
+        g.k2_per_rad_s[:] = 0.0
+        return g
+
+    FOGTriad.from_datasheet = patched
+    try:
+        return tt.simona_virtual(seed, setup)
+    finally:
+        FOGTriad.from_datasheet = orig
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_null_records_come_back_clean(seed):
+    d = diagnose_rate_rows(_no_k2(seed, NULL), np.random.default_rng(seed))
+    assert d["rate_factor"] is None
+    assert d["shortfall"]["diagnosis"]["findings"] == []
+    for g, e in d["gyros"].items():
+        assert e["findings"] == [], (g, e["findings"])
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_concealed_effects_found_and_named(seed):
+    """Mains factor, slip and a 1 % range-change gain step concealed in a virtual record."""
+    setup = SimonaSetup(voltmeter=AutoscaleVoltmeter(gain=(1.0, 0.99, 0.99)))
+    d = diagnose_rate_rows(_no_k2(seed, setup), np.random.default_rng(seed))
+    assert d["rate_factor"]["factor"] == pytest.approx(5 / 6)
+    assert [f["effect"] for f in d["shortfall"]["diagnosis"]["findings"]][:1] == ["table_slip"]
+    rc = d["range_change_by_resolution"]
+    assert rc is not None
+    hits = 0
+    for g, e in d["gyros"].items():
+        for f in e["findings"]:
+            if f["effect"] == "instrument_range_change":
+                hits += 1
+                gain = next(p for p in f["parameters"] if p["name"].endswith("gain_step"))
+                # a gain step of -1 % of the scale (V per deg/s)
+                scale = 5.44e-3
+                assert abs(gain["estimate"] / scale + 0.01) < 4 * gain["std_error"] / scale + 1e-3
+    assert hits == 3
