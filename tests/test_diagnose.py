@@ -83,3 +83,52 @@ def test_concealed_effects_found_and_named(seed):
                 scale = 5.44e-3
                 assert abs(gain["estimate"] / scale + 0.01) < 4 * gain["std_error"] / scale + 1e-3
     assert hits == 3
+
+
+# ------------------------------------------------------------------- tilt table
+from conftest import SMALL  # noqa: E402
+from imurig.campaigns.tilt_table import TiltTableCampaign  # noqa: E402
+from imurig.diagnose.tilt_table import diagnose_tilt_table  # noqa: E402
+
+
+def _effects(d):
+    found = set()
+    for a, e in d["axes"].items():
+        found |= {(a, f["effect"]) for f in e["findings"]}
+        found |= {(a, e["scatter"][k]["effect"]) for k in ("finding_spikes", "finding_vibration") if k in e["scatter"]}
+    return found
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_tilt_table_null_comes_back_clean(seed):
+    d = diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=seed).simulate(), np.random.default_rng(seed))
+    assert _effects(d) == set()
+
+
+@pytest.mark.parametrize("seed", [3, 5])
+def test_tilt_table_concealed_effects_named(seed):
+    """Each effect present in the recording but absent from the nominal model is found on the
+    channels it affects, and named; nothing else is."""
+    cases = {
+        "crosstalk": (dict(mux_frequency_hz=200e3), {("y", "adc_crosstalk"), ("z", "adc_crosstalk")}),
+        "pump": (dict(start_time="2005-06-14T10:00:00+02:00"),
+                 {("x", "building_vibration"), ("y", "building_vibration"), ("z", "building_vibration")}),
+        "cable": (dict(loose_cable=True), {("y", "cable_fault_spikes")}),
+    }
+    for name, (kw, expect) in cases.items():
+        rec = TiltTableCampaign(protocol=SMALL, seed=seed, **kw).simulate()
+        assert _effects(diagnose_tilt_table(rec, np.random.default_rng(seed))) == expect, name
+
+
+def test_crosstalk_coefficient_against_truth():
+    """The fitted leak equals the injected settling residual c = exp(-1/(f_mux tau)). With
+    V_y,meas = (1 - c) V_y + c V_prev and the inverse model f = V_y / (s_nom G), its coefficient
+    on the neighbour's volts is -c / (s_nom G (1 - c)) (m/s^2 per volt)."""
+    rec = TiltTableCampaign(protocol=SMALL, seed=3, mux_frequency_hz=200e3).simulate()
+    d = diagnose_tilt_table(rec, np.random.default_rng(0))
+    c_true = rec.truth["chain"]["adc"]["crosstalk_coefficient"]
+    s_nom = rec.meta["acc_nominal_sensitivity_V_per_m_s2"][1]
+    G = rec.truth["sensors"]["accelerometers"]["sensitivity_V_per_m_s2"][1] / s_nom
+    f = next(f for f in d["axes"]["y"]["findings"] if f["effect"] == "adc_crosstalk")
+    est, se = f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
+    assert abs(est - (-c_true / (s_nom * G * (1 - c_true)))) < 4 * se

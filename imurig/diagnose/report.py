@@ -14,13 +14,30 @@ def diagnose(rec: Recording, seed: int = 0) -> dict:
     """Dispatch on the recording's kind. Implemented: turn-table row recordings (appendix B)."""
     if rec.meta.get("rig") == "turn_table" and rec.meta.get("row_recording"):
         return {"kind": "rate_table_rows", **diagnose_rate_rows(rec, np.random.default_rng(seed))}
+    if rec.meta.get("rig") == "tilt_table" or {"theta", "phi"} <= set(rec.segments):
+        from imurig.diagnose.tilt_table import diagnose_tilt_table
+
+        return {"kind": "tilt_table", **diagnose_tilt_table(rec, np.random.default_rng(seed))}
     raise RecordingError(f"diagnosis of '{rec.meta.get('rig', 'unknown')}' recordings is not implemented yet; "
-                         "this version diagnoses turn-table row recordings in the appendix-B format "
-                         "(imurig.calibration.simona.read_simona)")
+                         "this version diagnoses tilt-table recordings and turn-table row recordings in the "
+                         "appendix-B format (imurig.calibration.simona.read_simona)")
 
 
 def _findings_rows(d: dict) -> list[list]:
     rows = []
+    if d.get("kind") == "tilt_table":
+        for a, e in d["axes"].items():
+            for f in e["findings"]:
+                ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+                rows.append([f"acc_{a} position means", f["effect"], f["physics"],
+                             f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
+                             f"{f['variance_share'] * 100:.0f} % of the residual", SEED_SAYS_TILT.get(f["effect"], "–")])
+            for k in ("finding_spikes", "finding_vibration"):
+                if k in e["scatter"]:
+                    f = e["scatter"][k]
+                    ev = ", ".join(f"{kk} = {vv}" for kk, vv in f.items() if kk not in ("effect", "physics"))
+                    rows.append([f"acc_{a} scatter", f["effect"], f["physics"], ev, SEED_SAYS_TILT.get(f["effect"], "–")])
+        return rows
     if d.get("rate_factor"):
         rf = d["rate_factor"]
         rows.append(["rate (stopwatch)", "mains_rate_factor", rf["physics"],
@@ -52,7 +69,18 @@ def _findings_rows(d: dict) -> list[list]:
     return rows
 
 
+SEED_SAYS_TILT = {
+    "adc_crosstalk": "4.3.4: coupling of an ADC channel to the next one; lower multiplexing frequency cured it",
+    "building_vibration": "4.3.3: a hydraulic pump in the basement shook the building by day",
+    "cable_fault_spikes": "4.3.3: peaks in the y channel from the junction-box connector",
+    "temperature_drift": "4.5: temperature changes bias and scale",
+    "cross_coupling": "4.3.5: cross terms a_x a_z kept in the final models",
+}
+
+
 def _figure(out, rec: Recording, d: dict) -> str:
+    if d.get("kind") == "tilt_table":
+        return _figure_tilt(out, d)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -100,7 +128,36 @@ def _figure(out, rec: Recording, d: dict) -> str:
     return "fig_diagnosis.png"
 
 
+def _figure_tilt(out, d: dict) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    axes = list(d["axes"])
+    before = [d["axes"][a]["fit_before"]["sigma_res"] for a in axes]
+    after = [d["axes"][a]["fit_after"]["sigma_res"] for a in axes]
+    xx = np.arange(len(axes))
+    ax.bar(xx - 0.2, before, 0.4, label="nominal model")
+    ax.bar(xx + 0.2, after, 0.4, label="with the effects found")
+    ax.set_xticks(xx, [f"acc_{a}" for a in axes])
+    ax.set(ylabel="σ_res of position means, m/s²", title="Fit before and after")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out.file("fig_diagnosis.png"), dpi=110)
+    plt.close(fig)
+    return "fig_diagnosis.png"
+
+
 def _rrd(path, rec: Recording, d: dict):
+    if d.get("kind") == "tilt_table":
+        from imurig.viz import RrdWriter, log_text
+
+        with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
+            log_text(w, "summary", "# Diagnosis\n\n" + "\n".join(f"- **{r[1]}** ({r[0]}): {r[2]}"
+                                                                     for r in _findings_rows(d)))
+        return
     from imurig.viz import RrdWriter, log_scalars, log_text
 
     rows = np.array(d["rows"])
@@ -123,15 +180,16 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0) -> dict
         _rrd(out.file("diagnosis.rrd"), rec, d)
         rows = _findings_rows(d)
         md = ["# Diagnosis: where the recording and its twin differ\n",
-              f"Recording: {rec.meta.get('source', '–')}. Twin: {d.get('twin', '–')}.\n",
+              f"Recording: {rec.meta.get('source', rec.meta.get('rig', '–'))}. Twin: {d.get('twin', '–')}.\n",
+              "" if _findings_rows(d) else "No effect passed the thresholds: the recording agrees with its twin.\n",
               "## Findings, beside what the seed says\n",
               md_table(["observable", "effect", "physics left out", "fitted / evidence", "seed"], rows),
-              "\n## Fit before and after (gyro voltages)\n",
-              md_table(["gyro", "σ_res before (V)", "σ_res after (V)", "R²adj before", "R²adj after", "BIC before",
+              "\n## Fit before and after\n",
+              md_table(["channel", "σ_res before", "σ_res after", "R²adj before", "R²adj after", "BIC before",
                         "BIC after", "residual white?"],
                        [[g, e["fit_before"]["sigma_res"], e["fit_after"]["sigma_res"], e["fit_before"]["r2_adj"],
                          e["fit_after"]["r2_adj"], e["fit_before"]["bic"], e["fit_after"]["bic"],
-                         e["unexplained"]["white"]] for g, e in d["gyros"].items()]),
+                         e["unexplained"]["white"]] for g, e in (d.get("gyros") or d.get("axes")).items()]),
               "\nAn effect is accepted only when its statistic beats the max-statistic threshold simulated "
               "under the noise model over the whole library and all scanned parameters, it improves blocked "
               "cross-validation and lowers BIC; accepted effects are re-checked given each other.\n",
