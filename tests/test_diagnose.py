@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from imurig.calibration.simona import read_simona
-from imurig.campaigns.turn_table import SimonaSetup, simona_virtual
+from imurig.campaigns.turn_table import SimonaSetup
 from imurig.diagnose.rate_table import diagnose_rate_rows, reading_resolution, resolution_change_row
 from imurig.rigs.turn_table import TurnTableErrors
 from imurig.sensors.voltmeter import AutoscaleVoltmeter

@@ -22,7 +22,7 @@ import datetime as _dt
 import numpy as np
 from scipy import signal
 
-from imurig.calibration.accelerometer import ACC, AXES, indicated
+from imurig.calibration.accelerometer import AXES, indicated
 from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
 from imurig.campaigns.tilt_table import calibrate, tilt_table_reference
 from imurig.diagnose.engine import Candidate, select_effects
