@@ -57,7 +57,7 @@ def resolution_change_row(V: np.ndarray) -> int | None:
     return k if 0 < k < V.size - 1 else None
 
 
-def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 0.05, n_sim: int = 400) -> dict:
+def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 400) -> dict:
     """Run the three analyses of the module doc on a row recording; returns a diagnosis dict."""
     for c in ("rate_dial", "measured_round"):
         if c not in rec.channels:
@@ -137,7 +137,7 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
                            lambda _: idx.astype(float))]
         # noise model first: reading resolution floor plus a part growing with the rate (the table's
         # rate ripple read at an arbitrary moment), fitted to the nominal model's squared residuals
-        w = _variance_weights(V, X0, r_dps)
+        w = _variance_weights(V, X0, r_dps, ref_sigma_dps=res_rate)
         dg = select_effects(V, X0, ["bias", "scale"], lib_v, rng, alpha=alpha, n_sim=n_sim, weights=w)
         entry = dg.to_dict()
         for fnd in dg.findings:
@@ -152,16 +152,24 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
     return out
 
 
-def _variance_weights(V, X0, r) -> np.ndarray:
-    """Inverse variances var_i = max(a + b r_i^2, q_i^2 / 12): q_i the display step of reading i,
-    a, b >= 0 by non-negative least squares on the nominal fit's squared residuals."""
+def _variance_weights(V, X0, r, ref_sigma_dps) -> np.ndarray:
+    """Inverse variances var_i = max(a + b r_i^2, q_i^2 / 12) + (s sigma_ref,i)^2:
+    a the reading noise, b r^2 the table's rate ripple read at a random moment, q_i the display
+    step of reading i, and the known error of the reference rate from the stopwatch's resolution
+    (sigma_ref = Omega q_T / (sqrt(12) T), deg/s) times the scale s (V per deg/s);
+    a, b >= 0 by non-negative least squares on the rest of the nominal fit's squared residuals."""
     from scipy.optimize import nnls
 
-    e = V - X0 @ np.linalg.lstsq(X0, V, rcond=None)[0]
-    ab, _ = nnls(np.column_stack([np.ones_like(r), r**2]), e**2)
+    coef = np.linalg.lstsq(X0, V, rcond=None)[0]
+    e = V - X0 @ coef
+    v_ref = (coef[1] * np.asarray(ref_sigma_dps)) ** 2
+    D = np.column_stack([np.ones_like(r), r**2])
+    sc = np.linalg.norm(D, axis=0)
+    ab, _ = nnls(D / sc, np.clip(e**2 - v_ref, 0, None))
+    ab = ab / sc
     q = np.array([reading_resolution([v]) for v in V])
     q = np.minimum(q, 10 * reading_resolution(V))
-    var = np.maximum(ab[0] + ab[1] * r**2, q**2 / 12)
+    var = np.maximum(D @ ab, q**2 / 12) + v_ref
     return 1.0 / var
 
 

@@ -62,9 +62,10 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                 lib.append(Candidate("adc_crosstalk", f"ADC multiplexer crosstalk: the previously scanned channel "
                                      f"'{prev}' leaks into '{ch}' (settling too short for the mux frequency)",
                                      ("c",), lambda _, pv=pv: pv))
-        t_h = (mid - mid[0]) / 3600.0
-        lib.append(Candidate("temperature_drift", "the bias drifts with the sensor's temperature over the campaign",
-                             ("drift",), lambda _, t=(temps[:, 0] - temps[:, 0].mean()) if temps is not None else t_h: t))
+        # a drift with temperature can only be named where the temperature moved (> 0.2 K)
+        if temps is not None and np.ptp(temps[:, 0]) * 1e3 * 0.1 > 0.2:  # volts -> K: 1 uA/K over 10 kohm
+            lib.append(Candidate("temperature_drift", "the bias drifts with the sensor's temperature over the "
+                                 "campaign", ("drift",), lambda _, t=temps[:, 0] - temps[:, 0].mean(): t))
         others = [n for n in ("ax", "ay", "az") if n != f"a{a}"]
         lib.append(Candidate("cross_coupling", "cross-coupling of the other two axes (product term)", ("c",),
                              lambda _, o=others: inputs[o[0]] * inputs[o[1]]))
