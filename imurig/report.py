@@ -131,3 +131,11 @@ def save_products(out: OutputFolder, rec, res, write_rrd, save_recording: bool =
         write_rrd(out.file("campaign.rrd"), rec, res)
         files["rrd"] = "campaign.rrd"
     return files
+
+
+def md_figures_and_run(figs: dict, keys, timing: dict | None) -> str:
+    """The closing sections every campaign report shares: its figures, then the run's figures."""
+    parts = ["\n## Figures\n"] + [f"![{k}]({figs[k]})\n" for k in keys if k in figs]
+    if timing:
+        parts += ["\n## Run\n", md_table(["step", "value"], [[k, v] for k, v in timing.items()])]
+    return "\n".join(parts)

@@ -11,7 +11,7 @@ from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse
 from imurig.campaigns.tilt_table_report import peak_rss_bytes
 from imurig.progress import progress
 from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_table, save_products
+from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
 
 
 def _fig5(out, res) -> str:
@@ -105,12 +105,7 @@ def _report(camp, rec, res, figs, timing) -> str:
          "\nThe manufacturer's calibration (nominal sensitivity, no bias) leaves a heading error of the order of "
          "the 10° bias the paper found in its van tests (section 4.3). A field-domain fit cannot see a rotation "
          f"about the vertical ({res['heading_offset_2d_deg']:+.2f}° here); one reference heading removes it.\n",
-         "\n## Figures\n"]
-    for k in ("fig5", "ellipse", "heading"):
-        L.append(f"![{k}]({figs[k]})\n")
-    if timing:
-        L.append("\n## Run\n")
-        L.append(md_table(["step", "value"], [[k, v] for k, v in timing.items()]))
+         md_figures_and_run(figs, ("fig5", "ellipse", "heading"), timing)]
     return "\n".join(L)
 
 

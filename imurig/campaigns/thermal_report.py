@@ -12,7 +12,7 @@ from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.campaigns.tilt_table_report import peak_rss_bytes
 from imurig.progress import progress
 from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_table, save_products
+from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
 
 
 def _figs(out, rec: Recording, res: dict) -> dict:
@@ -90,13 +90,7 @@ def _report(camp, rec, res, figs, timing) -> str:
              "(which is applied before the least-squares calibration):\n")
     L.append(md_table(["channel", "before", "after"],
                       [[k, *[v for v in d.values()]] for k, d in res["spread"].items()]))
-    L.append("\n## Figures\n")
-    for k in ("temperature", "acc", "gyro"):
-        if k in figs:
-            L.append(f"![{k}]({figs[k]})\n")
-    if timing:
-        L.append("\n## Run\n")
-        L.append(md_table(["step", "value"], [[k, v] for k, v in timing.items()]))
+    L.append(md_figures_and_run(figs, ("temperature", "acc", "gyro"), timing))
     return "\n".join(L)
 
 

@@ -20,7 +20,7 @@ from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, 
 from imurig.errors import UnidentifiableTermsError
 from imurig.progress import progress
 from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_table, published_figures, save_products
+from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""
@@ -210,13 +210,7 @@ def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str
     L.append(md_table(["axis", "σ raw 100 Hz samples", "σ per-position medians", "seed raw", "seed medians"],
                       [[a, raw.results_[a].sigma_res, med.results_[a].sigma_res, t42["raw_sigma"][j],
                         t42["median_sigma"][j]] for j, a in enumerate(AXES)]))
-    L.append("\n## Figures\n")
-    for k in ("reference", "raw_theta40", "residuals"):
-        if k in figs:
-            L.append(f"![{k}]({figs[k]})\n")
-    if timing:
-        L.append("\n## Run\n")
-        L.append(md_table(["step", "value"], [[k, v] for k, v in timing.items()]))
+    L.append(md_figures_and_run(figs, ("reference", "raw_theta40", "residuals"), timing))
     return "\n".join(L)
 
 

@@ -18,7 +18,7 @@ from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
 from imurig.progress import progress
 from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_table, published_figures, save_products
+from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -179,13 +179,7 @@ def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
             f"{a:.1f}/{b:.1f}" for a, b in zip(simona["real_rounds"][1:7], simona["virtual_rounds"][1:7])) + "\n")
         if "simona" in figs:
             L.append(f"\n![simona]({figs['simona']})\n")
-    L.append("\n## Figures\n")
-    for k in ("residuals", "slip_rings"):
-        if k in figs:
-            L.append(f"![{k}]({figs[k]})\n")
-    if timing:
-        L.append("\n## Run\n")
-        L.append(md_table(["step", "value"], [[k, v] for k, v in timing.items()]))
+    L.append(md_figures_and_run(figs, ("residuals", "slip_rings"), timing))
     return "\n".join(L)
 
 
