@@ -1,4 +1,4 @@
-"""The ``imurig`` command.
+"""imurig: a virtual calibration rig for inertial measurement units.
 
     imurig campaign tilt-table            simulate, calibrate and report the seed's protocol
     imurig campaign turn-table            gyro calibration, timers, arm beyond 1 g, SIMONA
