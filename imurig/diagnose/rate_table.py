@@ -149,6 +149,39 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
                 entry["rows_after_change"] = int(n - kk)
         gy[g] = entry
     out["gyros"] = gy
+    # the three gyros are read by one voltmeter: test its range change jointly -- one relative gain
+    # step and one offset step for all three, against each gyro's own nonlinearity
+    chans = [g for g in GYROS if f"gyro_{g}" in rec.channels]
+    if len(chans) > 1:
+        Vs, Ws, blocks, scales = [], [], [], []
+        for j, g in enumerate(chans):
+            V = rec.channels[f"gyro_{g}"][timed]
+            X0g = np.column_stack([np.ones(n), r_dps])
+            coef = np.linalg.lstsq(X0g, V, rcond=None)[0]
+            Vs.append(V)
+            Ws.append(_variance_weights(V, X0g, r_dps, ref_sigma_dps=res_rate))
+            scales.append(coef[1])
+        m = len(chans)
+        Y = np.concatenate(Vs)
+        X0 = np.zeros((m * n, 2 * m))
+        for j in range(m):
+            X0[j * n:(j + 1) * n, 2 * j] = 1.0
+            X0[j * n:(j + 1) * n, 2 * j + 1] = r_dps
+        step = lambda kk: np.tile((idx >= kk).astype(float), m)  # noqa: E731
+        gain_col = lambda kk: np.concatenate([scales[j] * r_dps * (idx >= kk) for j in range(m)])  # noqa: E731
+        lib_j = [Candidate("instrument_range_change", "the voltmeter that reads all gyros changed range (autoscale) "
+                           "from this row on: one gain step and one offset step for all of them",
+                           ("relative_gain_step", "offset_step_V"),
+                           lambda kk: np.column_stack([gain_col(kk), step(kk)]), scan=scan_k, scan_name="first_row"),
+                 Candidate("scale_nonlinearity", "second-order scale-factor nonlinearity of each gyro",
+                           tuple(f"k2_{g}" for g in chans), lambda _: _block_columns(r_dps**2, m))]
+        dj = select_effects(Y, X0, [f"{c}_{g}" for g in chans for c in ("bias", "scale")], lib_j, rng,
+                            alpha=alpha, n_sim=n_sim, weights=np.concatenate(Ws))
+        joint = dj.to_dict()
+        for fnd in dj.findings:
+            if fnd.name == "instrument_range_change":
+                joint["range_change_row"] = int(rows[int(fnd.theta)])
+        out["voltmeter"] = joint
     return out
 
 
@@ -171,6 +204,15 @@ def _variance_weights(V, X0, r, ref_sigma_dps) -> np.ndarray:
     q = np.minimum(q, 10 * reading_resolution(V))
     var = np.maximum(D @ ab, q**2 / 12) + v_ref
     return 1.0 / var
+
+
+def _block_columns(col: np.ndarray, m: int) -> np.ndarray:
+    """(m n, m): ``col`` (n,) in block j of column j, zero elsewhere (one coefficient per gyro)."""
+    n = col.size
+    out = np.zeros((m * n, m))
+    for j in range(m):
+        out[j * n:(j + 1) * n, j] = col
+    return out
 
 
 SEED_SAYS = {

@@ -59,6 +59,11 @@ def _findings_rows(d: dict) -> list[list]:
                      f"readings on a {rc['resolution_after_V']:g} V grid from row {rc['first_row']} on (last "
                      f"{rc['rows_after']} rows), {rc['resolution_before_V']:g} V before",
                      SEED_SAYS["instrument_range_change"]])
+    for f in d.get("voltmeter", {}).get("findings", []):
+        ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+        where = f"from row {d['voltmeter']['range_change_row']}; " if f["effect"] == "instrument_range_change" else ""
+        rows.append(["all gyro voltages (one voltmeter)", f["effect"], f["physics"],
+                     f"{where}{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}", SEED_SAYS.get(f["effect"], "–")])
     for g, e in d["gyros"].items():
         for f in e["findings"]:
             ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])

@@ -134,9 +134,7 @@ CASES = [
          sizes=(0.001, 0.002, 0.005, 0.01, 0.03), size_unit="pump rms (m/s^2)"),
     Case("cable_fault_spikes", "tilt_table", {("y", "cable_fault_spikes")}, _cable, 0.5,
          sizes=(0.005, 0.02, 0.05, 0.2, 0.5), size_unit="spike rate (1/s)"),
-    Case("instrument_range_change", "rate_table_rows", {("p", "instrument_range_change"),
-                                                        ("q", "instrument_range_change"),
-                                                        ("r", "instrument_range_change")}, _range_change, 0.01,
+    Case("instrument_range_change", "rate_table_rows", {("voltmeter", "instrument_range_change")}, _range_change, 0.01,
          sizes=(0.0005, 0.001, 0.002, 0.005, 0.01), size_unit="gain step (relative)"),
     Case("mains_rate_factor", "rate_table_rows", {("rate", "mains_rate_factor")}, _mains, 1.0),
     Case("table_slip", "rate_table_rows", {("rate", "table_slip")}, _slip, 0.03,
@@ -155,8 +153,11 @@ def found_effects(d: dict) -> set:
         if d.get("rate_factor"):
             out.add(("rate", "mains_rate_factor"))
         out |= {("rate", f["effect"]) for f in d["shortfall"]["diagnosis"]["findings"]}
-        for g, e in d["gyros"].items():
-            out |= {(g, f["effect"]) for f in e["findings"]}
+        if "voltmeter" in d:  # the joint analysis of the gyros read by one voltmeter
+            out |= {("voltmeter", f["effect"]) for f in d["voltmeter"]["findings"]}
+        else:
+            for g, e in d["gyros"].items():
+                out |= {(g, f["effect"]) for f in e["findings"]}
     return out
 
 
