@@ -153,7 +153,7 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
     # step and one offset step for all three, against each gyro's own nonlinearity
     chans = [g for g in GYROS if f"gyro_{g}" in rec.channels]
     if len(chans) > 1:
-        Vs, Ws, blocks, scales = [], [], [], []
+        Vs, Ws, scales = [], [], []
         for j, g in enumerate(chans):
             V = rec.channels[f"gyro_{g}"][timed]
             X0g = np.column_stack([np.ones(n), r_dps])
