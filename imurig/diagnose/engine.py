@@ -144,14 +144,24 @@ class Diagnosis:
 def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates: list[Candidate],
                    rng: np.random.Generator, alpha: float = 0.05, n_sim: int = 300, cv_blocks: int = 5,
                    max_effects: int = 4, noise: Callable[[np.random.Generator, int], np.ndarray] | None = None,
-                   weights: np.ndarray | None = None) -> Diagnosis:
+                   weights: np.ndarray | None = None, cov: np.ndarray | None = None) -> Diagnosis:
     """Greedy selection with a simulated max-statistic threshold (see module doc).
 
     ``noise(rng, m)`` draws one unit-variance noise vector of the residual's colour (default
     white); it is scaled by the current fit's residual sigma. ``weights`` (inverse variances,
     relative) whiten a heteroscedastic noise model first: y, X0 and every candidate's columns
     are multiplied by sqrt(weights), and all statistics are computed in that whitened space.
+    ``cov`` (m, m), relative, does the same for correlated errors (whitening by its Cholesky factor).
     """
+    if cov is not None:
+        import scipy.linalg
+
+        L = np.linalg.cholesky(0.5 * (cov + cov.T))
+        wt = lambda A: scipy.linalg.solve_triangular(L, A, lower=True)  # noqa: E731
+        candidates = [Candidate(c.name, c.physics, c.param_names,
+                                (lambda th, f=c.columns: wt(np.asarray(f(th), float).reshape(L.shape[0], -1))),
+                                c.scan, c.scan_name) for c in candidates]
+        y, X0 = wt(np.asarray(y, float)), wt(np.asarray(X0, float))
     if weights is not None:
         sw = np.sqrt(np.asarray(weights, float))
         candidates = [Candidate(c.name, c.physics, c.param_names,

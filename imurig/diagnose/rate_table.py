@@ -153,13 +153,13 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
     # step and one offset step for all three, against each gyro's own nonlinearity
     chans = [g for g in GYROS if f"gyro_{g}" in rec.channels]
     if len(chans) > 1:
-        Vs, Ws, scales = [], [], []
+        Vs, parts, scales = [], [], []
         for j, g in enumerate(chans):
             V = rec.channels[f"gyro_{g}"][timed]
             X0g = np.column_stack([np.ones(n), r_dps])
             coef = np.linalg.lstsq(X0g, V, rcond=None)[0]
             Vs.append(V)
-            Ws.append(_variance_weights(V, X0g, r_dps, ref_sigma_dps=res_rate))
+            parts.append(_variance_parts(V, X0g, r_dps, ref_sigma_dps=res_rate))
             scales.append(coef[1])
         m = len(chans)
         Y = np.concatenate(Vs)
@@ -175,14 +175,42 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
                            lambda kk: np.column_stack([gain_col(kk), step(kk)]), scan=scan_k, scan_name="first_row"),
                  Candidate("scale_nonlinearity", "second-order scale-factor nonlinearity of each gyro",
                            tuple(f"k2_{g}" for g in chans), lambda _: _block_columns(r_dps**2, m))]
+        # errors of the three readings of one row are correlated: they share the reference rate
+        # (stopwatch resolution) and the table's ripple at the reading moment
+        ripple_dps2 = np.mean([p_["ripple_V2_per_dps2"] / sc**2 for p_, sc in zip(parts, scales)])
+        shared = res_rate**2 + ripple_dps2 * r_dps**2                        # (deg/s)^2 per row
+        C = np.zeros((m * n, m * n))
+        for a_ in range(m):
+            for b_ in range(m):
+                blk = np.diag(scales[a_] * scales[b_] * shared)
+                if a_ == b_:  # shared part plus an independent part of at least the display floor
+                    indep = np.maximum(parts[a_]["var"] - scales[a_] ** 2 * shared, parts[a_]["floor"])
+                    blk = np.diag(scales[a_] ** 2 * shared + indep)
+                C[a_ * n:(a_ + 1) * n, b_ * n:(b_ + 1) * n] = blk
         dj = select_effects(Y, X0, [f"{c}_{g}" for g in chans for c in ("bias", "scale")], lib_j, rng,
-                            alpha=alpha, n_sim=n_sim, weights=np.concatenate(Ws))
+                            alpha=alpha, n_sim=n_sim, cov=C)
         joint = dj.to_dict()
         for fnd in dj.findings:
             if fnd.name == "instrument_range_change":
                 joint["range_change_row"] = int(rows[int(fnd.theta)])
         out["voltmeter"] = joint
     return out
+
+
+def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:
+    """The variance model of :func:`_variance_weights`, with its ripple coefficient (V^2 per (deg/s)^2)."""
+    from scipy.optimize import nnls
+
+    coef = np.linalg.lstsq(X0, V, rcond=None)[0]
+    e = V - X0 @ coef
+    v_ref = (coef[1] * np.asarray(ref_sigma_dps)) ** 2
+    D = np.column_stack([np.ones_like(r), r**2])
+    sc = np.linalg.norm(D, axis=0)
+    ab, _ = nnls(D / sc, np.clip(e**2 - v_ref, 0, None))
+    ab = ab / sc
+    q = np.array([reading_resolution([v]) for v in V])
+    q = np.minimum(q, 10 * reading_resolution(V))
+    return {"var": np.maximum(D @ ab, q**2 / 12) + v_ref, "ripple_V2_per_dps2": float(ab[1]), "floor": q**2 / 12}
 
 
 def _variance_weights(V, X0, r, ref_sigma_dps) -> np.ndarray:
