@@ -5,10 +5,9 @@ the accelerometer's channels, inputs (ax, ay, az in m/s^2) and the seed's models
 """
 from __future__ import annotations
 
-import numpy as np
 
 from imurig.calibration.terms import TermLibrary, seed_accelerometer_terms
-from imurig.calibration.triad import TriadCalibration, TriadSpec
+from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.calibration.triad import indicated as _indicated
 from imurig.recording import Recording
 
@@ -47,13 +46,5 @@ def indicated(rec: Recording, statistic: str = "median", sensitivity=None):
 def injected_parameters(truth: dict) -> dict:
     """The forward-model parameters the calibration estimates, from a simulation's truth (SI)."""
     acc = truth["sensors"]["accelerometers"]
-    M = np.asarray(acc["misalignment_rad"])
-    out = {}
-    for i, a in enumerate(AXES):
-        out[f"sensitivity_{a}"] = acc["sensitivity_V_per_m_s2"][i]
-        out[f"bias_{a}"] = acc["bias_m_s2"][i]
-        out[f"nonlinearity_{a}"] = acc["k2_per_m_s2"][i]
-        for j, c in enumerate(AXES):
-            if i != j:
-                out[f"misalignment_{a}{c}"] = M[i, j]
-    return out
+    return forward_parameters(AXES, acc["sensitivity_V_per_m_s2"], acc["bias_m_s2"], acc["k2_per_m_s2"],
+                              acc["misalignment_rad"])

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.calibration.terms import TermLibrary, polynomial
-from imurig.calibration.triad import TriadCalibration, TriadSpec
+from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.errors import RecordingError
 from imurig.recording import Recording
 from imurig.site import EARTH_RATE_RAD_S, Site
@@ -149,15 +149,7 @@ def injected_parameters(truth: dict, mounts=None) -> dict:
             for i in range(3):
                 if i != j:
                     M[i, j] = col[i] / col[j]
-    out = {}
-    for i, a in enumerate(AXES):
-        out[f"sensitivity_{a}"] = g["scale_V_per_rad_s"][i]
-        out[f"bias_{a}"] = g["bias_rad_s"][i]
-        out[f"nonlinearity_{a}"] = g["k2_per_rad_s"][i]
-        for j, c in enumerate(AXES):
-            if i != j:
-                out[f"misalignment_{a}{c}"] = M[i, j]
-    return out
+    return forward_parameters(AXES, g["scale_V_per_rad_s"], g["bias_rad_s"], g["k2_per_rad_s"], M)
 
 
 def segment_covariance(rec_windows: Recording, table_rate: np.ndarray, noise: dict,

@@ -295,3 +295,18 @@ def delta_cov(h, x, cov) -> np.ndarray:
     return J @ cov @ J.T
 
 
+
+
+def forward_parameters(axes, sensitivity, bias, k2, misalignment) -> dict:
+    """Forward-model parameters named as :meth:`TriadCalibration.physical_parameters` names them
+    (sensitivity_<a>, bias_<a>, nonlinearity_<a>, misalignment_<a><b>), from injected values."""
+    M = np.asarray(misalignment, float)
+    out = {}
+    for i, a in enumerate(axes):
+        out[f"sensitivity_{a}"] = sensitivity[i]
+        out[f"bias_{a}"] = bias[i]
+        out[f"nonlinearity_{a}"] = k2[i]
+        for j, c in enumerate(axes):
+            if i != j:
+                out[f"misalignment_{a}{c}"] = M[i, j]
+    return out

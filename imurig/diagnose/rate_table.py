@@ -198,7 +198,14 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
 
 
 def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:
-    """The variance model of :func:`_variance_weights`, with its ripple coefficient (V^2 per (deg/s)^2)."""
+    """Noise model of the gyro readings: var_i = max(a + b r_i^2, q_i^2 / 12) + (s sigma_ref,i)^2.
+
+    a is the reading noise, b r^2 the table's rate ripple read at a random moment, q_i the display
+    step of reading i, and the last term the known error of the reference rate from the
+    stopwatch's resolution (sigma_ref = Omega q_T / (sqrt(12) T), deg/s) times the scale s
+    (V per deg/s); a, b >= 0 by non-negative least squares on the rest of the nominal fit's
+    squared residuals. Returns var (n,), the ripple coefficient b (V^2 per (deg/s)^2) and the
+    display floor q^2/12 (n,)."""
     from scipy.optimize import nnls
 
     coef = np.linalg.lstsq(X0, V, rcond=None)[0]
@@ -214,24 +221,8 @@ def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:
 
 
 def _variance_weights(V, X0, r, ref_sigma_dps) -> np.ndarray:
-    """Inverse variances var_i = max(a + b r_i^2, q_i^2 / 12) + (s sigma_ref,i)^2:
-    a the reading noise, b r^2 the table's rate ripple read at a random moment, q_i the display
-    step of reading i, and the known error of the reference rate from the stopwatch's resolution
-    (sigma_ref = Omega q_T / (sqrt(12) T), deg/s) times the scale s (V per deg/s);
-    a, b >= 0 by non-negative least squares on the rest of the nominal fit's squared residuals."""
-    from scipy.optimize import nnls
-
-    coef = np.linalg.lstsq(X0, V, rcond=None)[0]
-    e = V - X0 @ coef
-    v_ref = (coef[1] * np.asarray(ref_sigma_dps)) ** 2
-    D = np.column_stack([np.ones_like(r), r**2])
-    sc = np.linalg.norm(D, axis=0)
-    ab, _ = nnls(D / sc, np.clip(e**2 - v_ref, 0, None))
-    ab = ab / sc
-    q = np.array([reading_resolution([v]) for v in V])
-    q = np.minimum(q, 10 * reading_resolution(V))
-    var = np.maximum(D @ ab, q**2 / 12) + v_ref
-    return 1.0 / var
+    """Inverse variances of :func:`_variance_parts`'s noise model."""
+    return 1.0 / _variance_parts(V, X0, r, ref_sigma_dps)["var"]
 
 
 def _block_columns(col: np.ndarray, m: int) -> np.ndarray:
