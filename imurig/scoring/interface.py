@@ -1,0 +1,190 @@
+"""The contract between the bench and a user's estimator.
+
+Two kinds of estimator take part:
+
+**Calibrator** (anything with these methods; no base class needed)::
+
+    class MyCalibrator:
+        def fit(self, recording: Recording) -> Estimates: ...
+        def apply(self, recording: Recording) -> Recording: ...      # optional
+
+``fit`` receives the campaign's recording *without truth* (:meth:`Recording.without_truth`,
+1 kHz SI channels, segments with set-points, metadata) and returns estimates of the
+campaign's parameters (:func:`imurig.scoring.campaigns.parameter_template` lists names and
+units) as any of
+
+- a list of parameter rows ``{"name", "unit", "estimate" | "value", "std_error"}``
+  (the bench's own row format, e.g. ``TriadCalibration.physical_parameters()``);
+- a mapping ``name -> (value, std_error)`` in the template's units (SI);
+- a mapping ``name -> {"value", "std_error", "unit"}``;
+- a list of :class:`ParameterEstimate`.
+
+``apply`` (optional) returns a copy of the recording with calibrated channels
+(``acc_cal_x..z`` in m/s^2, ``gyro_cal_p..r`` in rad/s); the bench then also scores the
+calibrated output against the true input.
+
+**NavFilter**::
+
+    class MyFilter:
+        def run(self, streams: NavStreams) -> NavSolution: ...
+
+takes IMU, GPS and magnetometer streams and returns time-stamped position, velocity and
+attitude estimates, optionally with their covariances; :mod:`imurig.scoring.nav` scores
+the errors and, where covariances are given, the filter's consistency (NEES).
+
+Frames: W is local level (x east, y north, z up, as everywhere in the bench); B is the body
+(IMU case) frame. Quaternions are scalar first (w, x, y, z), ``q_WB`` rotates B vectors into W.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from imurig.errors import ImurigError
+from imurig.recording import Recording
+
+
+class EstimatesError(ImurigError, ValueError):
+    """A set of estimates is malformed: missing or unknown parameters, wrong units, NaN, duplicates."""
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """One estimated parameter: value and 1-sigma standard error in ``unit``."""
+
+    name: str
+    value: float
+    std_error: float
+    unit: str
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "value": self.value, "std_error": self.std_error, "unit": self.unit}
+
+
+@runtime_checkable
+class Calibrator(Protocol):
+    """fit(recording without truth) -> estimates (see module doc)."""
+
+    def fit(self, recording: Recording) -> Any: ...
+
+
+@dataclass
+class ImuStream:
+    """IMU samples: specific force ``f_B`` (n, 3) m/s^2 and angular rate ``w_IB_B`` (n, 3) rad/s
+    at times ``time_s`` (n,)."""
+
+    time_s: np.ndarray
+    f_B: np.ndarray
+    w_IB_B: np.ndarray
+
+
+@dataclass
+class GpsStream:
+    """GPS fixes: position ``r_W`` (m, 3) m in the local-level frame W (origin at the site),
+    optional velocity ``v_W`` (m, 3) m/s, and their 1-sigma accuracies (m,) or (m, 3)."""
+
+    time_s: np.ndarray
+    r_W: np.ndarray
+    v_W: np.ndarray | None = None
+    sigma_r_m: np.ndarray | float | None = None
+    sigma_v_m_s: np.ndarray | float | None = None
+
+
+@dataclass
+class MagStream:
+    """Magnetometer samples: field ``B_B`` (k, 3) tesla in the body frame."""
+
+    time_s: np.ndarray
+    B_B: np.ndarray
+
+
+@dataclass
+class NavStreams:
+    """What a navigation filter sees: IMU, and optionally GPS and magnetometer, plus metadata
+    (site, initial conditions the bench gives every filter, e.g. ``initial_r_W``)."""
+
+    imu: ImuStream
+    gps: GpsStream | None = None
+    mag: MagStream | None = None
+    meta: dict = field(default_factory=dict)
+
+
+@dataclass
+class NavSolution:
+    """A filter's output at times ``time_s`` (k,): any of position ``r_W`` (k, 3) m, velocity
+    ``v_W`` (k, 3) m/s, attitude ``q_WB`` (k, 4) scalar first; covariances (k, 3, 3) of each
+    (attitude: of the small rotation error in W, rad^2), or None when not reported."""
+
+    time_s: np.ndarray
+    r_W: np.ndarray | None = None
+    v_W: np.ndarray | None = None
+    q_WB: np.ndarray | None = None
+    P_r: np.ndarray | None = None
+    P_v: np.ndarray | None = None
+    P_att: np.ndarray | None = None
+
+
+@runtime_checkable
+class NavFilter(Protocol):
+    """run(streams) -> NavSolution."""
+
+    def run(self, streams: NavStreams) -> NavSolution: ...
+
+
+def _float(v, what: str) -> float:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise EstimatesError(f"{what} is not a number: {v!r}") from None
+    return x
+
+
+def normalise_estimates(est, default_units: Mapping[str, str] | None = None) -> list[ParameterEstimate]:
+    """Turn any accepted estimate form (module doc) into a list of :class:`ParameterEstimate`.
+
+    ``default_units`` (name -> unit) supplies the unit where the estimator gives none (the
+    mapping ``name -> (value, std_error)`` form, which is in the template's SI units).
+    Checks values only for type; :func:`imurig.scoring.score.check_estimates` validates
+    names, units, NaN and duplicates against a campaign.
+    """
+    units = dict(default_units or {})
+    out: list[ParameterEstimate] = []
+    if isinstance(est, Mapping):
+        items = []
+        for name, v in est.items():
+            if isinstance(v, Mapping):
+                items.append({"name": name, **v})
+            elif isinstance(v, (tuple, list)) and len(v) == 2:
+                items.append({"name": name, "value": v[0], "std_error": v[1]})
+            else:
+                raise EstimatesError(f"estimate of {name!r} must be (value, std_error) or a mapping with "
+                                     f"'value' and 'std_error', got {v!r}")
+    elif isinstance(est, (list, tuple)):
+        items = list(est)
+    else:
+        raise EstimatesError(f"a calibrator's fit() must return parameter rows or a mapping name -> (value, "
+                             f"std_error), got {type(est).__name__}")
+    for r in items:
+        if isinstance(r, ParameterEstimate):
+            out.append(r)
+            continue
+        if not isinstance(r, Mapping) or "name" not in r:
+            raise EstimatesError(f"each estimate needs a 'name'; got {r!r}")
+        name = str(r["name"])
+        if "value" in r and "estimate" in r:
+            raise EstimatesError(f"estimate {name!r} gives both 'value' and 'estimate'; give one")
+        if "value" not in r and "estimate" not in r:
+            raise EstimatesError(f"estimate {name!r} has no 'value'")
+        val = _float(r.get("value", r.get("estimate")), f"value of {name!r}")
+        if r.get("std_error") is None or r.get("std_error") == "":
+            raise EstimatesError(f"estimate {name!r} has no 'std_error'; every estimate needs its 1-sigma "
+                                 "standard error (the bench scores errors in units of it)")
+        se = _float(r["std_error"], f"std_error of {name!r}")
+        unit = r.get("unit") or units.get(name)
+        if unit is None:
+            raise EstimatesError(f"estimate {name!r} has no unit")
+        out.append(ParameterEstimate(name, val, se, str(unit)))
+    return out
