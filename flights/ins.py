@@ -231,7 +231,7 @@ def kinematic_truth(duration_s, rate_hz, lat0_rad, lon0_rad, h0_m, v_fn, a_fn, e
         f_B    = C_BN [dv_N/dt + (2 ω_IE + ω_EN) × v_N − g_N(φ, h)]
         w_IB_B = w_NB_B(Euler rates) + C_BN (ω_IE + ω_EN)
     """
-    t = np.arange(int(round(duration_s * rate_hz)) + 1) / rate_hz
+    t = np.arange(round(duration_s * rate_hz) + 1) / rate_hz
 
     def rhs(tt, y):
         dlat, dlon, dh = E.geodetic_rates(y[0], y[2], v_fn(np.atleast_1d(tt))[0])
