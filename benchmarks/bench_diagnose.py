@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from imurig.diagnose.suite import CASES, diagnose_case, found_effects, null_recording
+from imurig.diagnose.suite import CASES, diagnose_case, found_effects, null_groups, null_recording
 
 
 def main(argv=None):
@@ -26,12 +26,12 @@ def main(argv=None):
     seeds = list(range(100, 100 + a.seeds))
     t0 = time.perf_counter()
     out = {"null": {}, "effects": {}}
-    for rig in ("tilt_table", "rate_table_rows"):
+    for group, case in null_groups().items():
         fd = 0
         for s in seeds:
-            case = next(c for c in CASES if c.rig == rig)
-            fd += bool(found_effects(diagnose_case(case, null_recording(rig, s), s)))
-        out["null"][rig] = {"records": len(seeds), "with_false_discovery": fd, "rate": fd / len(seeds)}
+            fd += bool(found_effects(diagnose_case(case, null_recording(case, s), s)))
+        out["null"][group] = {"records": len(seeds), "with_false_discovery": fd, "rate": fd / len(seeds)}
+        print("null", group, json.dumps(out["null"][group]), flush=True)
     for case in CASES:
         hits, z = 0, []
         for s in seeds:

@@ -20,6 +20,7 @@ MODELS = {
     "cross": lambda a: TermLibrary.from_names(["1", "ax", "ay", "az", "ax*ay", "ax*az", "ay*az"]),  # Table 4.5
     "seed_final": seed_accelerometer_terms,                                                         # Table 4.6
     "physical": lambda a: TermLibrary.from_names(["1", "ax", "ay", "az", f"a{a}^2"]),
+    "own_axis": lambda a: TermLibrary.from_names(["1", f"a{a}", f"a{a}^2"]),  # a twin without misalignment
 }
 
 SPEC = TriadSpec(kind="accelerometer", axes=AXES, channels=ACC, inputs=INPUTS,

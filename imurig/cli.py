@@ -294,7 +294,7 @@ def _run_diagnose(a):
         from imurig.recording import load
 
         rec = load(a.recording).validate()
-    d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed)
+    d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model)
     from imurig.diagnose.report import _findings_rows
 
     for r in _findings_rows(d):
@@ -381,6 +381,9 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--out", default="imurig-out/diagnosis")
     dg.add_argument("--overwrite", action="store_true")
     dg.add_argument("--seed", type=int, default=0, help="seed of the threshold simulations")
+    dg.add_argument("--twin-model", default="physical", choices=["physical", "own_axis", "linear"],
+                    help="the tilt-table twin's accelerometer model; terms it lacks (misalignment, "
+                         "nonlinearity) join the candidate effects")
     dg.set_defaults(func=_run_diagnose)
 
     conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")

@@ -128,3 +128,29 @@ def test_crosstalk_coefficient_against_truth():
     f = next(f for f in d["axes"]["y"]["findings"] if f["effect"] == "adc_crosstalk")
     est, se = f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
     assert abs(est - (-c_true / (s_nom * G * (1 - c_true)))) < 4 * se
+
+
+# ------------------------------------------- effects the twin leaves out of its model
+from imurig.diagnose.suite import CASES, diagnose_case, found_effects, null_recording  # noqa: E402
+
+
+@pytest.mark.parametrize("effect,seed", [("axis_misalignment", 3), ("scale_nonlinearity", 4)])
+def test_model_terms_left_out_of_the_twin(effect, seed):
+    """Misalignment left out of an 'own_axis' twin and nonlinearity left out of a 'linear' twin
+    are found on every axis and named, their parameter agrees with the injected value within
+    4 SE, and the same twin on data without the effect comes back clean."""
+    case = next(c for c in CASES if c.effect == effect)
+    rec = case.make(seed, case.realistic_size)
+    d = diagnose_case(case, rec, seed)
+    assert found_effects(d) == case.expected
+    est, se = case.found_param(d)
+    assert abs(est - case.truth_param(rec)) < 4 * se, (est, case.truth_param(rec), se)
+    assert found_effects(diagnose_case(case, null_recording(case, seed), seed)) == set()
+
+
+def test_unknown_twin_model_refused():
+    from imurig.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="twin model"):
+        diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=3).simulate(), np.random.default_rng(0),
+                            twin_model="quartic")

@@ -10,14 +10,15 @@ from imurig.recording import Recording
 from imurig.report import OutputFolder, clean_json, md_table
 
 
-def diagnose(rec: Recording, seed: int = 0) -> dict:
-    """Dispatch on the recording's kind. Implemented: turn-table row recordings (appendix B)."""
+def diagnose(rec: Recording, seed: int = 0, twin_model: str = "physical") -> dict:
+    """Dispatch on the recording's kind: tilt-table recordings (twin model ``twin_model``) and
+    turn-table row recordings (appendix B)."""
     if rec.meta.get("rig") == "turn_table" and rec.meta.get("row_recording"):
         return {"kind": "rate_table_rows", **diagnose_rate_rows(rec, np.random.default_rng(seed))}
     if rec.meta.get("rig") == "tilt_table" or {"theta", "phi"} <= set(rec.segments):
         from imurig.diagnose.tilt_table import diagnose_tilt_table
 
-        return {"kind": "tilt_table", **diagnose_tilt_table(rec, np.random.default_rng(seed))}
+        return {"kind": "tilt_table", **diagnose_tilt_table(rec, np.random.default_rng(seed), twin_model=twin_model)}
     raise RecordingError(f"diagnosis of '{rec.meta.get('rig', 'unknown')}' recordings is not implemented yet; "
                          "this version diagnoses tilt-table recordings and turn-table row recordings in the "
                          "appendix-B format (imurig.calibration.simona.read_simona)")
@@ -178,8 +179,8 @@ def _rrd(path, rec: Recording, d: dict):
         log_text(w, "summary", "# Diagnosis\n\n" + "\n".join(f"- **{r[1]}** ({r[0]}): {r[2]}" for r in _findings_rows(d)))
 
 
-def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0) -> dict:
-    d = diagnose(rec, seed)
+def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "physical") -> dict:
+    d = diagnose(rec, seed, twin_model)
     with OutputFolder(out_dir, overwrite=overwrite) as out:
         fig = _figure(out, rec, d)
         _rrd(out.file("diagnosis.rrd"), rec, d)

@@ -8,7 +8,7 @@ and says which (channel, effect) pairs a correct diagnosis must report.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -31,6 +31,8 @@ class Case:
     truth_param: Callable | None = None              # (rec) -> injected parameter value
     found_param: Callable | None = None              # (diagnosis) -> (estimate, std_error)
     notes: str = ""
+    twin: dict = field(default_factory=dict)        # keyword arguments of the diagnosis (the twin)
+    null: Callable | None = None                     # seed -> a recording with nothing omitted from this twin
     extra: dict = field(default_factory=dict)
 
 
@@ -47,33 +49,75 @@ def _crosstalk(seed, c):
     return _tilt(seed, mux_frequency_hz=f)
 
 
-def _pump(seed, rms):
-    from dataclasses import replace
+# the nonlinearity needs a wider spread of g levels per axis than SMALL_TILT gives
+WIDE_TILT = TiltTableProtocol(theta_deg=(0, 15, 30, 45, 60, 75, 90), phi_deg=tuple(range(0, 360, 30)), dwell_s=8.0,
+                              settle_s=1.0, slew_rate_deg_s=30.0)
 
+
+def _tilt_lab(seed, change_lab, protocol=SMALL_TILT, **camp_kw):
+    """A small tilt-table campaign whose sensor chain is edited by ``change_lab(lab) -> lab``
+    (an effect switched on, resized or off) before the measurement."""
     from imurig.campaigns.tilt_table import TiltTableCampaign
-    from imurig.sensors.disturbances import PumpVibration
-
-    camp = TiltTableCampaign(protocol=SMALL_TILT, seed=seed, start_time="2005-06-14T10:00:00+02:00")
-    table, lab, ss = camp.build()
-    lab = replace(lab, pump=PumpVibration(rms_m_s2=rms, broadband_rms_m_s2=rms / 3))
     from imurig.sensors.noise import child_rng
 
+    camp = TiltTableCampaign(protocol=protocol, seed=seed, **camp_kw)
+    table, lab, ss = camp.build()
     rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    return lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(1,)))
+    rec = change_lab(lab).measure(rig, np.random.SeedSequence(seed, spawn_key=(1,)))
+    rec.meta["campaign"] = {"name": "tilt-table", **camp.to_dict()}
+    return rec
+
+
+def _pump(seed, rms):
+    from imurig.sensors.disturbances import PumpVibration
+
+    return _tilt_lab(seed, lambda lab: replace(lab, pump=PumpVibration(rms_m_s2=rms, broadband_rms_m_s2=rms / 3)),
+                     start_time="2005-06-14T10:00:00+02:00")
 
 
 def _cable(seed, rate_hz):
-    from dataclasses import replace
-
-    from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.sensors.disturbances import LooseCable
-    from imurig.sensors.noise import child_rng
 
-    camp = TiltTableCampaign(protocol=SMALL_TILT, seed=seed)
-    table, lab, ss = camp.build()
-    lab = replace(lab, cable=LooseCable(enabled=True, rate_hz=rate_hz))
-    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    return lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(1,)))
+    return _tilt_lab(seed, lambda lab: replace(lab, cable=LooseCable(enabled=True, rate_hz=rate_hz)))
+
+
+# each axis leans towards both others by +-size (rad); the forward model a_S = (I + M) f
+MISALIGNMENT_PATTERN = np.array([[0.0, 1.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 1.0, 0.0]])
+
+
+def _accelerometers(seed, misalignment=None, k2=None, protocol=SMALL_TILT):
+    """Accelerometers with misalignment of size ``misalignment`` (rad, pattern above) and
+    nonlinearity k2 = ``k2`` * (1, -1, 1) (1/(m/s^2)); None keeps the drawn value, 0 removes it."""
+    def change(lab):
+        kw = {}
+        if misalignment is not None:
+            kw["misalignment_rad"] = misalignment * MISALIGNMENT_PATTERN
+        if k2 is not None:
+            kw["k2_per_m_s2"] = k2 * np.array([1.0, -1.0, 1.0])
+        return replace(lab, accelerometers=replace(lab.accelerometers, **kw))
+
+    return _tilt_lab(seed, change, protocol=protocol)
+
+
+def _scale_D(rec):
+    """Effective relative scale D = s_true (1 + scale_tempco dT) / s_nom at the campaign's mean temperature."""
+    acc = rec.truth["sensors"]["accelerometers"]
+    dT = float(np.mean(rec.truth_signals["T_imu"])) - acc["reference_temperature_K"]
+    return (np.asarray(acc["sensitivity_V_per_m_s2"]) * (1 + np.asarray(acc["scale_tempco_per_K"]) * dT)
+            / np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"]))
+
+
+def _inverse_linear(rec):
+    """The inverse model's linear coefficients (I + M)^-1 D^-1, D = diag(s_true / s_nom)."""
+    D = _scale_D(rec)
+    acc = rec.truth["sensors"]["accelerometers"]
+    return np.linalg.inv(np.eye(3) + np.asarray(acc["misalignment_rad"])) / D[None, :]
+
+
+def _inverse_k2(rec, j):
+    """The inverse model's coefficient of u_j^2: f_j ~ u_j / D_j - k2_j (u_j / D_j)^2."""
+    D = _scale_D(rec)[j]
+    return -rec.truth["sensors"]["accelerometers"]["k2_per_m_s2"][j] / D**2
 
 
 def _simona(seed, **setup_kw):
@@ -116,10 +160,10 @@ def _slip(seed, s1):
     return _simona(seed, table=TurnTableErrors(mains_hz=60.0, slip_const=0.0, slip_coeff=s1))
 
 
-def _param(d, axis, effect):
+def _param(d, axis, effect, k=0):
     for f in d["axes"][axis]["findings"]:
         if f["effect"] == effect:
-            return f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
+            return f["parameters"][k]["estimate"], f["parameters"][k]["std_error"]
     return None
 
 
@@ -134,6 +178,16 @@ CASES = [
          sizes=(0.001, 0.002, 0.005, 0.01, 0.03), size_unit="pump rms (m/s^2)"),
     Case("cable_fault_spikes", "tilt_table", {("y", "cable_fault_spikes")}, _cable, 0.5,
          sizes=(0.005, 0.02, 0.05, 0.2, 0.5), size_unit="spike rate (1/s)"),
+    Case("axis_misalignment", "tilt_table", {(a, "axis_misalignment") for a in "xyz"},
+         lambda seed, m: _accelerometers(seed, misalignment=m), 1e-3,
+         sizes=(2e-6, 5e-6, 1e-5, 2e-5, 5e-5), size_unit="misalignment angle (rad)",
+         truth_param=lambda rec: _inverse_linear(rec)[0, 1], found_param=lambda d: _param(d, "x", "axis_misalignment"),
+         twin={"twin_model": "own_axis"}, null=lambda seed: _accelerometers(seed, misalignment=0.0)),
+    Case("scale_nonlinearity", "tilt_table", {(a, "scale_nonlinearity") for a in "xyz"},
+         lambda seed, k2: _accelerometers(seed, k2=k2, protocol=WIDE_TILT), 48e-6 / 9.80665,
+         sizes=tuple(x * 1e-6 / 9.80665 for x in (5, 10, 20, 30, 48)), size_unit="k2 (1/(m/s^2))",
+         truth_param=lambda rec: _inverse_k2(rec, 0), found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
+         twin={"twin_model": "linear"}, null=lambda seed: _accelerometers(seed, k2=0.0, protocol=WIDE_TILT)),
     Case("instrument_range_change", "rate_table_rows", {("voltmeter", "instrument_range_change")}, _range_change, 0.01,
          sizes=(0.0005, 0.001, 0.002, 0.005, 0.01), size_unit="gain step (relative)"),
     Case("mains_rate_factor", "rate_table_rows", {("rate", "mains_rate_factor")}, _mains, 1.0),
@@ -166,11 +220,23 @@ def diagnose_case(case: Case, rec, seed: int) -> dict:
     if case.rig == "tilt_table":
         from imurig.diagnose.tilt_table import diagnose_tilt_table
 
-        return diagnose_tilt_table(rec, rng)
+        return diagnose_tilt_table(rec, rng, **case.twin)
     from imurig.diagnose.rate_table import diagnose_rate_rows
 
     return diagnose_rate_rows(rec, rng, n_sim=200)
 
 
-def null_recording(rig: str, seed: int):
-    return _tilt(seed) if rig == "tilt_table" else _simona(seed)
+def null_recording(case: Case, seed: int):
+    """A recording with nothing omitted from the case's twin."""
+    if case.null is not None:
+        return case.null(seed)
+    return _tilt(seed) if case.rig == "tilt_table" else _simona(seed)
+
+
+def null_groups() -> dict:
+    """One representative case per distinct (rig, twin, null data): the null studies to run."""
+    out = {}
+    for c in CASES:
+        key = f"{c.rig}" + (f" (twin {c.twin['twin_model']}, {c.effect} absent)" if c.null else "")
+        out.setdefault(key, c)
+    return out

@@ -26,6 +26,7 @@ from imurig.calibration.accelerometer import AXES, indicated
 from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
 from imurig.campaigns.tilt_table import calibrate, tilt_table_reference
 from imurig.diagnose.engine import Candidate, select_effects
+from imurig.errors import ConfigError
 from imurig.recording import Recording
 from imurig.site import parse_time
 
@@ -35,14 +36,29 @@ def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
     return (start.hour + start.minute / 60 + (t - rec.time_s[0]) / 3600) % 24
 
 
-def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300) -> dict:
+TWIN_MODELS = ("physical", "own_axis", "linear")
+
+
+def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
+                        twin_model: str = "physical") -> dict:
+    """Diagnose a tilt-table recording against the twin ``twin_model``:
+
+    - ``physical``: u_j = b + s (f_j + m_jk f_k + m_jl f_l) + k2 f_j^2 (the lab's final model);
+    - ``own_axis``: b + s f_j + k2 f_j^2 (a twin without misalignment);
+    - ``linear``: b + s f_j + m_jk f_k + m_jl f_l (a twin without nonlinearity).
+
+    Effects the twin lacks (misalignment, nonlinearity) join the candidate library.
+    """
+    if twin_model not in TWIN_MODELS:
+        raise ConfigError(f"unknown twin model '{twin_model}'; choose one of {', '.join(TWIN_MODELS)}")
     rec100 = lowpass_downsample(rec)
-    cal = calibrate(rec, model="physical", processed=rec100)
+    cal = calibrate(rec, model=twin_model, processed=rec100)
     u, _ = indicated(rec100)
     seg = rec100.segments
     mid = 0.5 * (seg["start_s"] + seg["stop_s"])
     scan = list(rec.meta.get("adc", {}).get("scan_list", []))
-    out = {"twin": "physical accelerometer model fitted to per-position medians", "axes": {}}
+    out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position medians", "twin_model": twin_model,
+           "axes": {}}
     inputs = {n: u[:, j] for j, n in enumerate(("ax", "ay", "az"))}
     temp_names = [c for c in ("temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box") if c in rec100.channels]
     temps = segment_statistic(rec100, temp_names, "median") if temp_names else None
@@ -67,6 +83,15 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
             lib.append(Candidate("temperature_drift", "the bias drifts with the sensor's temperature over the "
                                  "campaign", ("drift",), lambda _, t=temps[:, 0] - temps[:, 0].mean(): t))
         others = [n for n in ("ax", "ay", "az") if n != f"a{a}"]
+        if not set(others) & set(res.names):
+            lib.append(Candidate("axis_misalignment", f"the sensitive axis of acc_{a} leans towards the other two "
+                                 "axes (misalignment; the inverse model's coefficients of the other axes' readings)",
+                                 tuple(f"m_{a}{o[1]}" for o in others),
+                                 lambda _, o=others: np.column_stack([inputs[o[0]], inputs[o[1]]])))
+        if f"a{a}^2" not in res.names:
+            lib.append(Candidate("scale_nonlinearity", f"second-order scale-factor nonlinearity of acc_{a} (the inverse "
+                                 "model's coefficient of its own reading squared, 1/(m/s^2))", ("k2",),
+                                 lambda _, n=f"a{a}": inputs[n] ** 2))
         lib.append(Candidate("cross_coupling", "cross-coupling of the other two axes (product term)", ("c",),
                              lambda _, o=others: inputs[o[0]] * inputs[o[1]]))
         d = select_effects(y, X0, list(res.names), lib, rng, alpha=alpha, n_sim=n_sim)
