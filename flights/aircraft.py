@@ -1,0 +1,591 @@
+"""The Cessna Citation II (model 550) in MuJoCo: aerodynamics, thrust, landing gear, autopilot.
+
+MuJoCo integrates one free rigid body (``assets/citation.xml``) in a flat local-level world
+whose axes are NED at the departure point (gravity +z, constant 9.81 m/s^2). Every step the
+loop computes, from the body's state and the control inputs,
+
+    aerodynamic force and moment (stability derivatives, below) + thrust  -> xfrc_applied (CG)
+    tyre forces on the three gear wheels (imurig.flights.van.TyreModel)    -> xfrc_applied (wheels)
+
+so the short-period, phugoid, Dutch-roll, roll and spiral modes arise from the dynamics.
+The Earth terms (rotation, transport rate, Coriolis, WGS-84 normal gravity) are added to the
+recorded kinematics afterwards, exactly, in :mod:`imurig.flights.truth`.
+
+Aerodynamic model (SI, angles in rad; q̄ = ρV²/2 with ISA density ρ(h); hats are the usual
+non-dimensional rates p̂ = p b/2V, q̂ = q c/V, r̂ = r b/2V, α̇̂ = α̇ c/V):
+
+    C_L = C_L0 + C_Lα α + C_Lq q̂ + C_Lα̇ α̇̂ + C_Lδe δe + C_Lflap f
+    C_D = C_D0 + C_L² / (π A e) + C_Dflap f
+    C_Y = C_Yβ β + C_Yp p̂ + C_Yr r̂ + C_Yδa δa + C_Yδr δr
+    C_l = C_lβ β + C_lp p̂ + C_lr r̂ + C_lδa δa + C_lδr δr
+    C_m = C_m0 + C_mα α + C_mq q̂ + C_mα̇ α̇̂ + C_mδe δe + C_mflap f
+    C_n = C_nβ β + C_np p̂ + C_nr r̂ + C_nδa δa + C_nδr δr
+    F_B = [−D cos α + L sin α + T, q̄ S C_Y, −D sin α − L cos α],  M_B = q̄ S [b C_l, c C_m, b C_n]
+
+with L = q̄ S C_L, D = q̄ S C_D, T the thrust along body x (first-order spool-up). Source of
+the numbers: the TU Delft Citation II flight-dynamics model used in the faculty's flight-test
+course (public teaching data: C_Xu, C_Zα = −5.74, C_Zq = −5.66, C_mq = −8.79, C_mα̇ = +0.178,
+C_mα = −0.56, C_mδe = −1.16, C_lp = −0.71, C_nβ = +0.135, C_nr = −0.206, ...; geometry
+S = 30 m², c̄ = 2.0569 m, b = 15.911 m). The lift derivatives are taken as C_Lx = −C_Zx.
+Sign conventions here: δe > 0 trailing edge down (nose down), δa > 0 rolls right (the Delft
+C_lδa, C_nδa, C_Yδa with their sign flipped), δr > 0 trailing edge left (nose left).
+Order-of-magnitude-correct values for a light business jet, not a certified model: no
+compressibility, no stall (plans are validated to stay below C_L,max), no ground effect.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from imurig.flights.van import TyreModel
+from imurig.rigs.mujoco_rig import load_model
+
+from imurig.errors import ConfigError
+
+G0 = 9.81  # the flat world's gravity, m/s^2 (the truth uses WGS-84 normal gravity instead)
+
+
+def isa_density(h_m: float) -> float:
+    """ISA troposphere density, kg/m^3, at geopotential height h (m)."""
+    return 1.225 * (1.0 - 2.25577e-5 * h_m) ** 4.2559
+
+
+@dataclass(frozen=True)
+class CitationAero:
+    """Geometry, stability and control derivatives, engines and actuators (SI)."""
+
+    S_m2: float = 30.0
+    c_m: float = 2.0569
+    b_m: float = 15.911
+    CL0: float = 0.10
+    CLa: float = 5.084
+    CLq: float = 5.6629
+    CLadot: float = 0.0035
+    CLde: float = 0.69612
+    CL_max: float = 1.25
+    CD0: float = 0.04
+    oswald: float = 0.8
+    CL_flaps: float = 0.45
+    CD_flaps: float = 0.025
+    Cm0: float = 0.0297
+    Cma: float = -0.5626
+    Cmq: float = -8.79415
+    Cmadot: float = 0.178
+    Cmde: float = -1.1642
+    Cm_flaps: float = -0.04
+    CYb: float = -0.75
+    CYp: float = -0.0304
+    CYr: float = 0.8495
+    CYda: float = 0.04
+    CYdr: float = 0.23
+    Clb: float = -0.1026
+    Clp: float = -0.71085
+    Clr: float = 0.2376
+    Clda: float = 0.23088
+    Cldr: float = 0.0344
+    Cnb: float = 0.1348
+    Cnp: float = -0.0602
+    Cnr: float = -0.2061
+    Cnda: float = 0.012
+    Cndr: float = -0.0939
+    thrust_max_N: float = 2 * 11_120.0      # two P&W JT15D-4, sea-level static
+    engine_tau_s: float = 1.5
+    surface_tau_s: float = 0.08
+    de_limits_rad: tuple = (-0.30, 0.26)
+    da_limit_rad: float = 0.35
+    dr_limit_rad: float = 0.40
+    steer_limit_rad: float = 1.0
+    limit_load_factor: float = 3.0          # FAR 25.337 for ~13 300 lb gives 3.1
+    r_cg_B_m: tuple = (-1.5, -0.3, 0.2)     # CG relative to the IMU (body origin), FRD
+
+    @property
+    def aspect_ratio(self) -> float:
+        return self.b_m ** 2 / self.S_m2
+
+    def thrust_max(self, h_m: float) -> float:
+        return self.thrust_max_N * (isa_density(h_m) / 1.225) ** 0.75
+
+    def forces(self, V, alpha, beta, adot, p, q, r, de, da, dr, thrust, flaps, rho):
+        """Aerodynamic + thrust force (N) and moment about the CG (N m), body FRD, as 6 floats."""
+        V = max(V, 1.0)
+        qbar = 0.5 * rho * V * V
+        S, c, b = self.S_m2, self.c_m, self.b_m
+        ph, qh, rh, ah = p * b / (2 * V), q * c / V, r * b / (2 * V), adot * c / V
+        CL = self.CL0 + self.CLa * alpha + self.CLq * qh + self.CLadot * ah + self.CLde * de + self.CL_flaps * flaps
+        CD = self.CD0 + CL * CL / (math.pi * self.aspect_ratio * self.oswald) + self.CD_flaps * flaps
+        CY = self.CYb * beta + self.CYp * ph + self.CYr * rh + self.CYda * da + self.CYdr * dr
+        Cl = self.Clb * beta + self.Clp * ph + self.Clr * rh + self.Clda * da + self.Cldr * dr
+        Cm = (self.Cm0 + self.Cma * alpha + self.Cmq * qh + self.Cmadot * ah + self.Cmde * de
+              + self.Cm_flaps * flaps)
+        Cn = self.Cnb * beta + self.Cnp * ph + self.Cnr * rh + self.Cnda * da + self.Cndr * dr
+        L, D = qbar * S * CL, qbar * S * CD
+        ca, sa = math.cos(alpha), math.sin(alpha)
+        return (-D * ca + L * sa + thrust, qbar * S * CY, -D * sa - L * ca,
+                qbar * S * b * Cl, qbar * S * c * Cm, qbar * S * b * Cn)
+
+
+class State:
+    """The vehicle's state at one sample, as plain floats (fast in the per-step loop)."""
+
+    __slots__ = (
+        "C",
+        "V",
+        "alpha",
+        "beta",
+        "chi",
+        "gamma",
+        "gs",
+        "h",
+        "p",
+        "pD",
+        "pE",
+        "pN",
+        "phi",
+        "psi",
+        "q",
+        "r",
+        "t",
+        "theta",
+        "u",
+        "v",
+        "vD",
+        "vE",
+        "vN",
+        "w",
+    )
+
+
+@dataclass
+class Cmd:
+    """Control inputs: elevator, aileron, rudder (rad), throttle (0-1), nose-wheel steering (rad),
+    brake (0-1), flaps (0-1, fraction of take-off flap)."""
+
+    de: float = 0.0
+    da: float = 0.0
+    dr: float = 0.0
+    thr: float = 0.0
+    steer: float = 0.0
+    brake: float = 0.0
+    flaps: float = 0.0
+
+
+@dataclass(frozen=True)
+class Wheel:
+    body: str
+    joint: str
+    radius_m: float
+    tyre: TyreModel
+    steered: bool = False
+    driven: bool = False
+    braked: bool = True
+
+
+def _quat_to_C(w, x, y, z):
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+class VehicleSim:
+    """A MuJoCo free body stepped at ``rate_hz`` (``substeps`` physics steps per sample), with
+    tyre forces and a vehicle-specific force callback; records the kinematics of the body
+    origin (the IMU) at every sample: position, velocity, acceleration (MuJoCo's qacc of the
+    step, i.e. exactly the acceleration the integrator used), attitude, body rate."""
+
+    body_name = "vehicle"
+
+    def __init__(self, asset: str, wheels: list[Wheel], rate_hz: float = 100.0, substeps: int = 1,
+                 h0_m: float = 0.0):
+        if rate_hz <= 0 or substeps < 1:
+            raise ConfigError(f"rate_hz must be > 0 and substeps >= 1 (got {rate_hz}, {substeps})")
+        self.model = load_model(asset)
+        self.model.opt.timestep = 1.0 / (rate_hz * substeps)
+        self.data = mujoco.MjData(self.model)
+        self.rate_hz, self.substeps, self.h0_m = float(rate_hz), int(substeps), float(h0_m)
+        self.dt = 1.0 / self.rate_hz
+        self.bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.body_name)
+        self.wheels = []
+        for w in wheels:
+            b = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, w.body)
+            j = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, w.joint)
+            pos = self.model.body_pos[b]
+            self.wheels.append((w, b, int(self.model.jnt_qposadr[j]), int(self.model.jnt_dofadr[j]),
+                                float(self.model.jnt_stiffness[j]), float(self.model.dof_damping[self.model.jnt_dofadr[j]]),
+                                (float(pos[0]), float(pos[1]), float(pos[2] + w.radius_m))))
+        self._rows: list = []
+        self.t = 0.0
+        self.s = State()
+        self._update_state()
+
+    # ----------------------------------------------------------------- state
+    def _update_state(self):
+        d, s = self.data, self.s
+        qw, qx, qy, qz = d.qpos[3:7]
+        C = _quat_to_C(qw, qx, qy, qz)
+        s.t = self.t
+        s.pN, s.pE, s.pD = d.qpos[0:3]
+        s.vN, s.vE, s.vD = d.qvel[0:3]
+        s.p, s.q, s.r = d.qvel[3:6]
+        s.C = C
+        s.h = self.h0_m - s.pD
+        s.phi = math.atan2(C[7], C[8])
+        s.theta = -math.asin(max(-1.0, min(1.0, C[6])))
+        s.psi = math.atan2(C[3], C[0])
+        s.gs = math.hypot(s.vN, s.vE)
+        s.chi = math.atan2(s.vE, s.vN) if s.gs > 0.5 else s.psi
+        s.gamma = math.atan2(-s.vD, max(s.gs, 1e-3))
+        return s
+
+    def body_velocity(self, x, y, z):
+        """Velocity (body axes) of the body-fixed point (x, y, z)."""
+        s, C = self.s, self.s.C
+        ub = C[0] * s.vN + C[3] * s.vE + C[6] * s.vD
+        vb = C[1] * s.vN + C[4] * s.vE + C[7] * s.vD
+        wb = C[2] * s.vN + C[5] * s.vE + C[8] * s.vD
+        return ub + s.q * z - s.r * y, vb + s.r * x - s.p * z, wb + s.p * y - s.q * x
+
+    # ----------------------------------------------------------------- forces
+    def _apply_tyres(self, cmd: Cmd):
+        d, C = self.data, self.s.C
+        for w, b, qa, da_, k, c, (x, y, z) in self.wheels:
+            load = -k * d.qpos[qa] - c * d.qvel[da_]
+            if load <= 0.0:
+                d.xfrc_applied[b] = 0.0
+                continue
+            u, v, _ = self.body_velocity(x, y, z)
+            delta = cmd.steer if w.steered else 0.0
+            cd, sd = math.cos(delta), math.sin(delta)
+            fl, ft = w.tyre.force(u * cd + v * sd, -u * sd + v * cd, load,
+                                  drive_N=cmd.thr * self.drive_force_N / self.n_driven if w.driven else 0.0,
+                                  brake=cmd.brake if w.braked else 0.0)
+            fx, fy = fl * cd - ft * sd, fl * sd + ft * cd
+            FN = (C[0] * fx + C[1] * fy, C[3] * fx + C[4] * fy, C[6] * fx + C[7] * fy)
+            rr = w.radius_m
+            rc = (C[2] * rr, C[5] * rr, C[8] * rr)   # contact point below the wheel centre
+            d.xfrc_applied[b] = (FN[0], FN[1], FN[2], rc[1] * FN[2] - rc[2] * FN[1],
+                                 rc[2] * FN[0] - rc[0] * FN[2], rc[0] * FN[1] - rc[1] * FN[0])
+
+    drive_force_N = 0.0
+    n_driven = 1
+
+    def body_forces(self, cmd: Cmd):
+        """Vehicle-specific force (N) and moment (N m) about the body's CoM, body axes."""
+        return (0.0,) * 6
+
+    def step(self, cmd: Cmd):
+        """Advance one sample with the commands held; record the sample's kinematics."""
+        d, m = self.data, self.model
+        for k in range(self.substeps):
+            if k:
+                self._update_state()
+            f = self.body_forces(cmd)
+            C = self.s.C
+            d.xfrc_applied[self.bid] = (
+                C[0] * f[0] + C[1] * f[1] + C[2] * f[2], C[3] * f[0] + C[4] * f[1] + C[5] * f[2],
+                C[6] * f[0] + C[7] * f[1] + C[8] * f[2], C[0] * f[3] + C[1] * f[4] + C[2] * f[5],
+                C[3] * f[3] + C[4] * f[4] + C[5] * f[5], C[6] * f[3] + C[7] * f[4] + C[8] * f[5])
+            if self.wheels:
+                self._apply_tyres(cmd)
+            if k == 0:
+                row = np.empty(19 + 7)
+                row[0] = self.t
+                row[1:8] = d.qpos[0:7]
+                row[8:14] = d.qvel[0:6]
+            mujoco.mj_step(m, d)
+            if k == 0:
+                row[14:20] = d.qacc[0:6]
+                row[20:26] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake)
+                self._rows.append(row)
+        self.t += self.dt
+        self._update_state()
+
+    def settle(self, seconds: float = 3.0):
+        """Let the struts settle without recording (initial condition at rest), then zero velocities."""
+        for _ in range(int(seconds * self.rate_hz * self.substeps)):
+            self._apply_tyres(Cmd(brake=1.0))
+            mujoco.mj_step(self.model, self.data)
+            self._update_state()
+        self.data.qvel[:] = 0.0
+        self.data.time = 0.0
+        self.t = 0.0
+        self._update_state()
+
+    def kinematics(self):
+        """The recorded samples as :class:`imurig.flights.truth.BodyKinematics` plus controls."""
+        from imurig.flights.truth import BodyKinematics
+
+        a = np.array(self._rows)
+        controls = {k: a[:, 20 + i] for i, k in enumerate(("de", "da", "dr", "thr", "steer", "brake"))}
+        return BodyKinematics(time_s=a[:, 0], p_N=a[:, 1:4], q_NB=a[:, 4:8], v_N=a[:, 8:11],
+                              w_NB_B=a[:, 11:14], a_N=a[:, 14:17], wdot_NB_B=a[:, 17:20],
+                              rate_hz=self.rate_hz, controls=controls)
+
+
+@dataclass
+class AutopilotGains:
+    k_gamma: float = 1.5       # rad elevator per rad flight-path error
+    ki_gamma: float = 0.8
+    k_q: float = 0.6           # rad elevator per rad/s pitch rate
+    k_theta: float = 1.2       # pitch hold (take-off rotation)
+    k_h: float = 0.12          # 1/s, climb rate per metre of altitude error
+    gamma_max: float = 0.12
+    k_V: float = 0.06          # throttle per m/s
+    ki_V: float = 0.01
+    k_psi: float = 1.2         # bank per heading error
+    k_phi: float = 1.2
+    ki_phi: float = 0.3
+    k_p: float = 0.15
+    k_r: float = 1.0           # yaw damper
+    k_beta: float = 1.5
+
+
+class Autopilot:
+    """PID loops: flight path/altitude -> elevator, airspeed -> throttle, heading -> bank ->
+    aileron, yaw damper + sideslip -> rudder. Integrators persist across phases; hand-over
+    from a held stick is bumpless (:meth:`engage_elevator`)."""
+
+    def __init__(self, aero: CitationAero, dt: float, gains: AutopilotGains | None = None):
+        self.aero, self.dt, self.g = aero, dt, gains or AutopilotGains()
+        self.i_gamma = self.i_V = self.i_phi = 0.0
+        self.de0, self.thr0 = 0.01, 0.35
+
+    def _de_ff(self, s: State) -> float:
+        """Elevator feed-forward for the extra lift of a banked level turn."""
+        a = self.aero
+        n = 1.0 / max(math.cos(s.phi), 0.3)
+        CL1 = 2 * 6000 * G0 / (isa_density(s.h) * max(s.V, 30.0) ** 2 * a.S_m2)
+        dalpha = CL1 * (n - 1) / a.CLa
+        qturn = G0 * math.sin(s.phi) ** 2 / (max(s.V, 30.0) * max(math.cos(s.phi), 0.3))
+        return -(a.Cma * dalpha + a.Cmq * qturn * a.c_m / max(s.V, 30.0)) / a.Cmde
+
+    def elevator(self, s: State, h_c: float) -> float:
+        g = self.g
+        gamma_c = max(-g.gamma_max, min(g.gamma_max, g.k_h * (h_c - s.h) / max(s.V, 30.0)))
+        e = gamma_c - s.gamma
+        self.i_gamma = max(-0.3, min(0.3, self.i_gamma + e * self.dt))
+        return self.de0 + self._de_ff(s) - g.k_gamma * e - g.ki_gamma * self.i_gamma + g.k_q * s.q
+
+    def engage_elevator(self, s: State, h_c: float, de_now: float):
+        """Set the integrator so that :meth:`elevator` returns ``de_now`` now (bumpless)."""
+        self.i_gamma = 0.0
+        de0 = self.elevator(s, h_c)
+        self.i_gamma = (de0 - de_now) / self.g.ki_gamma
+
+    def pitch(self, s: State, theta_c: float) -> float:
+        return self.de0 + self.g.k_theta * (s.theta - theta_c) + self.g.k_q * s.q
+
+    def throttle(self, s: State, V_c: float) -> float:
+        e = V_c - s.V
+        self.i_V = max(-30.0, min(30.0, self.i_V + e * self.dt))
+        return max(0.0, min(1.0, self.thr0 + self.g.k_V * e + self.g.ki_V * self.i_V))
+
+    def bank_for_heading(self, s: State, psi_c: float, phi_max: float) -> float:
+        e = (psi_c - s.psi + math.pi) % (2 * math.pi) - math.pi
+        return max(-phi_max, min(phi_max, self.g.k_psi * e))
+
+    def lateral(self, s: State, phi_c: float) -> tuple[float, float]:
+        g = self.g
+        e = phi_c - s.phi
+        self.i_phi = max(-0.2, min(0.2, self.i_phi + e * self.dt))
+        da = g.k_phi * e - g.k_p * s.p + g.ki_phi * self.i_phi
+        r_c = G0 * math.sin(s.phi) * math.cos(s.theta) / max(s.V, 30.0)
+        dr = g.k_r * (s.r - r_c) - g.k_beta * s.beta
+        return da, dr
+
+
+class CitationSim(VehicleSim):
+    """The Citation: aerodynamics + thrust + gear, actuator and engine lags."""
+
+    body_name = "aircraft"
+
+    def __init__(self, aero: CitationAero | None = None, rate_hz: float = 100.0, substeps: int = 1,
+                 h0_m: float = 0.0):
+        self.aero = aero or CitationAero()
+        main = TyreModel(cornering_stiffness_N_per_rad=150_000.0, mu=0.7, rolling_resistance=0.02)
+        nose = TyreModel(cornering_stiffness_N_per_rad=60_000.0, mu=0.7, rolling_resistance=0.02)
+        wheels = [Wheel("nose_gear", "nose_strut", 0.2, nose, steered=True, braked=False),
+                  Wheel("main_gear_left", "main_strut_left", 0.3, main),
+                  Wheel("main_gear_right", "main_strut_right", 0.3, main)]
+        self.act = Cmd()                 # actual surface deflections / spool state
+        self._alpha_prev = None
+        super().__init__("citation.xml", wheels, rate_hz, substeps, h0_m)
+
+    def _update_state(self):
+        s = super()._update_state()
+        x, y, z = self.aero.r_cg_B_m
+        s.u, s.v, s.w = self.body_velocity(x, y, z)
+        s.V = math.sqrt(s.u * s.u + s.v * s.v + s.w * s.w)
+        s.alpha = math.atan2(s.w, s.u) if s.V > 1.0 else 0.0
+        s.beta = math.asin(max(-1.0, min(1.0, s.v / s.V))) if s.V > 1.0 else 0.0
+        return s
+
+    def _actuate(self, cmd: Cmd):
+        a, act = self.aero, self.act
+        ks = min(1.0, self.dt / a.surface_tau_s)
+        ke = min(1.0, self.dt / a.engine_tau_s)
+        act.de += ks * (max(a.de_limits_rad[0], min(a.de_limits_rad[1], cmd.de)) - act.de)
+        act.da += ks * (max(-a.da_limit_rad, min(a.da_limit_rad, cmd.da)) - act.da)
+        act.dr += ks * (max(-a.dr_limit_rad, min(a.dr_limit_rad, cmd.dr)) - act.dr)
+        act.thr += ke * (max(0.0, min(1.0, cmd.thr)) - act.thr)
+        act.steer = max(-a.steer_limit_rad, min(a.steer_limit_rad, cmd.steer))
+        act.brake = max(0.0, min(1.0, cmd.brake))
+        act.flaps += min(1.0, self.dt / 8.0) * (cmd.flaps - act.flaps)
+
+    def body_forces(self, cmd: Cmd):
+        s, a, act = self.s, self.aero, self.act
+        adot = 0.0 if self._alpha_prev is None else (s.alpha - self._alpha_prev) * self.rate_hz * self.substeps
+        self._alpha_prev = s.alpha
+        return a.forces(s.V, s.alpha, s.beta, adot, s.p, s.q, s.r, act.de, act.da, act.dr,
+                        act.thr * a.thrust_max(s.h), act.flaps, isa_density(s.h))
+
+    def step(self, cmd: Cmd):
+        self._actuate(cmd)
+        super().step(self.act)
+
+    # ------------------------------------------------------------ trim / linearise
+    def _place(self, V, h_m, alpha, theta, psi=0.0, phi=0.0, w_B=(0.0, 0.0, 0.0), v_side=0.0):
+        """Put the body at (0, 0, h) with attitude (φ, θ, ψ), the CG moving at V with angle of
+        attack α and side velocity v_side (body axes), body rates w_B; gear at its free hang."""
+        d, a = self.data, self.aero
+        cr, sr = math.cos(phi / 2), math.sin(phi / 2)
+        cp, sp = math.cos(theta / 2), math.sin(theta / 2)
+        cy, sy = math.cos(psi / 2), math.sin(psi / 2)
+        q = np.array([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                      cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
+        d.qpos[:] = self.model.qpos0
+        d.qpos[0:3] = (0.0, 0.0, self.h0_m - h_m)
+        d.qpos[3:7] = q
+        d.qvel[:] = 0.0
+        for _, b, qa, _, k, _, _ in self.wheels:
+            d.qpos[qa] = float(self.model.body_mass[b]) * G0 / k
+        cg = np.array(a.r_cg_B_m)
+        w_B = np.asarray(w_B, float)
+        Cnb = np.array(_quat_to_C(*q)).reshape(3, 3)
+        ub = math.sqrt(max(V * V - v_side * v_side, 0.0))
+        v_cg_B = np.array([ub * math.cos(alpha), v_side, ub * math.sin(alpha)])
+        d.qvel[0:3] = Cnb @ (v_cg_B - np.cross(w_B, cg))
+        d.qvel[3:6] = w_B
+        d.xfrc_applied[:] = 0.0
+        mujoco.mj_forward(self.model, d)
+        self._update_state()
+        return Cnb, v_cg_B, w_B
+
+    def _accelerations(self, de, da, dr, thrust, adot=0.0):
+        """Apply the aerodynamic forces of the current state; return (CG acceleration in body
+        axes minus ω×v, i.e. the body-axis velocity derivative (3,), body angular acceleration (3,))."""
+        d, a, s = self.data, self.aero, self.s
+        f = a.forces(s.V, s.alpha, s.beta, adot, s.p, s.q, s.r, de, da, dr, thrust, 0.0, isa_density(s.h))
+        C = s.C
+        d.xfrc_applied[self.bid] = (
+            C[0] * f[0] + C[1] * f[1] + C[2] * f[2], C[3] * f[0] + C[4] * f[1] + C[5] * f[2],
+            C[6] * f[0] + C[7] * f[1] + C[8] * f[2], C[0] * f[3] + C[1] * f[4] + C[2] * f[5],
+            C[3] * f[3] + C[4] * f[4] + C[5] * f[5], C[6] * f[3] + C[7] * f[4] + C[8] * f[5])
+        mujoco.mj_forward(self.model, d)
+        Cnb = np.array(C).reshape(3, 3)
+        cg = np.array(a.r_cg_B_m)
+        w_B = np.array([s.p, s.q, s.r])
+        wdot = d.qacc[3:6].copy()
+        a_cg_N = d.qacc[0:3] + Cnb @ (np.cross(wdot, cg) + np.cross(w_B, np.cross(w_B, cg)))
+        v_cg_B = np.array([s.u, s.v, s.w])
+        return Cnb.T @ a_cg_N - np.cross(w_B, v_cg_B), wdot
+
+    def set_airborne(self, V: float, h_m: float, psi: float = 0.0, gamma: float = 0.0):
+        """Place the aircraft in trimmed wings-level flight: (α, δe, T) solved by Newton on the
+        simulated accelerations (MuJoCo forward pass, gear masses included) to 1e-9."""
+        a = self.aero
+        x = np.array([0.03, 0.0, 0.3 * a.thrust_max(h_m)])
+
+        def resid(x):
+            self._place(V, h_m, x[0], x[0] + gamma, psi)
+            vdot, wdot = self._accelerations(x[1], 0.0, 0.0, x[2])
+            return np.array([vdot[0], vdot[2], wdot[1]])
+
+        for _ in range(30):
+            r0 = resid(x)
+            if np.max(np.abs(r0)) < 1e-9:
+                break
+            J = np.empty((3, 3))
+            for i, hstep in enumerate((1e-6, 1e-6, 1e-2)):
+                xp = x.copy()
+                xp[i] += hstep
+                J[:, i] = (resid(xp) - r0) / hstep
+            x = x - np.linalg.solve(J, r0)
+        alpha, de, T = (float(v) for v in x)
+        self._place(V, h_m, alpha, alpha + gamma, psi)
+        self.data.xfrc_applied[:] = 0.0
+        self.act = Cmd(de=de, thr=T / a.thrust_max(h_m))
+        self._alpha_prev = alpha
+        return {"alpha": alpha, "de": de, "thrust_N": T, "theta": alpha + gamma, "residual": r0.tolist()}
+
+    def linearise(self, V: float, h_m: float, eps: float = 1e-5) -> dict:
+        """Central-difference Jacobian of the simulated dynamics about trimmed level flight.
+
+        States: longitudinal x = [u, w, q, θ] (CG velocity in body axes m/s, rad/s, rad),
+        lateral x = [v, p, r, φ]. Each column perturbs the MuJoCo state, applies the
+        aerodynamic forces of that state, runs one forward pass and reads qacc. The gear
+        struts are quasi-rigid here (their modes are 50 rad/s, far above the flight modes).
+        The α̇ terms enter as ẋ = (I − b cᵀ)⁻¹ A x with α̇ = cᵀ ẋ.
+        """
+        trim = self.set_airborne(V, h_m)
+        de, T = trim["de"], trim["thrust_N"]
+        th0, al0 = trim["theta"], trim["alpha"]
+
+        def f(xlon, xlat, adot=0.0):
+            u, w, q, th = xlon
+            v, p, r, ph = xlat
+            Vt = math.sqrt(u * u + v * v + w * w)
+            self._place(Vt, h_m, math.atan2(w, u), th, 0.0, ph, (p, q, r), v_side=v)
+            vdot, wdot = self._accelerations(de, 0.0, 0.0, T, adot)
+            phidot = p + (q * math.sin(ph) + r * math.cos(ph)) * math.tan(th)
+            thdot = q * math.cos(ph) - r * math.sin(ph)
+            return (np.array([vdot[0], vdot[2], wdot[1], thdot]), np.array([vdot[1], wdot[0], wdot[2], phidot]))
+
+        x0lon = np.array([V * math.cos(al0), V * math.sin(al0), 0.0, th0])
+        x0lat = np.zeros(4)
+        f0lon, f0lat = f(x0lon, x0lat)
+        Alon, Alat = np.empty((4, 4)), np.empty((4, 4))
+        for i in range(4):
+            dx = np.zeros(4)
+            dx[i] = eps * (V if i < 2 else 1.0)
+            Alon[:, i] = (f(x0lon + dx, x0lat)[0] - f(x0lon - dx, x0lat)[0]) / (2 * dx[i])
+            dy = np.zeros(4)
+            dy[i] = eps * (V if i == 0 else 1.0)
+            Alat[:, i] = (f(x0lon, x0lat + dy)[1] - f(x0lon, x0lat - dy)[1]) / (2 * dy[i])
+        b = (f(x0lon, x0lat, 1e-4)[0] - f(x0lon, x0lat, -1e-4)[0]) / 2e-4
+        u0, w0 = x0lon[0], x0lon[1]
+        c_ad = np.array([-w0, u0, 0.0, 0.0]) / (u0 ** 2 + w0 ** 2)   # α̇ = c·ẋ
+        Alon = np.linalg.solve(np.eye(4) - np.outer(b, c_ad), Alon)
+        self.set_airborne(V, h_m)
+        return {"A_lon": Alon, "A_lat": Alat, "trim": trim, "residual_lon": f0lon[:3].tolist(),
+                "residual_lat": f0lat.tolist(), "mass_kg": float(self.model.body_subtreemass[self.bid])}
+
+
+def modes(A_lon: np.ndarray, A_lat: np.ndarray) -> dict:
+    """Eigen-modes: short period and phugoid (oscillatory pairs of A_lon by frequency), Dutch
+    roll (oscillatory pair of A_lat), roll and spiral (real roots of A_lat, fast and slow).
+    Each as natural frequency (rad/s), damping ratio, period (s) or time constant (s)."""
+    def osc(ev):
+        wn = abs(ev)
+        return {"omega_n_rad_s": float(wn), "zeta": float(-ev.real / wn), "period_s": float(2 * math.pi / abs(ev.imag))}
+
+    lon = np.linalg.eigvals(A_lon)
+    pairs = sorted([e for e in lon if e.imag > 1e-9], key=abs)
+    lat = np.linalg.eigvals(A_lat)
+    dr = [e for e in lat if e.imag > 1e-9]
+    real = sorted([e.real for e in lat if abs(e.imag) <= 1e-9], key=abs)
+    out = {"eig_lon": lon.tolist(), "eig_lat": lat.tolist()}
+    if len(pairs) == 2:
+        out["phugoid"], out["short_period"] = osc(pairs[0]), osc(pairs[1])
+    if dr:
+        out["dutch_roll"] = osc(dr[0])
+    if len(real) == 2:
+        out["spiral"] = {"eigenvalue": float(real[0]), "time_constant_s": float(-1 / real[0]) if real[0] else math.inf}
+        out["roll"] = {"eigenvalue": float(real[1]), "time_constant_s": float(-1 / real[1])}
+    return out
+
+
+def wall_clock() -> float:
+    return time.perf_counter()
