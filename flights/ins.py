@@ -266,3 +266,41 @@ def nav_errors(sol: NavSolution, truth, idx) -> dict:
     dq = E.q_mult(truth.q_NB[idx], E.q_conj(sol.q_NB))           # q_true ⊗ q_est^-1 = q(ψ)
     psi = E.rotvec_from_q(dq)
     return {"pos_N_m": d, "vel_N_m_s": sol.v_N - truth.v_N[idx], "att_N_rad": psi}
+
+
+def s_turn_truth(duration_s=300.0, rate_hz=100.0, *, lat0_rad=52.0 * math.pi / 180, lon0_rad=4.37 * math.pi / 180,
+                 h0_m=1000.0, speed_m_s=100.0, yaw_amp_rad=0.0, yaw_period_s=120.0, yaw0_rad=0.0,
+                 pitch_amp_rad=0.0, pitch_period_s=40.0, climb_amp_m_s=0.0) -> KinematicTruth:
+    """A closed-form manoeuvre: level flight at ``speed_m_s`` with S-turns
+    ψ(t) = ψ0 + A sin(2πt/P) (bank φ = atan(V ψ̇ / g), the coordinated-turn bank), a pitch
+    oscillation θ(t) = θ_a sin(2πt/P_θ) and a vertical velocity v_d = −c sin(2πt/P_θ).
+    A = 0 gives a straight leg."""
+    g = 9.81
+    wy, wp = 2 * math.pi / yaw_period_s, 2 * math.pi / pitch_period_s
+    V = speed_m_s
+
+    def yaw(t):
+        return yaw0_rad + yaw_amp_rad * np.sin(wy * t)
+
+    def dyaw(t):
+        return yaw_amp_rad * wy * np.cos(wy * t)
+
+    def ddyaw(t):
+        return -yaw_amp_rad * wy ** 2 * np.sin(wy * t)
+
+    def v(t):
+        y = yaw(t)
+        return np.stack([V * np.cos(y), V * np.sin(y), -climb_amp_m_s * np.sin(wp * t)], 1)
+
+    def a(t):
+        y, dy = yaw(t), dyaw(t)
+        return np.stack([-V * np.sin(y) * dy, V * np.cos(y) * dy, -climb_amp_m_s * wp * np.cos(wp * t)], 1)
+
+    def eul(t):
+        return np.stack([np.arctan(V * dyaw(t) / g), pitch_amp_rad * np.sin(wp * t), yaw(t)], 1)
+
+    def deul(t):
+        u = V * dyaw(t) / g
+        return np.stack([V * ddyaw(t) / g / (1 + u ** 2), pitch_amp_rad * wp * np.cos(wp * t), dyaw(t)], 1)
+
+    return kinematic_truth(duration_s, rate_hz, lat0_rad, lon0_rad, h0_m, v, a, eul, deul)

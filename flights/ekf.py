@@ -1,0 +1,548 @@
+"""Loosely coupled GPS/INS error-state EKF with the 18 states of the paper's section 4.2.
+
+Error state (estimate minus truth), in this order:
+
+    δr_N  (3)  position error, m, NED metres at the vehicle (north, east, down)
+    δv_N  (3)  velocity error, m/s, NED
+    ψ_N   (3)  attitude error, rad: C_NB,est = (I − [ψ×]) C_NB,true
+    δb_a  (3)  accelerometer bias error, m/s²        (b̂_a − b_a)
+    δb_g  (3)  gyro bias error, rad/s                (b̂_g − b_g)
+    δT_a  (3)  accelerometer temperature error, K    (T̂_a − T_a)
+   [δs_a  (3)  accelerometer scale-factor error, −   (scale-factor variant, 24 states)
+    δs_g  (3)  gyro scale-factor error, −]
+
+The paper's "3 accelerometer temperatures" are implemented as states T_a (the accelerometers'
+own temperatures) measured by the Q-Flex temperature channels and coupled into the specific
+force through the bias temperature slope k_T (m/s²/K, from the thermal calibration; zero
+without one). Sensor model used by the filter (per axis, SI):
+
+    f_in = (1 + s_a) f_B + b_a + k_T (T_a − T_ref) + n_a       [m/s²]   n_a: VRW
+    w_in = (1 + s_g) w_IB_B + b_g + n_g                         [rad/s]  n_g: ARW
+    b_g: first-order Gauss-Markov (σ, τ) on top of a turn-on bias; b_a: random walk; T_a: random walk
+
+The INS (:mod:`imurig.flights.ins`) runs on the corrected increments at the navigation rate;
+the covariance is propagated with Φ = I + F T + ½ (F T)² and Q_d = ½(Φ Q Φᵀ + Q) T.
+Linearised error dynamics (ω_in = ω_IE + ω_EN):
+
+    δṙ = δv
+    δv̇ = [f_N×] ψ − C δb_a − C diag(k_T) δT_a − C diag(f_B) δs_a − (2ω_IE + ω_EN) × δv
+         − (2 δω_IE + δω_EN) × v + [0, 0, 2γ/R δr_d]
+    ψ̇ = −ω_in × ψ + δω_in + C δb_g + C diag(w_B) δs_g
+
+Measurements (innovation = predicted − measured = H δx + noise):
+
+- GPS position of the antenna at ``r + C_NB l_B``: H = [I, −Δt I, [(C l)×], 0 …, C[l×] Δt …];
+  Δt ≥ 0 is the latency between the fix's time tag and the epoch the fix is used at, so the
+  stored INS history at the tag gives the prediction and the error is carried forward by δv Δt;
+- GPS velocity of the antenna, v + C (ω_NB × l): H = [0, I, [(C(ω×l))×], 0, C[l×], 0];
+- magnetic heading from the magnetometer levelled with the INS roll and pitch, plus the
+  IGRF declination: H = ∂yaw/∂ψ = [C₂₀C₀₀/d, C₂₀C₁₀/d, −1]; d = C₀₀² + C₁₀²;
+- accelerometer temperature channels: H = [0 … I].
+
+Each update records its normalised innovation squared (NIS) and dof.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from imurig.flights import earth as E
+from imurig.flights import ins
+
+from imurig.errors import ConfigError, RecordingError
+
+BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d",
+               "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
+SCALE_STATES = ("dsa_x", "dsa_y", "dsa_z", "dsg_p", "dsg_q", "dsg_r")
+P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
+                               slice(15, 18), slice(18, 21), slice(21, 24))
+
+
+@dataclass
+class ImuNoise:
+    """Stochastic sensor model of the filter (SI).
+
+    ``vrw`` m/s²/√Hz and ``arw`` rad/s/√Hz white-noise densities; gyro bias instability
+    Gauss-Markov ``gyro_bias_sigma`` rad/s with ``gyro_bias_tau_s``; accelerometer bias random
+    walk ``acc_bias_rw`` m/s²/√s; temperature random walk ``temp_rw`` K/√s; scale-factor random
+    walks ``scale_rw`` 1/√s.
+    """
+
+    vrw: float = 3.5e-5
+    arw: float = 0.0015 * math.pi / 180
+    gyro_bias_sigma: float = 0.001 * math.pi / 180
+    gyro_bias_tau_s: float = 100.0
+    acc_bias_rw: float = 2e-6
+    temp_rw: float = 2e-3
+    scale_rw: float = 1e-7
+
+    @classmethod
+    def from_sensors(cls, accelerometers, gyros, sample_rate_hz: float, **kw) -> ImuNoise:
+        """Densities from the sensor models: the accelerometer's current-noise bands
+        (rms over [lo, hi] → density rms/√(hi−lo); bands above the Nyquist frequency alias in
+        as white noise of density rms/√(fs/2)) divided by the current scale factor K1; the gyro's
+        ARW and bias instability as given."""
+        nyq = sample_rate_hz / 2
+        inband, aliased = 0.0, 0.0
+        for lo, hi, rms in accelerometers.noise_bands:
+            if rms <= 0:
+                continue
+            if lo >= nyq:
+                aliased += rms ** 2 / nyq
+            else:
+                inband = max(inband, rms ** 2 / (min(hi, nyq) - lo))
+        dens2 = inband + aliased
+        vrw = math.sqrt(dens2) / float(np.min(accelerometers.k1_A_per_m_s2))
+        return cls(vrw=vrw, arw=gyros.arw_rad_s_per_sqrt_hz, gyro_bias_sigma=gyros.bias_instability_rad_s,
+                   gyro_bias_tau_s=gyros.bias_instability_tau_s, **kw)
+
+
+@dataclass
+class FilterConfig:
+    """Filter settings. Initial 1σ: position m, velocity m/s, attitude rad (roll/pitch and
+    heading), accelerometer bias m/s², gyro bias rad/s, temperature K, scale factors."""
+
+    nav_rate_hz: float = 50.0
+    estimate_scale_factors: bool = False
+    gps_latency_s: float = 0.0
+    use_gps_velocity: bool = True
+    use_magnetometer: bool = True
+    mag_rate_hz: float = 1.0
+    mag_heading_sigma_rad: float = 1.0 * math.pi / 180
+    temp_rate_hz: float = 1.0
+    temp_sigma_K: float = 0.05
+    thermal_slope_m_s2_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    reference_temperature_K: float = 298.15
+    sigma0_pos_m: float = 5.0
+    sigma0_vel_m_s: float = 0.5
+    sigma0_tilt_rad: float = 1.0 * math.pi / 180
+    sigma0_heading_rad: float = 10.0 * math.pi / 180
+    sigma0_acc_bias_m_s2: float = 0.1
+    sigma0_gyro_bias_rad_s: float = 0.01 * math.pi / 180
+    sigma0_temp_K: float = 3.0
+    sigma0_acc_scale: float = 0.01
+    sigma0_gyro_scale: float = 0.02
+    gps_sigma_scale: float = 1.0
+
+    @property
+    def n_states(self) -> int:
+        return 24 if self.estimate_scale_factors else 18
+
+    def state_names(self) -> tuple:
+        return BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
+
+
+@dataclass
+class ImuStream:
+    """IMU samples in SI after whatever calibration the user applies (the filter's input).
+
+    ``time_s`` (N,) uniform; ``w_IB_B`` (N, 3) rad/s; ``f_B`` (N, 3) m/s²; optional ``B_B``
+    (N, 3) T magnetometer field; optional ``T_acc_K`` (N, 3) accelerometer temperature channels.
+    """
+
+    time_s: np.ndarray
+    w_IB_B: np.ndarray
+    f_B: np.ndarray
+    B_B: np.ndarray | None = None
+    T_acc_K: np.ndarray | None = None
+
+
+@dataclass
+class FilterResult:
+    """Filter output at the navigation epochs ``time_s`` (M,)."""
+
+    time_s: np.ndarray
+    lat_rad: np.ndarray
+    lon_rad: np.ndarray
+    h_m: np.ndarray
+    v_N: np.ndarray
+    q_NB: np.ndarray
+    acc_bias_m_s2: np.ndarray
+    gyro_bias_rad_s: np.ndarray
+    temp_acc_K: np.ndarray
+    scale_acc: np.ndarray
+    scale_gyro: np.ndarray
+    P_diag: np.ndarray           # (M, n) variances of the error state
+    P_nav: np.ndarray            # (M, 9, 9) covariance of δr, δv, ψ
+    state_names: tuple
+    updates: dict                # kind -> dict(time_s, nis, dof, innovation)
+    meta: dict = field(default_factory=dict)
+
+
+def _check_stream(imu: ImuStream):
+    t = np.asarray(imu.time_s, float)
+    for name in ("w_IB_B", "f_B", "B_B", "T_acc_K"):
+        a = getattr(imu, name)
+        if a is None:
+            continue
+        a = np.asarray(a, float)
+        if a.shape != (t.size, 3):
+            raise RecordingError(f"IMU stream '{name}' has shape {a.shape}, expected ({t.size}, 3)")
+        if not np.all(np.isfinite(a)):
+            raise RecordingError(f"IMU stream '{name}' contains NaN/inf; clean the recording first")
+    return t
+
+
+def check_gps(gps, imu_rate_hz: float):
+    """Refuse GPS fixes that cannot be used: NaN in valid fixes, non-increasing tags, or a fix
+    rate above the IMU rate."""
+    t = np.asarray(gps.time_s, float)
+    if t.size == 0:
+        raise RecordingError("no GPS fixes: the loosely coupled filter needs at least one")
+    if np.any(np.diff(t) <= 0):
+        raise RecordingError("GPS fix time tags must be strictly increasing")
+    if t.size > 1:
+        rate = 1.0 / float(np.median(np.diff(t)))
+        if rate > imu_rate_hz:
+            raise ConfigError(f"GPS rate {rate:g} Hz is above the IMU rate {imu_rate_hz:g} Hz; "
+                              "use a GPS rate at or below the IMU rate")
+    valid = np.asarray(gps.valid, bool)
+    for name in ("lat_rad", "lon_rad", "h_m", "v_N", "sigma_pos_N", "sigma_vel_N"):
+        a = np.asarray(getattr(gps, name), float)[valid]
+        if not np.all(np.isfinite(a)):
+            raise RecordingError(f"GPS field '{name}' has NaN/inf in fixes marked valid")
+    return t
+
+
+def declination_rad(lat_rad: float, lon_rad: float, h_m: float, year: float) -> float:
+    """IGRF declination (rad, east positive) from pyIGRF."""
+    import pyIGRF
+
+    d, *_ = pyIGRF.igrf_value(math.degrees(lat_rad), math.degrees(lon_rad), h_m / 1000.0, year)
+    return math.radians(d)
+
+
+def mag_heading(B_B, roll, pitch, decl):
+    """Heading (rad, from true north) of the field ``B_B`` (3,) levelled by roll and pitch:
+    B_h = Ry(θ) Rx(φ) B_B;  ψ = atan2(−B_h,y, B_h,x) + D."""
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    bx = cp * B_B[0] + sp * sr * B_B[1] + sp * cr * B_B[2]
+    by = cr * B_B[1] - sr * B_B[2]
+    return math.atan2(-by, bx) + decl
+
+
+class LooseEKF:
+    """The loosely coupled error-state filter. ``run`` processes a whole flight."""
+
+    def __init__(self, config: FilterConfig | None = None, noise: ImuNoise | None = None,
+                 lever_gps_B=np.zeros(3), declination=0.0):
+        self.cfg = config or FilterConfig()
+        self.noise = noise or ImuNoise()
+        self.l_gps = np.asarray(lever_gps_B, float)
+        self.decl = float(declination)
+        if self.cfg.nav_rate_hz <= 0:
+            raise ConfigError("nav_rate_hz must be positive")
+
+    # ---------------------------------------------------------------------------- model
+    def _F(self, x: ins.NavState, f_B, w_B, C):
+        n = self.cfg.n_states
+        F = np.zeros((n, n))
+        lat, h, v = x.lat_rad, x.h_m, x.v_N
+        w_ie, w_en, g, R_N, R_E = ins._rates(lat, h, v)
+        w_in = w_ie + w_en
+        f_N = C @ f_B
+        sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
+        # δω_IE, δω_EN as functions of δr (via δlat = δr_n/(R_N+h)) and δv
+        dwin_dr = np.zeros((3, 3))
+        dwin_dr[:, 0] = np.array([-E.OMEGA_E_RAD_S * sl, 0.0,
+                                  -E.OMEGA_E_RAD_S * cl - v[1] / (R_E + h) / cl ** 2]) / (R_N + h)
+        dwie_dr = np.zeros((3, 3))
+        dwie_dr[:, 0] = np.array([-E.OMEGA_E_RAD_S * sl, 0.0, -E.OMEGA_E_RAD_S * cl]) / (R_N + h)
+        dwen_dv = np.array([[0.0, 1.0 / (R_E + h), 0.0],
+                            [-1.0 / (R_N + h), 0.0, 0.0],
+                            [0.0, -tl / (R_E + h), 0.0]])
+        F[P, V] = np.eye(3)
+        Sv = E.skew(v)
+        F[V, A] = E.skew(f_N)
+        F[V, BA] = -C
+        F[V, TA] = -C * self.cfg.thermal_slope_m_s2_per_K
+        F[V, V] = -E.skew(2 * w_ie + w_en) + Sv @ dwen_dv
+        F[V, P] = Sv @ (2 * dwie_dr + (dwin_dr - dwie_dr))
+        F[V.start + 2, P.start + 2] += 2.0 * g[2] / (math.sqrt(R_N * R_E) + h)
+        F[A, A] = -E.skew(w_in)
+        F[A, P] = dwin_dr
+        F[A, V] = dwen_dv
+        F[A, BG] = C
+        F[BG, BG] = -np.eye(3) / self.noise.gyro_bias_tau_s
+        if self.cfg.estimate_scale_factors:
+            F[V, SA] = -C * f_B
+            F[A, SG] = C * w_B
+        return F
+
+    def _Qc(self):
+        nz = self.noise
+        q = np.zeros(self.cfg.n_states)
+        q[V] = nz.vrw ** 2
+        q[A] = nz.arw ** 2
+        q[BA] = nz.acc_bias_rw ** 2
+        q[BG] = 2 * nz.gyro_bias_sigma ** 2 / nz.gyro_bias_tau_s
+        q[TA] = nz.temp_rw ** 2
+        if self.cfg.estimate_scale_factors:
+            q[SA] = q[SG] = nz.scale_rw ** 2
+        return q
+
+    def initial_covariance(self):
+        c = self.cfg
+        s = np.zeros(c.n_states)
+        s[P] = c.sigma0_pos_m
+        s[V] = c.sigma0_vel_m_s
+        s[A] = [c.sigma0_tilt_rad, c.sigma0_tilt_rad, c.sigma0_heading_rad]
+        s[BA] = c.sigma0_acc_bias_m_s2
+        s[BG] = c.sigma0_gyro_bias_rad_s
+        s[TA] = c.sigma0_temp_K
+        if c.estimate_scale_factors:
+            s[SA] = c.sigma0_acc_scale
+            s[SG] = c.sigma0_gyro_scale
+        return np.diag(s ** 2)
+
+    # ---------------------------------------------------------------------------- run
+    def run(self, imu: ImuStream, gps, x0: ins.NavState, *, P0=None, progress=None) -> FilterResult:
+        """Process the IMU stream from ``x0`` at ``imu.time_s[0]``, with GPS fixes ``gps``
+        (GpsFixes-like). ``progress`` (optional) is called with the number of epochs done."""
+        c = self.cfg
+        t_imu = _check_stream(imu)
+        fs = 1.0 / float(np.median(np.diff(t_imu)))
+        K = max(1, round(fs / c.nav_rate_hz))
+        if gps is not None:
+            check_gps(gps, fs)
+        inc = ins.preintegrate(t_imu, imu.w_IB_B, imu.f_B, K)
+        T = inc.T_s
+        M = inc.dtheta_B.shape[0]
+        idx = np.arange(M + 1) * K
+        w_mean = np.asarray(imu.w_IB_B)[idx]        # rates at the epochs (for F and lever arms)
+        f_mean = np.asarray(imu.f_B)[idx]
+        n = c.n_states
+        Pm = self.initial_covariance() if P0 is None else np.array(P0, float)
+        qc = self._Qc()
+        x = x0.copy()
+        ba = np.zeros(3)
+        bg = np.zeros(3)
+        sa = np.zeros(3)
+        sg = np.zeros(3)
+        Tm = None if imu.T_acc_K is None else np.asarray(imu.T_acc_K, float)
+        Ta = np.full(3, c.reference_temperature_K) if Tm is None else Tm[0].copy()
+        kT = np.asarray(c.thermal_slope_m_s2_per_K, float)
+        I_n = np.eye(n)
+
+        # measurement schedules: epoch index at which each fix/sample is used
+        ups = {k: {"time_s": [], "nis": [], "dof": [], "innovation": []} for k in ("gps_pos", "gps_vel", "mag", "temp")}
+        gps_use = []
+        if gps is not None:
+            tg = np.asarray(gps.time_s, float)
+            ok = np.asarray(gps.valid, bool) & (tg >= inc.t_s[0]) & (tg + c.gps_latency_s <= inc.t_s[-1])
+            use_at = np.ceil((tg + c.gps_latency_s - inc.t_s[0]) / T - 1e-9).astype(int)
+            gps_use = {int(e): [] for e in use_at[ok]}
+            for i in np.flatnonzero(ok):
+                gps_use[int(use_at[i])].append(int(i))
+        mag_every = max(1, round(c.nav_rate_hz / c.mag_rate_hz)) if (c.use_magnetometer and imu.B_B is not None) else 0
+        temp_every = max(1, round(c.nav_rate_hz / c.temp_rate_hz)) if Tm is not None else 0
+
+        out_lat = np.empty(M + 1)
+        out_lon = np.empty(M + 1)
+        out_h = np.empty(M + 1)
+        out_v = np.empty((M + 1, 3))
+        out_q = np.empty((M + 1, 4))
+        out_ba = np.empty((M + 1, 3))
+        out_bg = np.empty((M + 1, 3))
+        out_T = np.empty((M + 1, 3))
+        out_sa = np.empty((M + 1, 3))
+        out_sg = np.empty((M + 1, 3))
+        out_Pd = np.empty((M + 1, n))
+        out_Pn = np.empty((M + 1, 9, 9))
+        hist_lat = out_lat
+        hist_lon = out_lon
+        hist_h = out_h
+        hist_v = out_v
+
+        def inject(dx):
+            nonlocal ba, bg, Ta, sa, sg, x
+            _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
+            lat = x.lat_rad - dx[0] / (R_N + x.h_m)
+            lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
+            h = x.h_m + dx[2]
+            v = x.v_N - dx[V]
+            q = ins._qmul(ins._qrot(dx[A]), x.q_NB)
+            q /= math.sqrt(float(q @ q))
+            x = ins.NavState(lat, lon, h, v, q)
+            ba = ba - dx[BA]
+            bg = bg - dx[BG]
+            Ta = Ta - dx[TA]
+            if c.estimate_scale_factors:
+                sa = sa - dx[SA]
+                sg = sg - dx[SG]
+
+        def update(kind, tk, z, H, R):
+            nonlocal Pm
+            S = H @ Pm @ H.T + R
+            Sinv = np.linalg.inv(S)
+            Kg = Pm @ H.T @ Sinv
+            dx = Kg @ z
+            IKH = I_n - Kg @ H
+            Pm = IKH @ Pm @ IKH.T + Kg @ R @ Kg.T
+            u = ups[kind]
+            u["time_s"].append(tk)
+            u["nis"].append(float(z @ Sinv @ z))
+            u["dof"].append(int(z.size))
+            u["innovation"].append(z.copy())
+            inject(dx)
+
+        for k in range(M + 1):
+            tk = inc.t_s[k]
+            C = E.C_from_q(x.q_NB)
+            # --- measurement updates at epoch k
+            if gps is not None and k in gps_use:
+                for i in gps_use[k]:
+                    lag = tk - gps.time_s[i]
+                    # INS history at the tag (linear interpolation between epochs)
+                    s = (gps.time_s[i] - inc.t_s[0]) / T
+                    j = min(math.floor(s), k)
+                    a = s - j
+                    j1 = min(j + 1, k)
+                    lat_t = (1 - a) * hist_lat[j] + a * (hist_lat[j1] if j1 < k else x.lat_rad)
+                    lon_t = (1 - a) * hist_lon[j] + a * (hist_lon[j1] if j1 < k else x.lon_rad)
+                    h_t = (1 - a) * hist_h[j] + a * (hist_h[j1] if j1 < k else x.h_m)
+                    v_t = (1 - a) * hist_v[j] + a * (hist_v[j1] if j1 < k else x.v_N)
+                    if j == k:
+                        lat_t, lon_t, h_t, v_t = x.lat_rad, x.lon_rad, x.h_m, x.v_N
+                    Cl = C @ self.l_gps
+                    r_ant = E.ned_from_geodetic(lat_t, lon_t, h_t, gps.lat_rad[i], gps.lon_rad[i], gps.h_m[i])
+                    z = np.asarray(r_ant, float) + Cl
+                    H = np.zeros((3, n))
+                    H[:, P] = np.eye(3)
+                    H[:, V] = -lag * np.eye(3)
+                    H[:, A] = E.skew(Cl)
+                    R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_pos_N[i], float)) ** 2)
+                    update("gps_pos", tk, z, H, R)
+                    if c.use_gps_velocity:
+                        C = E.C_from_q(x.q_NB)
+                        w_ie, w_en, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
+                        w_nb = (w_mean[k] - bg) - C.T @ (w_ie + w_en)
+                        lv = C @ np.cross(w_nb, self.l_gps)
+                        z = v_t + lv - np.asarray(gps.v_N[i], float)
+                        H = np.zeros((3, n))
+                        H[:, V] = np.eye(3)
+                        H[:, A] = E.skew(lv)
+                        H[:, BG] = C @ E.skew(self.l_gps)
+                        R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_vel_N[i], float)) ** 2)
+                        update("gps_vel", tk, z, H, R)
+                    C = E.C_from_q(x.q_NB)
+            if mag_every and k % mag_every == 0:
+                roll, pitch, yaw = E.euler_from_C(C)
+                psi_m = mag_heading(np.asarray(imu.B_B[idx[k]], float), roll, pitch, self.decl)
+                z = np.array([E.wrap_pi(yaw - psi_m)])
+                d = C[0, 0] ** 2 + C[1, 0] ** 2
+                H = np.zeros((1, n))
+                H[0, A] = [C[2, 0] * C[0, 0] / d, C[2, 0] * C[1, 0] / d, -1.0]
+                update("mag", tk, z, H, np.array([[c.mag_heading_sigma_rad ** 2]]))
+                C = E.C_from_q(x.q_NB)
+            if temp_every and k % temp_every == 0:
+                z = Ta - Tm[idx[k]]
+                H = np.zeros((3, n))
+                H[:, TA] = np.eye(3)
+                update("temp", tk, z, H, np.eye(3) * c.temp_sigma_K ** 2)
+            # --- record
+            out_lat[k], out_lon[k], out_h[k], out_v[k], out_q[k] = x.lat_rad, x.lon_rad, x.h_m, x.v_N, x.q_NB
+            out_ba[k], out_bg[k], out_T[k], out_sa[k], out_sg[k] = ba, bg, Ta, sa, sg
+            out_Pd[k] = np.diag(Pm)
+            out_Pn[k] = Pm[:9, :9]
+            if k == M:
+                break
+            # --- propagate to epoch k+1 on corrected increments
+            fB = f_mean[k]
+            wB = w_mean[k]
+            dth = (inc.dtheta_B[k] - bg * T) * (1.0 - sg)
+            f_corr = ba + kT * (Ta - c.reference_temperature_K)
+            dv = (inc.dv_B[k] - f_corr * T) * (1.0 - sa)
+            F = self._F(x, (fB - f_corr) * (1 - sa), (wB - bg) * (1 - sg), C)
+            x = ins.nav_step(x, dth, dv, T)
+            FT = F * T
+            Phi = I_n + FT + 0.5 * FT @ FT
+            Qd = 0.5 * (Phi * qc) @ Phi.T * T + 0.5 * np.diag(qc) * T
+            Pm = Phi @ Pm @ Phi.T + Qd
+            if progress is not None and k % 500 == 0:
+                progress(k)
+        ups = {k: {"time_s": np.asarray(u["time_s"]), "nis": np.asarray(u["nis"]), "dof": np.asarray(u["dof"]),
+                   "innovation": u["innovation"]} for k, u in ups.items()}
+        return FilterResult(inc.t_s, out_lat, out_lon, out_h, out_v, out_q, out_ba, out_bg, out_T, out_sa, out_sg,
+                            out_Pd, out_Pn, c.state_names(), ups,
+                            meta={"nav_rate_hz": 1.0 / T, "imu_rate_hz": fs, "samples_per_step": K})
+
+
+def nees_nav(res: FilterResult, truth, idx) -> np.ndarray:
+    """NEES (M,) of the 9 navigation error states (δr, δv, ψ) against ``truth`` at indices
+    ``idx`` (M,): e = [r_est − r_true (NED m), v_est − v_true, ψ]; NEES = eᵀ P⁻¹ e (dof 9)."""
+    sol = ins.NavSolution(res.time_s, res.lat_rad, res.lon_rad, res.h_m, res.v_N, res.q_NB)
+    err = ins.nav_errors(sol, truth, idx)
+    e = np.concatenate([err["pos_N_m"], err["vel_N_m_s"], err["att_N_rad"]], axis=1)
+    return np.einsum("ni,ni->n", e, np.linalg.solve(res.P_nav, e[..., None])[..., 0])
+
+
+# --- synthetic sensors matching the filter's model (consistency studies) ---------------------------
+@dataclass
+class SimpleGps:
+    """GpsFixes-compatible container (same field names) for synthetic fixes."""
+
+    time_s: np.ndarray
+    lat_rad: np.ndarray
+    lon_rad: np.ndarray
+    h_m: np.ndarray
+    v_N: np.ndarray
+    sigma_pos_N: np.ndarray
+    sigma_vel_N: np.ndarray
+    mode: str = "synthetic"
+    valid: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.valid is None:
+            self.valid = np.ones(self.time_s.size, bool)
+
+
+def synthetic_sensors(truth, noise: ImuNoise, rng: np.random.Generator, *, acc_bias_m_s2=None,
+                      gyro_bias_rad_s=None, gps_rate_hz=1.0, gps_sigma_pos_m=(0.5, 0.5, 1.0),
+                      gps_sigma_vel_m_s=(0.05, 0.05, 0.1), lever_gps_B=np.zeros(3), mag_sigma_rad=0.0,
+                      T_acc_K=298.15, temp_sigma_K=0.05, outages=()):
+    """IMU, GPS, magnetometer and temperature data drawn from exactly the filter's error model.
+
+    w = w_IB_B + b_g + GM(σ, τ) + ARW;  f = f_B + b_a + VRW  (white, per sample σ = density √fs);
+    GPS antenna position/velocity + white noise at ``gps_rate_hz`` (invalid inside ``outages``
+    ((t0, t1), ...)); B_B = C_BN [cos D, sin D, tan I]·|B_h| with a heading noise of σ_mag;
+    temperature channels = T_acc_K + white noise. Returns (ImuStream, SimpleGps, true biases).
+    """
+    t = truth.time_s
+    n = t.size
+    fs = truth.rate_hz
+    ba = rng.normal(0, 0.05, 3) if acc_bias_m_s2 is None else np.asarray(acc_bias_m_s2, float)
+    bg = rng.normal(0, 0.003 * math.pi / 180, 3) if gyro_bias_rad_s is None else np.asarray(gyro_bias_rad_s, float)
+    phi = math.exp(-1.0 / (noise.gyro_bias_tau_s * fs))
+    from scipy.signal import lfilter
+
+    drive = rng.standard_normal((n, 3)) * noise.gyro_bias_sigma * math.sqrt(1 - phi ** 2)
+    drive[0] = rng.standard_normal(3) * noise.gyro_bias_sigma
+    gm = lfilter([1.0], [1.0, -phi], drive, axis=0)
+    w = truth.w_IB_B + bg + gm + rng.standard_normal((n, 3)) * noise.arw * math.sqrt(fs)
+    f = truth.f_B + ba + rng.standard_normal((n, 3)) * noise.vrw * math.sqrt(fs)
+    C_NB = E.C_from_q(truth.q_NB)
+    # magnetometer: a unit horizontal field pointing north (declination 0), dip 67 deg
+    head_noise = rng.standard_normal(n) * mag_sigma_rad
+    B_N = np.stack([np.cos(head_noise), -np.sin(head_noise), np.full(n, math.tan(67 * math.pi / 180))], 1) * 19e-6
+    B_B = np.einsum("nji,nj->ni", C_NB, B_N)
+    Tm = np.full((n, 3), T_acc_K) + rng.standard_normal((n, 3)) * temp_sigma_K
+    step = max(1, round(fs / gps_rate_hz))
+    gi = np.arange(0, n, step)
+    l = np.asarray(lever_gps_B, float)
+    Cl = np.einsum("nij,j->ni", C_NB[gi], l)
+    lat, lon, h = E.geodetic_from_ned(Cl, truth.lat_rad[gi], truth.lon_rad[gi], truth.h_m[gi])
+    w_ie, w_en = E.omega_IE_N(truth.lat_rad[gi]), E.omega_EN_N(truth.lat_rad[gi], truth.h_m[gi], truth.v_N[gi])
+    w_nb = truth.w_IB_B[gi] - np.einsum("nji,nj->ni", C_NB[gi], w_ie + w_en)
+    v_ant = truth.v_N[gi] + np.einsum("nij,nj->ni", C_NB[gi], np.cross(w_nb, l))
+    sp = np.tile(np.asarray(gps_sigma_pos_m, float), (gi.size, 1))
+    sv = np.tile(np.asarray(gps_sigma_vel_m_s, float), (gi.size, 1))
+    dpos = rng.standard_normal((gi.size, 3)) * sp
+    lat, lon, h = E.geodetic_from_ned(dpos, lat, lon, h)
+    v = v_ant + rng.standard_normal((gi.size, 3)) * sv
+    valid = np.ones(gi.size, bool)
+    for t0, t1 in outages:
+        valid &= ~((t[gi] >= t0) & (t[gi] < t1))
+    gps = SimpleGps(t[gi].copy(), lat, lon, h, v, sp, sv, valid=valid)
+    return ImuStream(t, w, f, B_B, Tm), gps, {"acc_bias_m_s2": ba, "gyro_bias_rad_s": bg}
