@@ -357,6 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--overwrite", action="store_true")
     sim.set_defaults(func=_run_simona)
 
+    from imurig.montecarlo.cli import add_montecarlo_parser
+    add_montecarlo_parser(sub)
+
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     cal.add_argument("recording", help=".csv (lab format, see README) or .h5")
@@ -395,6 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="summarise a recording")
     info.add_argument("recording")
     info.set_defaults(func=_run_info)
+
+    from imurig.scoring.cli import add_scoring_parsers
+    add_scoring_parsers(sub)
     return p
 
 

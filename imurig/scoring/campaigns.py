@@ -7,7 +7,7 @@ is the same data everywhere (same seed, same data, bit for bit):
 |---|---|---|
 | ``tilt-table-quick`` | 4 tilts x 6 rotations x 2 mountings, 2 s per position | 15 accelerometer parameters |
 | ``tilt-table`` | the seed's 240 positions, 15 s each (README defaults) | the same |
-| ``turn-table-quick`` | dial 10, 40, 100 deg/s, both directions, p/q/r up, >= 4 s | 15 gyro parameters |
+| ``turn-table-quick`` | dial 40, 70, 100 deg/s, both directions, p/q/r up, >= 4 s | 15 gyro parameters |
 | ``turn-table`` | the seed's final schedule (9 rates) | the same |
 | ``thermal-quick`` | -30..+30 C in 20 C steps, two cycles, 10 min soak | 33 temperature coefficients |
 | ``thermal`` | -50..+50 C in 10 C steps, 40 min soak | the same |
@@ -81,7 +81,7 @@ def _turn_quick(seed):
     from imurig.campaigns.turn_table import TurnTableCampaign
     from imurig.rigs.turn_table import TurnTableProtocol
 
-    return TurnTableCampaign(protocol=TurnTableProtocol(dial_rates_dps=(10, 40, 100), min_window_s=4.0, settle_s=2.0,
+    return TurnTableCampaign(protocol=TurnTableProtocol(dial_rates_dps=(40, 70, 100), min_window_s=4.0, settle_s=2.0,
                                                         remount_s=30.0), seed=seed)
 
 
@@ -116,7 +116,7 @@ CAMPAIGNS: dict[str, CampaignSpec] = {s.name: s for s in [
                  _tilt_quick),
     CampaignSpec("tilt-table", "tilt-table", "accelerometers on the tilt table, the seed's 240 positions x 15 s",
                  2005, _tilt_full),
-    CampaignSpec("turn-table-quick", "turn-table", "gyros on the turn table, dial 10/40/100 deg/s, 18 steps", 1,
+    CampaignSpec("turn-table-quick", "turn-table", "gyros on the turn table, dial 40/70/100 deg/s, 18 steps", 1,
                  _turn_quick),
     CampaignSpec("turn-table", "turn-table", "gyros on the turn table, the seed's final schedule, 54 steps", 2005,
                  _turn_full),

@@ -32,8 +32,10 @@ takes IMU, GPS and magnetometer streams and returns time-stamped position, veloc
 attitude estimates, optionally with their covariances; :mod:`imurig.scoring.nav` scores
 the errors and, where covariances are given, the filter's consistency (NEES).
 
-Frames: W is local level (x east, y north, z up, as everywhere in the bench); B is the body
-(IMU case) frame. Quaternions are scalar first (w, x, y, z), ``q_WB`` rotates B vectors into W.
+Frames, as in :mod:`imurig.flights`: N is the local navigation frame north-east-down at a
+fixed origin (positions ``r_N`` are metres from that origin), B the body frame
+front-right-down. Quaternions are scalar first (w, x, y, z); ``q_NB`` maps body to
+navigation coordinates, x_N = C(q_NB) x_B.
 """
 from __future__ import annotations
 
@@ -83,12 +85,12 @@ class ImuStream:
 
 @dataclass
 class GpsStream:
-    """GPS fixes: position ``r_W`` (m, 3) m in the local-level frame W (origin at the site),
-    optional velocity ``v_W`` (m, 3) m/s, and their 1-sigma accuracies (m,) or (m, 3)."""
+    """GPS fixes: position ``r_N`` (m, 3) m in the local NED frame N (metres from its origin),
+    optional velocity ``v_N`` (m, 3) m/s, and their 1-sigma accuracies (m,) or (m, 3)."""
 
     time_s: np.ndarray
-    r_W: np.ndarray
-    v_W: np.ndarray | None = None
+    r_N: np.ndarray
+    v_N: np.ndarray | None = None
     sigma_r_m: np.ndarray | float | None = None
     sigma_v_m_s: np.ndarray | float | None = None
 
@@ -104,7 +106,7 @@ class MagStream:
 @dataclass
 class NavStreams:
     """What a navigation filter sees: IMU, and optionally GPS and magnetometer, plus metadata
-    (site, initial conditions the bench gives every filter, e.g. ``initial_r_W``)."""
+    (site, origin of N, initial conditions the bench gives every filter, e.g. ``initial_r_N``)."""
 
     imu: ImuStream
     gps: GpsStream | None = None
@@ -114,14 +116,14 @@ class NavStreams:
 
 @dataclass
 class NavSolution:
-    """A filter's output at times ``time_s`` (k,): any of position ``r_W`` (k, 3) m, velocity
-    ``v_W`` (k, 3) m/s, attitude ``q_WB`` (k, 4) scalar first; covariances (k, 3, 3) of each
-    (attitude: of the small rotation error in W, rad^2), or None when not reported."""
+    """A filter's output at times ``time_s`` (k,): any of position ``r_N`` (k, 3) m, velocity
+    ``v_N`` (k, 3) m/s, attitude ``q_NB`` (k, 4) scalar first; covariances (k, 3, 3) of each
+    (attitude: of the small rotation error in N, rad^2), or None when not reported."""
 
     time_s: np.ndarray
-    r_W: np.ndarray | None = None
-    v_W: np.ndarray | None = None
-    q_WB: np.ndarray | None = None
+    r_N: np.ndarray | None = None
+    v_N: np.ndarray | None = None
+    q_NB: np.ndarray | None = None
     P_r: np.ndarray | None = None
     P_v: np.ndarray | None = None
     P_att: np.ndarray | None = None

@@ -1,0 +1,92 @@
+"""The baseline scoreboard: the bench's own estimators on every named campaign, and a
+user's estimator beside them.
+
+One row per (campaign, estimator): pass/fail at the z bound, parameters within it, RMS z
+(about 1 for honest standard errors), the largest |z| and its parameter, the median of the
+estimator's standard errors over the bench's (below 1: more precise), the residual RMS
+over its floor with the injected parameters (mean over axes), and the fit's wall time.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from imurig.errors import ImurigError
+from imurig.report import OutputFolder, clean_json, md_table
+from imurig.scoring.baselines import baseline_for
+from imurig.scoring.bench import score_calibrator
+from imurig.scoring.campaigns import QUICK, campaign
+from imurig.scoring.score import Score, score_estimates
+
+
+def _row(s: Score, label: str, sim_s: float | None = None) -> dict:
+    sm = s.summary()
+    ratio = None
+    fm = s.residuals.get("forward_model")
+    if fm:
+        ratio = float(np.mean([fm["rms"][a] / fm["floor_rms"][a] for a in fm["rms"]]))
+    return {"campaign": s.campaign, "seed": s.seed, "estimator": label, "passed": s.passed,
+            "within": f"{sm['n_within_bound']}/{sm['n_parameters']}", "rms_z": sm["rms_z"], "max_abs_z": sm["max_abs_z"],
+            "max_abs_z_parameter": sm["max_abs_z_parameter"], "median_se_ratio": sm["median_se_ratio"],
+            "residual_over_floor": ratio, "fit_wall_s": s.extra.get("fit_wall_s"), "simulate_wall_s": sim_s}
+
+
+def scoreboard(campaigns=QUICK, others: dict | None = None, seed: int | None = None) -> list[dict]:
+    """Score the bench on each campaign, then every other estimator.
+
+    ``others``: label -> a calibrator factory ``f(kind) -> calibrator or None`` (None: not
+    for this kind), or label -> {campaign name: estimates (a file path, or any estimate
+    form)}. A failing fit is reported in the row (``error``), not raised.
+    """
+    rows = []
+    for name in campaigns:
+        c = campaign(name, seed)
+        t0 = time.perf_counter()
+        c.simulate()
+        sim = time.perf_counter() - t0
+        rows.append(_row(score_calibrator(baseline_for(c.kind), c), "bench", sim))
+        for label, how in (others or {}).items():
+            try:
+                if isinstance(how, dict):
+                    if name not in how:
+                        continue
+                    est = how[name]
+                    if isinstance(est, (str, Path)):
+                        from imurig.scoring.files import read_estimates
+
+                        est = read_estimates(est)
+                    s = score_estimates(c.truth(), est, estimator=label, source=f"{label} on {name}")
+                else:
+                    cal = how(c.kind)
+                    if cal is None:
+                        continue
+                    s = score_calibrator(cal, c)
+                rows.append(_row(s, label))
+            except ImurigError as e:
+                rows.append({"campaign": name, "seed": c.seed, "estimator": label, "passed": False, "error": str(e)})
+    return rows
+
+
+def scoreboard_markdown(rows: list[dict]) -> str:
+    def f(v, d=2):
+        return "–" if v is None else f"{v:.{d}f}"
+
+    body = []
+    for r in rows:
+        if "error" in r:
+            body.append([r["campaign"], r["estimator"], "**error**", r["error"].splitlines()[0][:80], "", "", "", "", ""])
+            continue
+        body.append([r["campaign"], r["estimator"], "PASS" if r["passed"] else "**FAIL**", r["within"], f(r["rms_z"]),
+                     f"{r['max_abs_z']:.2f} ({r['max_abs_z_parameter']})", f(r["median_se_ratio"]),
+                     f(r["residual_over_floor"], 3), f(r["fit_wall_s"], 2)])
+    return md_table(["campaign", "estimator", "result", "within 4 SE", "RMS z", "max |z|", "SE / bench",
+                     "residual / floor", "fit s"], body)
+
+
+def write_scoreboard(out, rows: list[dict], overwrite: bool = False) -> Path:
+    with OutputFolder(out, overwrite=overwrite) as folder:
+        folder.write_json("scoreboard.json", clean_json({"rows": rows}))
+        folder.write_text("scoreboard.md", "# imurig scoreboard\n\n" + scoreboard_markdown(rows) + "\n")
+    return Path(out)
