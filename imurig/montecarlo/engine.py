@@ -141,6 +141,10 @@ def _prepare_out(out: Path, cfg: dict, runs: int, overwrite: bool, resume: bool)
                                     "it, or choose another --out")
     (out / "runs").mkdir(parents=True, exist_ok=True)
     _atomic_json(study_file, {"config": cfg, "runs": int(runs)})
+    return _runs_on_disk(out)
+
+
+def _runs_on_disk(out: Path) -> set[int]:
     done = set()
     for f in (out / "runs").glob("run_*.json"):
         try:
@@ -215,18 +219,22 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
     dist = _dist.normalise(distributions, camp.sources())
     cfg = _config(camp.name, p, master_seed, dist, estimator)
     out = Path(out) if out is not None else None
-    done: set[int] = set()
-    if out is not None:
-        done = _prepare_out(out, cfg, runs, overwrite, resume)
+    peek = _runs_on_disk(out) if (out is not None and resume) else set()
+    need_client = any(i not in peek for i in range(runs))
     study = Study(config=cfg, path=out)
-    todo = [i for i in range(runs) if i not in done]
     t0 = time.perf_counter()
+    t_sub = t_end = None
     new = 0
-    if todo:
-        key = _fingerprint(cfg)
-        with dask_client(client, scheduler, workers, processes=processes) as c:
+    # connect first: an unreachable scheduler must fail before anything is written
+    with (dask_client(client, scheduler, workers, processes=processes) if need_client
+          else contextlib.nullcontext(None)) as c:
+        done = _prepare_out(out, cfg, runs, overwrite, resume) if out is not None else set()
+        todo = [i for i in range(runs) if i not in done]
+        if todo:
             from distributed import as_completed
 
+            key = _fingerprint(cfg)
+            t_sub = time.perf_counter()
             futures = [c.submit(execute_run, camp, p, dist, master_seed, i, estimator, key=f"imurig-mc-{key}-{i}",
                                 retries=retries, pure=False) for i in todo]
             try:
@@ -239,6 +247,7 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
                         study.runs[res["index"]] = res
                         new += 1
                         bar.update(1)
+                        t_end = time.perf_counter()
                         if stop_after is not None and new >= stop_after:
                             raise StudyInterrupted(f"stopped after {new} new runs (stop_after); {out} holds them: "
                                                    "resume with --resume")
@@ -251,7 +260,10 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
         for i in range(runs):
             if i not in study.runs:
                 study.runs[i] = json.loads((out / "runs" / RUN_FILE.format(i)).read_text())
-    study.timing = {"wall_s": wall, "new_runs": new, "runs_per_min": 60 * new / wall if new and wall > 0 else None,
+    compute = (t_end - t_sub) if new else None
+    study.timing = {"wall_s": wall, "compute_s": compute, "new_runs": new,
+                    "runs_per_min": 60 * new / compute if compute else None,
+                    "runs_per_min_incl_startup": 60 * new / wall if new and wall > 0 else None,
                     "workers": _n_workers(client, scheduler, workers)}
     if out is not None and report:
         from imurig.montecarlo.report import write_study_outputs

@@ -218,7 +218,8 @@ def render_report(study, stats, figs, lab, per_run) -> str:
                  ["mean coverage of 95 % intervals", ov["coverage_mean"]],
                  ["parameters with coverage inside the 99 % band", ov["coverage_in_band"]],
                  ["runs this session / wall time (s)", f"{t.get('new_runs')} / {fmt(t.get('wall_s'), 4)}"],
-                 ["runs per minute (this session)", t.get("runs_per_min")],
+                 ["runs per minute (this session; from first submission to last result)", t.get("runs_per_min")],
+                 ["runs per minute including cluster start-up", t.get("runs_per_min_incl_startup")],
                  ["workers", t.get("workers")],
                  ["mean time per run: simulate / estimate / CRLB (s)",
                   (f"{fmt(per_run.get('simulate_s'), 3)} / {fmt(per_run.get('estimate_s'), 3)} / "
