@@ -226,7 +226,7 @@ class LooseEKF:
     """The loosely coupled error-state filter. ``run`` processes a whole flight."""
 
     def __init__(self, config: FilterConfig | None = None, noise: ImuNoise | None = None,
-                 lever_gps_B=np.zeros(3), declination=0.0):
+                 lever_gps_B=(0.0, 0.0, 0.0), declination=0.0):
         self.cfg = config or FilterConfig()
         self.noise = noise or ImuNoise()
         self.l_gps = np.asarray(lever_gps_B, float)
@@ -253,14 +253,14 @@ class LooseEKF:
                             [-1.0 / (R_N + h), 0.0, 0.0],
                             [0.0, -tl / (R_E + h), 0.0]])
         F[P, V] = np.eye(3)
-        Sv = E.skew(v)
-        F[V, A] = E.skew(f_N)
+        Sv = ins._skew(v)
+        F[V, A] = ins._skew(f_N)
         F[V, BA] = -C
         F[V, TA] = -C * self.cfg.thermal_slope_m_s2_per_K
-        F[V, V] = -E.skew(2 * w_ie + w_en) + Sv @ dwen_dv
+        F[V, V] = -ins._skew(2 * w_ie + w_en) + Sv @ dwen_dv
         F[V, P] = Sv @ (2 * dwie_dr + (dwin_dr - dwie_dr))
         F[V.start + 2, P.start + 2] += 2.0 * g[2] / (math.sqrt(R_N * R_E) + h)
-        F[A, A] = -E.skew(w_in)
+        F[A, A] = -ins._skew(w_in)
         F[A, P] = dwin_dr
         F[A, V] = dwen_dv
         F[A, BG] = C
@@ -389,7 +389,7 @@ class LooseEKF:
 
         for k in range(M + 1):
             tk = inc.t_s[k]
-            C = E.C_from_q(x.q_NB)
+            C = ins._dcm(x.q_NB)
             # --- measurement updates at epoch k
             if gps is not None and k in gps_use:
                 for i in gps_use[k]:
@@ -405,28 +405,29 @@ class LooseEKF:
                     v_t = (1 - a) * hist_v[j] + a * (hist_v[j1] if j1 < k else x.v_N)
                     if j == k:
                         lat_t, lon_t, h_t, v_t = x.lat_rad, x.lon_rad, x.h_m, x.v_N
+                    dv_hist = v_t - x.v_N          # history offset, kept across the position update
                     Cl = C @ self.l_gps
                     r_ant = E.ned_from_geodetic(lat_t, lon_t, h_t, gps.lat_rad[i], gps.lon_rad[i], gps.h_m[i])
                     z = np.asarray(r_ant, float) + Cl
                     H = np.zeros((3, n))
                     H[:, P] = np.eye(3)
                     H[:, V] = -lag * np.eye(3)
-                    H[:, A] = E.skew(Cl)
+                    H[:, A] = ins._skew(Cl)
                     R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_pos_N[i], float)) ** 2)
                     update("gps_pos", tk, z, H, R)
                     if c.use_gps_velocity:
-                        C = E.C_from_q(x.q_NB)
+                        C = ins._dcm(x.q_NB)
                         w_ie, w_en, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
                         w_nb = (w_mean[k] - bg) - C.T @ (w_ie + w_en)
                         lv = C @ np.cross(w_nb, self.l_gps)
-                        z = v_t + lv - np.asarray(gps.v_N[i], float)
+                        z = x.v_N + dv_hist + lv - np.asarray(gps.v_N[i], float)
                         H = np.zeros((3, n))
                         H[:, V] = np.eye(3)
-                        H[:, A] = E.skew(lv)
-                        H[:, BG] = C @ E.skew(self.l_gps)
+                        H[:, A] = ins._skew(lv)
+                        H[:, BG] = C @ ins._skew(self.l_gps)
                         R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_vel_N[i], float)) ** 2)
                         update("gps_vel", tk, z, H, R)
-                    C = E.C_from_q(x.q_NB)
+                    C = ins._dcm(x.q_NB)
             if mag_every and k % mag_every == 0:
                 roll, pitch, yaw = E.euler_from_C(C)
                 psi_m = mag_heading(np.asarray(imu.B_B[idx[k]], float), roll, pitch, self.decl)
@@ -435,7 +436,7 @@ class LooseEKF:
                 H = np.zeros((1, n))
                 H[0, A] = [C[2, 0] * C[0, 0] / d, C[2, 0] * C[1, 0] / d, -1.0]
                 update("mag", tk, z, H, np.array([[c.mag_heading_sigma_rad ** 2]]))
-                C = E.C_from_q(x.q_NB)
+                C = ins._dcm(x.q_NB)
             if temp_every and k % temp_every == 0:
                 z = Ta - Tm[idx[k]]
                 H = np.zeros((3, n))
@@ -500,7 +501,7 @@ class SimpleGps:
 
 def synthetic_sensors(truth, noise: ImuNoise, rng: np.random.Generator, *, acc_bias_m_s2=None,
                       gyro_bias_rad_s=None, gps_rate_hz=1.0, gps_sigma_pos_m=(0.5, 0.5, 1.0),
-                      gps_sigma_vel_m_s=(0.05, 0.05, 0.1), lever_gps_B=np.zeros(3), mag_sigma_rad=0.0,
+                      gps_sigma_vel_m_s=(0.05, 0.05, 0.1), lever_gps_B=(0.0, 0.0, 0.0), mag_sigma_rad=0.0,
                       T_acc_K=298.15, temp_sigma_K=0.05, outages=()):
     """IMU, GPS, magnetometer and temperature data drawn from exactly the filter's error model.
 

@@ -118,6 +118,19 @@ def _cross(a, b):
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def _skew(v):
+    """[v×] of one vector (3,) (scalar fast path of :func:`earth.skew`)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _dcm(q):
+    """C(q) of one quaternion (4,) (scalar fast path of :func:`earth.C_from_q`)."""
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def _qmul(p, q):
     pw, px, py, pz = p
     qw, qx, qy, qz = q
@@ -145,7 +158,7 @@ def _rates(lat, h, v):
 
 def nav_step(x: NavState, dtheta_B, dv_B, T: float) -> NavState:
     """One navigation update over T seconds with body increments ``dtheta_B``, ``dv_B`` (3,)."""
-    C = E.C_from_q(x.q_NB)
+    C = _dcm(x.q_NB)
     dv_N0 = C @ dv_B
     lat_m, h_m, v_m = x.lat_rad, x.h_m, x.v_N
     for _ in range(2):                          # predictor, then corrector at the mid-point
