@@ -192,8 +192,10 @@ def _quat_to_C(w, x, y, z):
 class VehicleSim:
     """A MuJoCo free body stepped at ``rate_hz`` (``substeps`` physics steps per sample), with
     tyre forces and a vehicle-specific force callback; records the kinematics of the body
-    origin (the IMU) at every sample: position, velocity, acceleration (MuJoCo's qacc of the
-    step, i.e. exactly the acceleration the integrator used), attitude, body rate."""
+    origin (the IMU) at every sample: position, velocity, acceleration, attitude, body rate.
+    The recorded acceleration is (v_{k+1} − v_k)/Δt: exactly what MuJoCo's semi-implicit Euler
+    step applied (its implicit strut damping makes that differ slightly from qacc), so the
+    samples obey v_{k+1} = v_k + Δt a_k to rounding."""
 
     body_name = "vehicle"
 
@@ -295,10 +297,11 @@ class VehicleSim:
                 row[1:8] = d.qpos[0:7]
                 row[8:14] = d.qvel[0:6]
             mujoco.mj_step(m, d)
-            if k == 0:
-                row[14:20] = d.qacc[0:6]
-                row[20:26] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake)
-                self._rows.append(row)
+        # the acceleration the integrator applied over the sample (with implicit strut damping
+        # this differs from qacc): v_{k+1} = v_k + dt a_k holds exactly
+        row[14:20] = (d.qvel[0:6] - row[8:14]) * self.rate_hz
+        row[20:26] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake)
+        self._rows.append(row)
         self.t += self.dt
         self._update_state()
 
@@ -335,9 +338,10 @@ class AutopilotGains:
     k_V: float = 0.06          # throttle per m/s
     ki_V: float = 0.01
     k_psi: float = 1.2         # bank per heading error
-    k_phi: float = 1.2
+    k_phi: float = 1.0         # roll-rate command per rad bank error
+    p_max: float = 0.26        # rad/s (15 deg/s)
     ki_phi: float = 0.3
-    k_p: float = 0.15
+    k_p: float = 0.3
     k_r: float = 1.0           # yaw damper
     k_beta: float = 1.5
 
@@ -387,11 +391,15 @@ class Autopilot:
         return max(-phi_max, min(phi_max, self.g.k_psi * e))
 
     def lateral(self, s: State, phi_c: float) -> tuple[float, float]:
-        g = self.g
+        """Bank hold through a roll-rate command limited to ``p_max`` (aileron feed-forward from
+        C_lp/C_lδa), yaw damper and sideslip feedback on the rudder."""
+        g, a = self.g, self.aero
         e = phi_c - s.phi
         self.i_phi = max(-0.2, min(0.2, self.i_phi + e * self.dt))
-        da = g.k_phi * e - g.k_p * s.p + g.ki_phi * self.i_phi
-        r_c = G0 * math.sin(s.phi) * math.cos(s.theta) / max(s.V, 30.0)
+        p_c = max(-g.p_max, min(g.p_max, g.k_phi * e))
+        V = max(s.V, 30.0)
+        da = -a.Clp / a.Clda * a.b_m / (2 * V) * p_c + g.k_p * (p_c - s.p) + g.ki_phi * self.i_phi
+        r_c = G0 * math.sin(s.phi) * math.cos(s.theta) / V
         dr = g.k_r * (s.r - r_c) - g.k_beta * s.beta
         return da, dr
 
