@@ -29,7 +29,7 @@ def main(argv=None):
     for group, case in null_groups().items():
         fd = 0
         for s in seeds:
-            fd += bool(found_effects(diagnose_case(case, null_recording(case, s), s)))
+            fd += bool(found_effects(diagnose_case(case, null_recording(case, s), s, null=True)))
         out["null"][group] = {"records": len(seeds), "with_false_discovery": fd, "rate": fd / len(seeds)}
         print("null", group, json.dumps(out["null"][group]), flush=True)
     for case in CASES:

@@ -294,7 +294,8 @@ def _run_diagnose(a):
         from imurig.recording import load
 
         rec = load(a.recording).validate()
-    d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model)
+    d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
+            earth_rate=not a.twin_without_earth_rate)
     from imurig.diagnose.report import _findings_rows
 
     for r in _findings_rows(d):
@@ -360,6 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     from imurig.montecarlo.cli import add_montecarlo_parser
     add_montecarlo_parser(sub)
 
+    from imurig.flights.cli import add_flight_parser
+    add_flight_parser(sub)
+
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     cal.add_argument("recording", help=".csv (lab format, see README) or .h5")
@@ -387,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--twin-model", default="physical", choices=["physical", "own_axis", "linear"],
                     help="the tilt-table twin's accelerometer model; terms it lacks (misalignment, "
                          "nonlinearity) join the candidate effects")
+    dg.add_argument("--twin-without-earth-rate", action="store_true",
+                    help="turn table: a twin whose reference leaves the Earth's rate out (as many labs do)")
     dg.set_defaults(func=_run_diagnose)
 
     conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")

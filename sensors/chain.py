@@ -128,7 +128,9 @@ class ImuLab:
         if wanted("gyro", GYRO_AXES):
             w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
             g = self.gyros
-            v = g.ideal_voltage(w_C, T_gyro)
+            f_gyro = (np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1) + f_dist
+                      if np.any(g.g_sensitivity_rad_s_per_m_s2) else None)
+            v = g.ideal_voltage(w_C, T_gyro, f_gyro)
             d = np.gradient(v, t, axis=0)
             grng = child_rng(seed, "gyros")
             for blk in rig.blocks():  # the bias instability decorrelates over a remount gap

@@ -4,13 +4,14 @@ Measurement equation, per sample n and axis i (SI inside):
 
     w_S   = (I + M) w_C                                          [rad/s, (n,3)] sensed rates
     w_i'  = w_S,i + b_i + b_gm,i(t) + k2_i w_S,i^2 + kb_i (T - T0)
-            + sum_{j<k} c_i,jk w_S,j w_S,k                        [rad/s]
+            + sum_{j<k} c_i,jk w_S,j w_S,k + sum_j G_ij f_C,j     [rad/s]
     V_i   = SF_i (1 + ks_i (T - T0)) w_i' + SF_i n_i(t)          [V]
 
 w_C: true angular rate of the IMU case frame C, including the Earth's rotation. M:
 misalignment / cross-axis sensitivity (zero diagonal, rad). b: turn-on bias. b_gm: bias
 instability, first-order Gauss-Markov (sigma, tau). k2: scale-factor nonlinearity
-(1/(rad/s)). c: product cross-coupling (seed eq. 4.39-4.41 terms w_p w_q ...; zero by
+(1/(rad/s)). G: g-sensitivity ((rad/s)/(m/s^2), zero by default; f_C the specific force at
+the IMU, m/s^2). c: product cross-coupling (seed eq. 4.39-4.41 terms w_p w_q ...; zero by
 default). SF: scale factor (V per rad/s). n: angle random walk, white rate noise with
 Allan deviation sigma(tau) = N / sqrt(tau); per sample sigma = N sqrt(fs).
 
@@ -41,6 +42,7 @@ class FOGTriad:
     misalignment_rad: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     k2_per_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
     cross_coupling_per_rad_s: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # [i, pair]
+    g_sensitivity_rad_s_per_m_s2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     arw_rad_s_per_sqrt_hz: float = 0.0015 * DEG
     bias_instability_rad_s: float = 0.001 * DEG
     bias_instability_tau_s: float = 100.0
@@ -57,6 +59,7 @@ class FOGTriad:
         self.misalignment_rad = np.asarray(self.misalignment_rad, float).reshape(3, 3).copy()
         np.fill_diagonal(self.misalignment_rad, 0.0)
         self.cross_coupling_per_rad_s = np.asarray(self.cross_coupling_per_rad_s, float).reshape(3, 3).copy()
+        self.g_sensitivity_rad_s_per_m_s2 = np.asarray(self.g_sensitivity_rad_s_per_m_s2, float).reshape(3, 3).copy()
 
     @classmethod
     def from_datasheet(cls, rng: np.random.Generator | None = None, *, scale_mV_per_dps=6.0,
@@ -81,8 +84,9 @@ class FOGTriad:
     def nominal_sensitivity(self) -> np.ndarray:
         return np.full(3, self.nominal_scale_V_per_rad_s)
 
-    def ideal_voltage(self, w_C: np.ndarray, temperature_K=None) -> np.ndarray:
-        """Noise-free output voltages (n, 3) for true rates ``w_C`` (n, 3) rad/s."""
+    def ideal_voltage(self, w_C: np.ndarray, temperature_K=None, f_C: np.ndarray | None = None) -> np.ndarray:
+        """Noise-free output voltages (n, 3) for true rates ``w_C`` (n, 3) rad/s and the specific
+        force ``f_C`` (n, 3) m/s^2 (needed only with a g-sensitivity)."""
         w_C = np.asarray(w_C, float)
         w_S = w_C + w_C @ self.misalignment_rad.T
         dT = 0.0 if temperature_K is None else np.asarray(temperature_K, float).reshape(-1, 1) - \
@@ -91,6 +95,8 @@ class FOGTriad:
         if np.any(self.cross_coupling_per_rad_s):
             pairs = np.stack([w_S[:, 0] * w_S[:, 1], w_S[:, 0] * w_S[:, 2], w_S[:, 1] * w_S[:, 2]], axis=1)
             w = w + pairs @ self.cross_coupling_per_rad_s.T
+        if f_C is not None and np.any(self.g_sensitivity_rad_s_per_m_s2):
+            w = w + np.asarray(f_C, float) @ self.g_sensitivity_rad_s_per_m_s2.T
         return self.scale_V_per_rad_s * (1 + self.scale_tempco_per_K * dT) * w
 
     def noise_rate(self, n: int, fs: float, rng: np.random.Generator) -> np.ndarray:

@@ -154,3 +154,25 @@ def test_unknown_twin_model_refused():
     with pytest.raises(ConfigError, match="twin model"):
         diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=3).simulate(), np.random.default_rng(0),
                             twin_model="quartic")
+
+
+# ------------------------------------------------------------------ turn table
+@pytest.mark.parametrize("effect", ["earth_rate_left_out", "g_sensitivity"])
+def test_turn_table_effects_found_with_truth(effect):
+    """The Earth's vertical rate left out of the twin's reference, and a gyro g-sensitivity
+    (10 deg/h/g) left out of its model, are found on every gyro, named (the Earth's rate with
+    the g-sensitivity as its indistinguishable alias on a level table), with the parameter
+    within 4 SE of the truth; the complete twin on the same kind of data comes back clean."""
+    case = next(c for c in CASES if c.effect == effect)
+    seed = 1
+    rec = case.make(seed, case.realistic_size)
+    d = diagnose_case(case, rec, seed)
+    assert found_effects(d) == case.expected
+    est, se = case.found_param(d)
+    assert abs(est - case.truth_param(rec)) < 4 * se, (est, case.truth_param(rec), se)
+    if effect == "earth_rate_left_out":
+        assert all(f["indistinguishable_from"] == "g_sensitivity" for e in d["gyros"].values() for f in e["findings"])
+        null = diagnose_case(case, rec, seed, null=True)      # the same data, the twin with the Earth's rate
+    else:
+        null = diagnose_case(case, null_recording(case, seed), seed, null=True)
+    assert found_effects(null) == set()

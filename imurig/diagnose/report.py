@@ -10,22 +10,38 @@ from imurig.recording import Recording
 from imurig.report import OutputFolder, clean_json, md_table
 
 
-def diagnose(rec: Recording, seed: int = 0, twin_model: str = "physical") -> dict:
-    """Dispatch on the recording's kind: tilt-table recordings (twin model ``twin_model``) and
-    turn-table row recordings (appendix B)."""
+def diagnose(rec: Recording, seed: int = 0, twin_model: str = "physical", earth_rate: bool = True) -> dict:
+    """Dispatch on the recording's kind: tilt-table recordings (twin model ``twin_model``),
+    turn-table recordings (twin with or without the Earth's rate) and turn-table row
+    recordings (appendix B)."""
     if rec.meta.get("rig") == "turn_table" and rec.meta.get("row_recording"):
         return {"kind": "rate_table_rows", **diagnose_rate_rows(rec, np.random.default_rng(seed))}
+    if rec.meta.get("rig") == "turn_table" or "rate_dial" in rec.segments:
+        from imurig.diagnose.turn_table import diagnose_turn_table
+
+        return {"kind": "turn_table", **diagnose_turn_table(rec, np.random.default_rng(seed), earth_rate=earth_rate)}
     if rec.meta.get("rig") == "tilt_table" or {"theta", "phi"} <= set(rec.segments):
         from imurig.diagnose.tilt_table import diagnose_tilt_table
 
         return {"kind": "tilt_table", **diagnose_tilt_table(rec, np.random.default_rng(seed), twin_model=twin_model)}
     raise RecordingError(f"diagnosis of '{rec.meta.get('rig', 'unknown')}' recordings is not implemented yet; "
-                         "this version diagnoses tilt-table recordings and turn-table row recordings in the "
+                         "this version diagnoses tilt-table and turn-table recordings and turn-table row "
+                         "recordings in the "
                          "appendix-B format (imurig.calibration.simona.read_simona)")
 
 
 def _findings_rows(d: dict) -> list[list]:
     rows = []
+    if d.get("kind") == "turn_table":
+        for g, e in d["gyros"].items():
+            for f in e["findings"]:
+                ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+                alias = f"; indistinguishable from {f['indistinguishable_from']}" if f["indistinguishable_from"] else ""
+                rows.append([f"gyro_{g} whole-round means", f["effect"], f["physics"],
+                             f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
+                             f"{f['variance_share'] * 100:.0f} % of the residual{alias}",
+                             SEED_SAYS_TURN.get(f["effect"], "–")])
+        return rows
     if d.get("kind") == "tilt_table":
         for a, e in d["axes"].items():
             for f in e["findings"]:
@@ -84,9 +100,17 @@ SEED_SAYS_TILT = {
 }
 
 
+SEED_SAYS_TURN = {
+    "earth_rate_left_out": "4.4.2: the Earth's rate (15 deg/h) adds to the table rate along the vertical axis",
+    "g_sensitivity": "– (not examined in the seed)",
+}
+
+
 def _figure(out, rec: Recording, d: dict) -> str:
     if d.get("kind") == "tilt_table":
         return _figure_tilt(out, d)
+    if d.get("kind") == "turn_table":
+        return _figure_tilt(out, d, key="gyros", prefix="gyro_", unit="rad/s")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -134,21 +158,22 @@ def _figure(out, rec: Recording, d: dict) -> str:
     return "fig_diagnosis.png"
 
 
-def _figure_tilt(out, d: dict) -> str:
+def _figure_tilt(out, d: dict, key: str = "axes", prefix: str = "acc_", unit: str = "m/s²") -> str:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 3.5))
-    axes = list(d["axes"])
-    before = [d["axes"][a]["fit_before"]["sigma_res"] for a in axes]
-    after = [d["axes"][a]["fit_after"]["sigma_res"] for a in axes]
+    axes = list(d[key])
+    before = [d[key][a]["fit_before"]["sigma_res"] for a in axes]
+    after = [d[key][a]["fit_after"]["sigma_res"] for a in axes]
     xx = np.arange(len(axes))
     ax.bar(xx - 0.2, before, 0.4, label="nominal model")
     ax.bar(xx + 0.2, after, 0.4, label="with the effects found")
-    ax.set_xticks(xx, [f"acc_{a}" for a in axes])
-    ax.set(ylabel="σ_res of position means, m/s²", title="Fit before and after")
+    ax.set_xticks(xx, [f"{prefix}{a}" for a in axes])
+    ax.set(ylabel=f"σ_res of segment means, {unit}" + (" (whitened)" if key == "gyros" else ""),
+           title="Fit before and after")
     ax.legend()
     fig.tight_layout()
     fig.savefig(out.file("fig_diagnosis.png"), dpi=110)
@@ -157,7 +182,7 @@ def _figure_tilt(out, d: dict) -> str:
 
 
 def _rrd(path, rec: Recording, d: dict):
-    if d.get("kind") == "tilt_table":
+    if d.get("kind") in ("tilt_table", "turn_table"):
         from imurig.viz import RrdWriter, log_text
 
         with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
@@ -179,8 +204,9 @@ def _rrd(path, rec: Recording, d: dict):
         log_text(w, "summary", "# Diagnosis\n\n" + "\n".join(f"- **{r[1]}** ({r[0]}): {r[2]}" for r in _findings_rows(d)))
 
 
-def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "physical") -> dict:
-    d = diagnose(rec, seed, twin_model)
+def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "physical",
+        earth_rate: bool = True) -> dict:
+    d = diagnose(rec, seed, twin_model, earth_rate)
     with OutputFolder(out_dir, overwrite=overwrite) as out:
         fig = _figure(out, rec, d)
         _rrd(out.file("diagnosis.rrd"), rec, d)

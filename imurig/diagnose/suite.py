@@ -15,6 +15,7 @@ import numpy as np
 
 from imurig.rigs.tilt_table import TiltTableProtocol
 
+DEG_PER_H_PER_G = math.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
 SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
                                settle_s=1.0, slew_rate_deg_s=30.0)
 
@@ -33,6 +34,7 @@ class Case:
     notes: str = ""
     twin: dict = field(default_factory=dict)        # keyword arguments of the diagnosis (the twin)
     null: Callable | None = None                     # seed -> a recording with nothing omitted from this twin
+    null_twin: dict | None = None                    # the twin for the null data, if not ``twin``
     extra: dict = field(default_factory=dict)
 
 
@@ -120,6 +122,37 @@ def _inverse_k2(rec, j):
     return -rec.truth["sensors"]["accelerometers"]["k2_per_m_s2"][j] / D**2
 
 
+# the Earth's rate and the g-sensitivity show as a bias present only while the gyro is on the
+# table axis, against the gyro's bias instability, which is independent from one mounting to
+# the next: many short mountings separate them best. (Upside-down mountings would flip the sign
+# but also the table wobble's effective misalignment, which one model per axis cannot follow.)
+TURN_REMOUNTS = dict(dial_rates_dps=(20, 100), mounts=("p_up", "q_up", "r_up") * 4, min_window_s=8.0)
+
+
+def _turn(seed, g_sensitivity=0.0):
+    """A turn-table campaign (each axis up four times) whose gyros have a diagonal g-sensitivity
+    ``g_sensitivity`` ((rad/s)/(m/s^2)) times (1, -1, 1)."""
+    from imurig.campaigns.turn_table import TurnTableCampaign
+    from imurig.rigs.turn_table import TurnTableProtocol
+    from imurig.sensors.noise import child_rng
+
+    camp = TurnTableCampaign(protocol=TurnTableProtocol(**TURN_REMOUNTS), seed=seed)
+    camp.check_identifiable()
+    table, lab, ss = camp.build()
+    gyros = replace(lab.gyros, g_sensitivity_rad_s_per_m_s2=np.diag([1.0, -1.0, 1.0]) * g_sensitivity)
+    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
+    rec = replace(lab, gyros=gyros).measure(rig, np.random.SeedSequence(seed, spawn_key=(2,)))
+    rec.meta["campaign"] = {"name": "turn-table", **camp.to_dict()}
+    return rec
+
+
+def _gyro_param(d, gyro, effect):
+    for f in d["gyros"][gyro]["findings"]:
+        if f["effect"] == effect:
+            return f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
+    return None
+
+
 def _simona(seed, **setup_kw):
     from imurig.campaigns.turn_table import SimonaSetup, simona_virtual
     from imurig.rigs.turn_table import TurnTableErrors
@@ -188,6 +221,17 @@ CASES = [
          sizes=tuple(x * 1e-6 / 9.80665 for x in (5, 10, 20, 30, 48)), size_unit="k2 (1/(m/s^2))",
          truth_param=lambda rec: _inverse_k2(rec, 0), found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
          twin={"twin_model": "linear"}, null=lambda seed: _accelerometers(seed, k2=0.0, protocol=WIDE_TILT)),
+    Case("earth_rate_left_out", "turn_table", {(a, "earth_rate_left_out") for a in "pqr"},
+         lambda seed, _size: _turn(seed), 1.0, size_unit="(the Earth's rate)",
+         truth_param=lambda rec: 7.292115e-5 * math.sin(math.radians(rec.meta["site"]["latitude_deg"])),
+         found_param=lambda d: _gyro_param(d, "p", "earth_rate_left_out"),
+         twin={"earth_rate": False}, null=lambda seed: _turn(seed), null_twin={"earth_rate": True},
+         notes="g_sensitivity is named as indistinguishable"),
+    Case("g_sensitivity", "turn_table", {(a, "g_sensitivity") for a in "pqr"},
+         lambda seed, gs: _turn(seed, gs), 10 * DEG_PER_H_PER_G,
+         sizes=tuple(x * DEG_PER_H_PER_G for x in (1, 2, 5, 10, 20)), size_unit="G (rad/s per m/s^2)",
+         truth_param=lambda rec: rec.truth["sensors"]["gyros"]["g_sensitivity_rad_s_per_m_s2"][0][0],
+         found_param=lambda d: _gyro_param(d, "p", "g_sensitivity"), null=lambda seed: _turn(seed)),
     Case("instrument_range_change", "rate_table_rows", {("voltmeter", "instrument_range_change")}, _range_change, 0.01,
          sizes=(0.0005, 0.001, 0.002, 0.005, 0.01), size_unit="gain step (relative)"),
     Case("mains_rate_factor", "rate_table_rows", {("rate", "mains_rate_factor")}, _mains, 1.0),
@@ -203,7 +247,10 @@ def found_effects(d: dict) -> set:
         for a, e in d["axes"].items():
             out |= {(a, f["effect"]) for f in e["findings"]}
             out |= {(a, e["scatter"][k]["effect"]) for k in ("finding_spikes", "finding_vibration") if k in e["scatter"]}
-    if "gyros" in d:
+    if "gyros" in d and "earth_rate_in_twin" in d:
+        for g, e in d["gyros"].items():
+            out |= {(g, f["effect"]) for f in e["findings"]}
+    elif "gyros" in d:
         if d.get("rate_factor"):
             out.add(("rate", "mains_rate_factor"))
         out |= {("rate", f["effect"]) for f in d["shortfall"]["diagnosis"]["findings"]}
@@ -215,12 +262,18 @@ def found_effects(d: dict) -> set:
     return out
 
 
-def diagnose_case(case: Case, rec, seed: int) -> dict:
+def diagnose_case(case: Case, rec, seed: int, null: bool = False) -> dict:
+    """Diagnose ``rec`` against the case's twin (``null``: the twin of its null study)."""
     rng = np.random.default_rng(seed)
+    twin = case.null_twin if null and case.null_twin is not None else case.twin
     if case.rig == "tilt_table":
         from imurig.diagnose.tilt_table import diagnose_tilt_table
 
-        return diagnose_tilt_table(rec, rng, **case.twin)
+        return diagnose_tilt_table(rec, rng, **twin)
+    if case.rig == "turn_table":
+        from imurig.diagnose.turn_table import diagnose_turn_table
+
+        return diagnose_turn_table(rec, rng, **twin)
     from imurig.diagnose.rate_table import diagnose_rate_rows
 
     return diagnose_rate_rows(rec, rng, n_sim=200)
@@ -237,6 +290,7 @@ def null_groups() -> dict:
     """One representative case per distinct (rig, twin, null data): the null studies to run."""
     out = {}
     for c in CASES:
-        key = f"{c.rig}" + (f" (twin {c.twin['twin_model']}, {c.effect} absent)" if c.null else "")
+        twin = c.null_twin if c.null_twin is not None else c.twin
+        key = c.rig + (f" (twin {twin})" if twin else "")
         out.setdefault(key, c)
     return out

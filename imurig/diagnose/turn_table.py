@@ -1,0 +1,123 @@
+"""Diagnosis of a turn-table gyro recording (seed 4.4: the Genisco C181, whole-round windows).
+
+The twin is the nominal gyro model of :mod:`imurig.calibration.gyro`: per step, the mean
+indicated rate over whole rounds u (n_seg, 3) maps to the reference rate along the table axis,
+
+    w_ref,j = e_j (Omega_table + [Omega_E sin(lat)])           [rad/s]   (twin: Earth term optional)
+    w_ref,j = b + sum_k a_k u_k + c u_j^2                      (physical inverse model, per gyro j)
+
+with e_j = +-1 for the gyro on the table axis (mounting up/down) and 0 otherwise. Per-step
+errors are correlated (angle random walk, Gauss-Markov bias instability, the timer), so the
+engine works in the space whitened by :func:`imurig.calibration.gyro.segment_covariance`.
+
+Candidate effects, per gyro j:
+
+- ``earth_rate_left_out`` (only if the twin leaves the Earth's rate out): the column -e_j,
+  amplitude Omega_E sin(lat) (rad/s);
+- ``g_sensitivity``: the column -f_j, the step's mean specific force along the gyro axis from
+  the accelerometer channels (m/s^2), amplitude G_jj ((rad/s)/(m/s^2)).
+
+On a table with a vertical spin axis and the IMU at its centre both columns are gravity-aligned
+and proportional (whitened correlation > 0.99): the data cannot tell them apart. The diagnosis
+then tests the Earth's rate (which certainly acts) and names the g-sensitivity as
+indistinguishable from it; only a horizontal specific force (the arm, a tilted mounting)
+separates them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from imurig.calibration.gyro import (AXES, AXIS_OF_MOUNT, INPUTS, MODELS, SPEC, reference_rates, round_windows,
+                                     segment_covariance, timer_difference_sigma)
+from imurig.calibration.triad import indicated
+from imurig.diagnose.engine import Candidate, select_effects
+from imurig.errors import RecordingError
+from imurig.recording import Recording
+from imurig.site import EARTH_RATE_RAD_S, Site
+
+
+def _mounts(rw: Recording) -> list[str]:
+    m = rw.segments.get("mount")
+    if m is None:
+        runs = rw.meta.get("runs", ["r_up"])
+        m = [runs[int(i)] for i in rw.segments.get("run", np.zeros(rw.n_segments, int))]
+    return [str(x) for x in m]
+
+
+def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
+                        timer: str = "hp6700", earth_rate: bool = True) -> dict:
+    """Diagnose the gyro channels of a turn-table recording against the nominal twin
+    (``earth_rate``: whether the twin's reference includes the Earth's vertical rate)."""
+    rec.require({"gyro_p": "V", "gyro_q": "V", "gyro_r": "V"})
+    rw, rate = round_windows(rec, timer)
+    ref = reference_rates(rw, rate)
+    mounts = _mounts(rw)
+    site = Site.from_dict(rec.meta.get("site", {}))
+    omega_v = EARTH_RATE_RAD_S * np.sin(site.latitude_rad)
+    e = np.zeros((rw.n_segments, 3))
+    for i, m in enumerate(mounts):
+        j, s = AXIS_OF_MOUNT[m]
+        e[i, j] = s
+    if not earth_rate:
+        ref = ref - omega_v * e
+    u, _ = indicated(rw, SPEC, "mean")
+    inputs = {n: u[:, k] for k, n in enumerate(INPUTS)}
+    if {"acc_x", "acc_y", "acc_z"} <= set(rw.channels):
+        from imurig.calibration.accelerometer import indicated as acc_indicated
+
+        f, _ = acc_indicated(rw, "mean")
+        f_source = "accelerometer channels (nominal sensitivity)"
+    else:
+        f = e * site.gravity_m_s2  # at rest on a level table the specific force points up the spin axis
+        f_source = "gravity along the table axis (no accelerometer channels)"
+    noise = rec.meta.get("gyro_noise_model")
+    if noise is None:
+        raise RecordingError("the recording's metadata lacks 'gyro_noise_model' (arw_rad_s_per_sqrt_hz, "
+                             "bias_instability_rad_s, bias_instability_tau_s): the diagnosis needs it to weight "
+                             "the steps; add it as a '# gyro_noise_model: {...}' line in the CSV")
+    cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
+    out = {"twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
+                   + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
+           "earth_rate_in_twin": earth_rate, "specific_force_from": f_source, "gyros": {}}
+    for j, a in enumerate(AXES):
+        lib_names = MODELS["physical"](a)
+        X0 = lib_names.design(inputs)
+        lib = []
+        g_col, e_col = -f[:, j], -e[:, j]
+        corr = _whitened_correlation(g_col, e_col, X0, cov)
+        alias = None
+        if not earth_rate:
+            lib.append(Candidate("earth_rate_left_out", "the Earth's rotation: the gyro on the table axis also "
+                                 "senses the Earth's vertical rate Omega_E sin(latitude), which the twin's "
+                                 "reference leaves out (rad/s)", ("Omega_vertical",), lambda _, c=e_col: c))
+            # a g-sensitivity whose column the data cannot tell from the Earth's is not tested
+            # separately: the Earth's rate certainly acts; the finding names the alias
+            if abs(corr) > 0.99:
+                alias = "g_sensitivity"
+        if alias is None:
+            lib.append(Candidate("g_sensitivity", f"gyro {a} responds to the specific force along its axis "
+                                 "(g-sensitivity, (rad/s)/(m/s^2))", ("G",), lambda _, c=g_col: c))
+        d = select_effects(ref[:, j], X0, list(lib_names.names), lib, rng, alpha=alpha, n_sim=n_sim, cov=cov)
+        for fd in d.findings:
+            if alias and fd.name == "earth_rate_left_out":
+                fd.runner_up = alias
+        entry = d.to_dict()
+        entry["earth_vs_g_sensitivity_correlation"] = float(corr)
+        if alias:
+            entry["indistinguishable"] = {"effects": ["earth_rate_left_out", "g_sensitivity"], "correlation": float(corr),
+                                          "note": "gravity and the Earth's vertical rate both lie along the table "
+                                                  "axis: a bias Omega found here equals a g-sensitivity G = Omega / g; "
+                                                  "a horizontal specific force (the arm) would separate them"}
+        entry["truth_hint"] = {"Omega_vertical_rad_s": float(omega_v)}
+        out["gyros"][a] = entry
+    return out
+
+
+def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.ndarray) -> float:
+    """Correlation of two candidate columns after whitening by ``cov`` and projecting out X0."""
+    L = np.linalg.cholesky(0.5 * (cov + cov.T))
+    W = np.linalg.solve(L, np.column_stack([X0, a, b]))
+    X, A = W[:, :-2], W[:, -2:]
+    R = A - X @ np.linalg.lstsq(X, A, rcond=None)[0]
+    n = np.linalg.norm(R, axis=0)
+    return float(R[:, 0] @ R[:, 1] / (n[0] * n[1])) if np.all(n > 0) else 0.0
