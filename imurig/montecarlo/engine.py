@@ -28,6 +28,7 @@ import shutil
 import socket
 import tempfile
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -233,7 +234,8 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
         if todo:
             from distributed import as_completed
 
-            key = _fingerprint(cfg)
+            # unique per session: a cancelled future of an interrupted session must not share a key
+            key = f"{_fingerprint(cfg)}-{uuid.uuid4().hex[:8]}"
             t_sub = time.perf_counter()
             futures = [c.submit(execute_run, camp, p, dist, master_seed, i, estimator, key=f"imurig-mc-{key}-{i}",
                                 retries=retries, pure=False) for i in todo]

@@ -187,7 +187,8 @@ def write_study_outputs(study, campaign) -> dict:
     lab = campaign.lab_time(study.config["params"]) if hasattr(campaign, "lab_time") else {}
     info = [r["info"] for r in study.runs.values()]
     per_run = {k: float(np.mean([i[k] for i in info if k in i])) for k in ("wall_s", "simulate_s", "estimate_s",
-                                                                            "crlb_s", "samples") if info}
+                                                                            "crlb_s", "samples")
+               if any(k in i for i in info)}
     summary = {"config": study.config, "runs": len(study.runs), "timing": study.timing, "per_run_mean": per_run,
                "lab_time": lab, "overall": summary_lines(stats), "parameters": stats,
                "files": {"results": "results.h5", "runs": "runs/", **{k: v for k, v in figs.items()}}}

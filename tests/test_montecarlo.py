@@ -1,0 +1,395 @@
+"""Tests of the Monte-Carlo engine: Cramér-Rao bounds against sampling distributions, coverage
+in its binomial band, interrupted-and-resumed studies, reproducible runs, refused inputs."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+from scipy import stats as sst
+
+from imurig.errors import ConfigError, OutputExistsError, ScheduleError, UnidentifiableTermsError
+from imurig.montecarlo import registry
+from imurig.montecarlo.crlb import crlb_covariance, fisher_information
+from imurig.montecarlo.distributions import Source, normalise
+from imurig.montecarlo.engine import (StudyInterrupted, load_study, reproduce_run, run_seed, run_study)
+from imurig.montecarlo.report import read_results_h5
+from imurig.montecarlo.stats import binomial_band, parameter_stats
+
+#: a small tilt-table schedule (4 x 4 x 2 positions, 5 s at 100 Hz averaged): ~0.1 s per run
+SMALL_TILT = {"theta_deg": [0, 30, 60, 90], "phi_deg": [0, 90, 180, 270], "dwell_s": 5.0}
+
+
+# ------------------------------------------------------------------ a linear test campaign
+class LinearCampaign:
+    """y = X beta + e, e ~ N(0, sigma^2 I), X fixed (n x 3); beta drawn per run (uniform +-1).
+
+    The estimator is OLS, efficient here: cov = sigma^2 (X'X)^-1 = the Cramér-Rao bound. Its
+    reported standard errors use the known sigma, so estimate +- 1.96 SE is an exact 95 %
+    interval and its coverage over N runs is Binomial(N, 0.95)/N.
+    """
+
+    name = "linear-test"
+
+    def default_params(self):
+        return {"n": 12, "sigma": 0.5}
+
+    def validate(self, params):
+        p = {**self.default_params(), **(params or {})}
+        if p["n"] < 4:
+            raise ConfigError("n must be >= 4")
+        return p
+
+    def sources(self):
+        return {"beta": Source("beta", "1", (3,), "the regression coefficients")}
+
+    def design(self, n):
+        t = np.linspace(-1, 1, n)
+        return np.column_stack([np.ones(n), t, t**2])
+
+    def run(self, p, ss, distributions, estimator=None):
+        from imurig.calibration.regression import fit_ols
+        from imurig.montecarlo.distributions import draw
+
+        rng = np.random.default_rng(ss)
+        X = self.design(p["n"])
+        beta = draw(distributions["beta"], rng) if "beta" in (distributions or {}) else rng.uniform(-1, 1, 3)
+        y = X @ beta + p["sigma"] * rng.standard_normal(p["n"])
+        fit = fit_ols(X, y, ["b0", "b1", "b2"])
+        bound = np.sqrt(np.diag(crlb_covariance(fisher_information(X[:, None, :], np.array([[p["sigma"] ** 2]])))))
+        rows = [{"name": n, "unit": "1", "injected": float(b), "estimate": float(e), "std_error": float(s),
+                 "z": float((e - b) / s), "within_bound": bool(abs(e - b) <= 4 * s), "crlb": float(s)}
+                for n, b, e, s in zip(fit.names, beta, fit.coef_, bound)]
+        return {"rows": rows, "info": {"samples": p["n"]}}
+
+    def lab_time(self, p):
+        return {"positions": p["n"]}
+
+    def schedules(self):
+        return {"n=12": {}, "n=24": {"n": 24}}
+
+
+LINEAR = LinearCampaign()
+
+
+@pytest.fixture(scope="module")
+def client():
+    """One in-process dask cluster (threads) for the fast tests."""
+    from distributed import Client, LocalCluster
+
+    cluster = LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0")
+    c = Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def linear_study(client, tmp_path_factory):
+    out = tmp_path_factory.mktemp("lin") / "study"
+    return run_study(LINEAR, runs=400, master_seed=11, client=client, out=out)
+
+
+# ------------------------------------------------------------------ Cramér-Rao bound
+def test_fisher_bound_equals_closed_form_ols_covariance():
+    """J' C^-1 J inverted equals sigma^2 (X'X)^-1 to machine precision, nuisance block handled."""
+    X = LINEAR.design(9)
+    s2 = 0.3**2
+    got = crlb_covariance(fisher_information(X[:, None, :], np.array([[s2]])))
+    want = s2 * np.linalg.inv(X.T @ X)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
+    # a nuisance offset observed once with variance v: its block of F^-1, not the inverse of a block
+    Xa = np.column_stack([X, np.ones(9)])
+    F = fisher_information(Xa[:, None, :], np.array([[s2]]))
+    F[3, 3] += 1 / 0.2**2
+    full = np.linalg.inv(F)
+    np.testing.assert_allclose(crlb_covariance(F, 3), full[:3, :3], rtol=1e-10, atol=1e-14 * np.abs(full).max())
+    # the offset is aliased with b0 only: var(b0) grows by exactly the survey variance 0.2^2
+    np.testing.assert_allclose(np.diag(full[:3, :3]), np.diag(want) + [0.2**2, 0, 0], rtol=1e-12)
+
+
+def test_crlb_equals_empirical_covariance_of_efficient_estimator(linear_study):
+    """400 runs of OLS on a linear model with known noise: the empirical covariance of the
+    errors matches the CRLB Sigma. With the mean known (zero), N Sigma^-1/2 S Sigma^-1/2 is
+    Wishart(I, N): N tr(Sigma^-1 S) ~ chi2(N p), and each N S_jj / Sigma_jj ~ chi2(N).
+    Two-sided bounds at total false-alarm 1e-3 (Bonferroni over the 4 statistics)."""
+    rows = linear_study.rows
+    E = np.array([[r["estimate"] - r["injected"] for r in rows[i]] for i in sorted(rows)])
+    N, p = E.shape
+    Sigma = crlb_covariance(fisher_information(LINEAR.design(12)[:, None, :], np.array([[0.25]])))
+    S = E.T @ E / N
+    a = 1e-3 / 4
+    t = N * np.trace(np.linalg.solve(Sigma, S))
+    assert sst.chi2.ppf(a / 2, N * p) <= t <= sst.chi2.isf(a / 2, N * p), t / (N * p)
+    for j in range(p):
+        v = N * S[j, j] / Sigma[j, j]
+        assert sst.chi2.ppf(a / 2, N) <= v <= sst.chi2.isf(a / 2, N), (j, v / N)
+    # the bound is not loose: a CRLB half the true one would fail the test above
+    assert not (sst.chi2.ppf(a / 2, N * p) <= 4 * t <= sst.chi2.isf(a / 2, N * p))
+    # and the study's statistics report RMS/CRLB near 1
+    for s in linear_study.stats:
+        assert s["rms_over_crlb"] == pytest.approx(math.sqrt(S[["b0", "b1", "b2"].index(s["name"])][
+            ["b0", "b1", "b2"].index(s["name"])] / Sigma[["b0", "b1", "b2"].index(s["name"])][
+            ["b0", "b1", "b2"].index(s["name"])]), rel=1e-9)
+
+
+def test_coverage_inside_binomial_band(linear_study):
+    """Exact 95 % intervals: the number covered is Binomial(400, 0.95); the study flags the
+    coverage inside its 99 % band, and a deliberately shrunk interval (SE / 2) falls outside."""
+    lo, hi = binomial_band(400)
+    for s in linear_study.stats:
+        assert lo <= s["coverage"] <= hi, s
+        assert s["coverage_ok"]
+    shrunk = {i: [{**r, "std_error": r["std_error"] / 2} for r in rows] for i, rows in linear_study.rows.items()}
+    assert not any(s["coverage_ok"] for s in parameter_stats(shrunk))
+
+
+def test_tilt_table_noise_model_matches_simulated_window_means():
+    """The CRLB's noise model (window_noise_cov) against the simulated chain: with no angle-setting
+    error, the 240 window means of (measured - noise-free) volts have variance per channel with
+    240 s^2 / sigma^2 ~ chi2(240) (mean known zero); bounds at total false-alarm 1e-3."""
+    from imurig.montecarlo.tilt import TILT_TABLE, _triad_from_truth, window_noise_cov
+    from imurig.sensors.adc import DAQ6036E
+    from imurig.sensors.chain import ImuLab
+
+    p = TILT_TABLE.validate({"setting_resolution_arcmin": 0.0, "people": False})
+    rec = TILT_TABLE.simulate(p, np.random.SeedSequence(3))
+    tri = _triad_from_truth(rec.truth["sensors"]["accelerometers"])
+    f = np.stack([rec.truth_signals[f"f_C_{a}"] for a in "xyz"], 1)
+    d = rec.stack(["acc_x", "acc_y", "acc_z"]) - tri.ideal_voltage(f, rec.truth_signals["T_imu"])
+    m = np.array([d[s].mean(0) for s in rec.segment_slices()])
+    adc = {k: v for k, v in rec.meta["adc"].items() if k in DAQ6036E.__dataclass_fields__ and k != "scan_list"}
+    lab = ImuLab(accelerometers=tri, adc=DAQ6036E(scan_list=tuple(rec.meta["adc"]["scan_list"]), **adc))
+    C = window_noise_cov(p, lab, 1500)
+    n = m.shape[0]
+    a = 1e-3 / 3
+    for j in range(3):
+        v = np.sum(m[:, j] ** 2) / C[j, j]
+        assert sst.chi2.ppf(a / 2, n) <= v <= sst.chi2.isf(a / 2, n), (j, v / n)
+
+
+def test_tilt_table_crlb_attained_with_white_noise_only():
+    """With the table errors switched off (no setting error, exact survey) only the white
+    sensor/ADC noise is left, and least squares on window means is (nearly) efficient: over 30
+    runs N RMS^2 / CRLB^2 lies in the chi2(N) band (Bonferroni over 15 parameters, 1e-3).
+    With the lab's angle-setting errors the same estimator sits far above the bound (the
+    Monte-Carlo report shows by how much)."""
+    params = {**SMALL_TILT, "setting_resolution_arcmin": 0.0, "survey_accuracy_arcsec": 0.0, "people": False,
+              "statistic": "mean"}
+    rows = {i: reproduce_run("tilt-table", i, 5, params)["rows"] for i in range(30)}
+    st = parameter_stats(rows)
+    assert len(st) == 15
+    a = 1e-3 / 15
+    for s in st:
+        v = 30 * s["rms_over_crlb"] ** 2
+        assert sst.chi2.ppf(a / 2, 30) <= v <= sst.chi2.isf(a / 2, 30), (s["name"], s["rms_over_crlb"])
+
+
+def test_static_rig_equals_mujoco_rig_in_the_windows():
+    """The closed-form rest windows equal MuJoCo's site sensors for the same drawn table (incl.
+    per-position setting errors) to near machine precision."""
+    from imurig.montecarlo.tilt import TILT_TABLE, static_rig
+    from imurig.rigs.tilt_table import TiltTable
+    from imurig.sensors.noise import child_rng
+    from imurig.site import Site
+
+    p = TILT_TABLE.validate({"theta_deg": [0, 35, 90], "phi_deg": [0, 120, 250], "dwell_s": 0.5,
+                             "slew_rate_deg_s": 30.0, "sample_rate_hz": 1000.0})
+    ss = np.random.SeedSequence(4)
+    errors, survey, _ = TILT_TABLE.draw_lab(p, ss)
+    site = Site()
+    a = static_rig(p, errors, survey, child_rng(ss, "rig"), site)
+    full = TiltTable(errors=errors, survey=survey, site=site).simulate(TILT_TABLE.protocol(p), p["start_time"],
+                                                                       child_rng(ss, "rig"))
+    keep = np.concatenate([np.arange(s.start, s.stop) for s in full.segment_slices()])
+    np.testing.assert_allclose(a.time_s, full.time_s[keep], rtol=0, atol=1e-9)
+    g = site.gravity_m_s2
+    for k, tol in (("f_C", 1e-11 * g), ("w_C", 1e-12), ("B_C", 1e-15)):
+        for ax in "xyz":
+            np.testing.assert_allclose(a.truth_signals[f"{k}_{ax}"], full.truth_signals[f"{k}_{ax}"][keep],
+                                       rtol=0, atol=tol, err_msg=f"{k}_{ax}")
+    assert a.truth["rig"]["setting_error_rad"] == full.truth["rig"]["setting_error_rad"]
+
+
+def test_forward_model_matches_the_sensor():
+    """The CRLB's forward model is QFlexTriad.ideal_voltage at the reference temperature."""
+    from imurig.montecarlo.tilt import TILT_TABLE, _layout, _key, forward_volts
+    from imurig.rigs.tilt_table import specific_force_C
+
+    p = TILT_TABLE.validate(SMALL_TILT)
+    errors, _, lab = TILT_TABLE.draw_lab(p, np.random.SeedSequence(8))
+    acc = lab.accelerometers
+    M = acc.misalignment_rad
+    th = np.concatenate([acc.k1_A_per_m_s2 * acc.load_resistor_ohm, [M[i, j] for i in range(3) for j in range(3)
+                                                                     if i != j], acc.bias_m_s2, acc.k2_per_m_s2])
+    psi = np.array([errors.theta_zero_rad, errors.level_x_rad] + [errors.phi_zero_rad[m] for m in p["mounts"]])
+    lay = _layout(_key(p))
+    z = np.zeros(lay["set_theta"].size * 2)
+    g = 9.81242231
+    v = forward_volts(th, psi, p, p["mounts"], lay["set_theta"], lay["set_phi"], z, z, g)
+    f = np.concatenate([specific_force_C(lay["set_theta"], lay["set_phi"], m, g, errors.theta_zero_rad,
+                                         errors.phi_zero_rad[m], errors.level_x_rad) for m in p["mounts"]])
+    np.testing.assert_allclose(v, acc.ideal_voltage(f, acc.reference_temperature_K), rtol=1e-14, atol=1e-15)
+
+
+# ------------------------------------------------------------------ seeds, resume, reproduction
+def test_run_seed_is_the_spawned_child():
+    kids = np.random.SeedSequence(2005).spawn(50)
+    for i in (0, 7, 49):
+        assert np.array_equal(run_seed(2005, i).generate_state(8), kids[i].generate_state(8))
+
+
+def test_killed_study_resumes_to_the_uninterrupted_result(client, tmp_path):
+    """Stop a study after 7 of 20 runs (test hook), resume it: no run redone or duplicated, and
+    the result equals an uninterrupted study bit for bit."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    with pytest.raises(StudyInterrupted):
+        run_study(LINEAR, 20, master_seed=3, client=client, out=a, stop_after=7)
+    assert len(list((a / "runs").glob("run_*.json"))) == 7
+    with pytest.raises(OutputExistsError):
+        run_study(LINEAR, 20, master_seed=3, client=client, out=a)
+    with pytest.raises(ConfigError, match="different settings"):
+        run_study(LINEAR, 20, master_seed=4, client=client, out=a, resume=True)
+    resumed = run_study(LINEAR, 20, master_seed=3, client=client, out=a, resume=True)
+    assert resumed.timing["new_runs"] == 13
+    assert len(list((a / "runs").glob("run_*.json"))) == 20
+    whole = run_study(LINEAR, 20, master_seed=3, client=client, out=b)
+    assert resumed.rows == whole.rows
+    ra, rb = read_results_h5(a / "results.h5"), read_results_h5(b / "results.h5")
+    for k in ("run", "estimate", "std_error", "injected", "crlb"):
+        assert np.array_equal(ra[k], rb[k], equal_nan=True), k
+    again = run_study(LINEAR, 20, master_seed=3, client=client, out=a, resume=True)  # nothing left to do
+    assert again.timing["new_runs"] == 0 and again.rows == whole.rows
+    s = json.loads((a / "summary.json").read_text())
+    assert s["runs"] == 20 and (a / "report.md").exists() and (a / "fig_errors.png").exists()
+
+
+def test_tilt_run_on_worker_process_reproduced_alone_equals_its_row(tmp_path, capsys):
+    """Runs of the real tilt-table campaign on a 1-process local cluster; run 2 reproduced in this
+    process (Python API and `imurig montecarlo --only-run`) equals its stored row exactly."""
+    from imurig.cli import main
+
+    out = tmp_path / "tilt"
+    st = run_study("tilt-table", 3, master_seed=21, params=SMALL_TILT, workers=1, out=out)
+    alone = reproduce_run("tilt-table", 2, 21, SMALL_TILT)
+    stored = json.loads((out / "runs" / "run_000002.json").read_text())
+    assert alone["rows"] == stored["rows"] == st.rows[2]
+    assert len(alone["rows"]) == 15 and all(r["crlb"] > 0 for r in alone["rows"])
+    assert main(["montecarlo", "tilt-table", "--out", str(out), "--only-run", "2"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["equals_stored_row"] is True
+    assert load_study(out).rows == st.rows
+
+
+def test_user_distribution_sets_the_injected_errors():
+    """A user distribution with zero spread fixes the injected value; others keep datasheet draws."""
+    d = {"accelerometer.bias_m_s2": {"mean": [0.05, -0.02, 0.01], "std": 0.0},
+         "table.theta_zero_rad": {"mean": 1e-3, "variance": 0.0}}
+    r = reproduce_run("tilt-table", 0, 1, SMALL_TILT, d)
+    inj = {x["name"]: x["injected"] for x in r["rows"]}
+    assert [inj["bias_x"], inj["bias_y"], inj["bias_z"]] == [0.05, -0.02, 0.01]
+    base = reproduce_run("tilt-table", 0, 1, SMALL_TILT)
+    assert {x["name"]: x["injected"] for x in base["rows"]}["sensitivity_x"] == inj["sensitivity_x"]
+    tt = registry.get("tilt-table")
+    errors, _, _ = tt.draw_lab(tt.validate(SMALL_TILT), run_seed(1, 0), normalise(d, tt.sources()))
+    assert errors.theta_zero_rad == 1e-3
+
+
+# ------------------------------------------------------------------ refused inputs
+@pytest.mark.parametrize("spec, msg", [
+    ({"accelerometer.bias_m_s2": {"mean": 0.0, "variance": -1e-4}}, "negative variance"),
+    ({"accelerometer.bias_m_s2": {"mean": 0.0, "std": -0.01}}, "negative standard deviation"),
+    ({"accelerometer.bias": {"mean": 0.0, "std": 0.01}}, "unknown error source"),
+    ({"accelerometer.bias_m_s2": {"mean": 0.0}}, "needs 'mean' and 'std'"),
+    ({"accelerometer.bias_m_s2": {"mean": [0.0, 1.0], "std": 0.1}}, "shape"),
+    ({"accelerometer.bias_m_s2": {"mean": float("nan"), "std": 0.1}}, "finite"),
+])
+def test_bad_distributions_refused(spec, msg):
+    with pytest.raises(ConfigError, match=msg):
+        normalise(spec, registry.get("tilt-table").sources())
+
+
+def test_bad_inputs_refused(tmp_path, capsys):
+    from imurig.cli import main
+
+    for n in (0, -3, 2.5):
+        with pytest.raises(ConfigError, match="runs"):
+            run_study(LINEAR, n, out=tmp_path / "x")
+    assert main(["montecarlo", "tilt-table", "--runs", "0", "--out", str(tmp_path / "y")]) == 2
+    assert "--runs must be >= 1" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="unknown tilt-table setting"):
+        run_study("tilt-table", 2, params={"dwel_s": 3}, out=tmp_path / "z")
+    with pytest.raises((ScheduleError, UnidentifiableTermsError)):
+        run_study("tilt-table", 2, params={"theta_deg": [0]}, out=tmp_path / "z")
+    with pytest.raises(ConfigError, match="unknown Monte-Carlo campaign"):
+        run_study("flight", 2)
+    neg = tmp_path / "neg.toml"
+    neg.write_text('["accelerometer.bias_m_s2"]\nmean = 0.0\nvariance = -1.0\n')
+    assert main(["montecarlo", "tilt-table", "--runs", "2", "--distributions", str(neg), "--out",
+                 str(tmp_path / "w")]) == 2
+    assert "negative variance" in capsys.readouterr().err
+    assert not any((tmp_path / k).exists() for k in ("x", "y", "z", "w"))
+
+
+def test_unreachable_scheduler_fails_fast_and_writes_nothing(tmp_path):
+    t = time.perf_counter()
+    with pytest.raises(ConfigError, match="cannot reach the Dask scheduler"):
+        run_study(LINEAR, 3, scheduler="tcp://127.0.0.1:9", out=tmp_path / "s")
+    assert time.perf_counter() - t < 15
+    assert not (tmp_path / "s").exists()
+
+
+def test_overwrite_refuses_a_folder_that_is_not_a_study(client, tmp_path):
+    d = tmp_path / "mine"
+    d.mkdir()
+    (d / "precious.txt").write_text("keep")
+    with pytest.raises(OutputExistsError, match="not a Monte-Carlo study"):
+        run_study(LINEAR, 2, client=client, out=d, overwrite=True)
+    assert (d / "precious.txt").read_text() == "keep"
+
+
+# ------------------------------------------------------------------ workers that die
+class _DiesOnce(LinearCampaign):
+    """Kills its worker process the first time it runs index 1 (marker file), like an OOM kill."""
+
+    name = "dies-once"
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def run(self, p, ss, distributions, estimator=None):
+        if ss.spawn_key == (1,) and not os.path.exists(self.marker):
+            open(self.marker, "w").close()
+            os._exit(1)
+        return super().run(p, ss, distributions, estimator)
+
+
+@pytest.mark.slow
+def test_run_on_a_dying_worker_is_rescheduled(tmp_path):
+    import cloudpickle
+
+    import test_montecarlo
+
+    cloudpickle.register_pickle_by_value(test_montecarlo)
+    try:
+        st = run_study(_DiesOnce(tmp_path / "died"), 4, master_seed=2, workers=1, out=tmp_path / "d")
+    finally:
+        cloudpickle.unregister_pickle_by_value(test_montecarlo)
+    assert (tmp_path / "died").exists()
+    assert sorted(st.rows) == [0, 1, 2, 3]
+    assert st.rows[1] == reproduce_run(LINEAR, 1, 2)["rows"]
+
+
+# ------------------------------------------------------------------ the lab study (slow)
+@pytest.mark.slow
+def test_tilt_table_study_intervals_cover_and_bound_holds(tmp_path):
+    """100 runs of the default Monte-Carlo tilt-table schedule: every parameter's 95 % coverage
+    inside its binomial band, and no RMS below its Cramér-Rao bound beyond sampling (chi2)."""
+    st = run_study("tilt-table", 100, master_seed=7, workers=2, out=tmp_path / "mc")
+    a = 1e-3 / 15
+    for s in st.stats:
+        assert s["coverage_ok"], s
+        assert 100 * s["rms_over_crlb"] ** 2 >= sst.chi2.ppf(a, 100), s
