@@ -238,7 +238,7 @@ class _Pilot:
 
     # --- ground
     def _Parked(self, p: Parked):
-        n = int(round(p.duration_s * self.sim.rate_hz))
+        n = round(p.duration_s * self.sim.rate_hz)
         for _ in range(n):
             yield Cmd(thr=0.0, brake=1.0)
 
@@ -322,7 +322,7 @@ class _Pilot:
         self.psi_hold = course
 
     def _level(self, seconds, psi_c):
-        for _ in range(int(round(seconds * self.sim.rate_hz))):
+        for _ in range(round(seconds * self.sim.rate_hz)):
             yield self._hold(self.sim.s, psi_c)
 
     def _Level(self, p: Level):
@@ -345,21 +345,21 @@ class _Pilot:
         sim, ap = self.sim, self.ap
         psi_c = getattr(self, "psi_hold", sim.s.psi)
         de_hold, thr_hold = sim.act.de, sim.act.thr
-        n_free = int(round(free_s * sim.rate_hz))
+        n_free = round(free_s * sim.rate_hz)
         yield from self._stick(np.concatenate([profile, np.zeros(n_free)]), de_hold, thr_hold, psi_c)
         ap.engage_elevator(sim.s, self.h_c, sim.act.de)
 
     def _Elevator3211(self, p: Elevator3211):
         fs, D = self.sim.rate_hz, p.amplitude_deg * DEG
         seq = [(-D, 3), (D, 2), (-D, 1), (D, 1)]           # pull (nose up) is δe < 0
-        prof = np.concatenate([np.full(int(round(k * p.unit_s * fs)), v) for v, k in seq])
+        prof = np.concatenate([np.full(round(k * p.unit_s * fs), v) for v, k in seq])
         yield from self._manoeuvre(prof, p.free_s)
 
     def _DoubleDoublet(self, p: DoubleDoublet):
         fs, D = self.sim.rate_hz, p.amplitude_deg * DEG
         psi_c = getattr(self, "psi_hold", self.sim.s.psi)
         yield from self._level(p.lead_s, psi_c)
-        half = int(round(p.period_s / 2 * fs))
+        half = round(p.period_s / 2 * fs)
         prof = np.concatenate([np.full(half, -D), np.full(half, D)] * 2)
         yield from self._manoeuvre(prof, p.free_s)
         yield from self._level(p.level_s, psi_c)
@@ -367,16 +367,16 @@ class _Pilot:
     def _AlphaDotSTurns(self, p: AlphaDotSTurns):
         sim, ap, fs = self.sim, self.ap, self.sim.rate_hz
         sgn = 1.0 if p.first_side == "right" else -1.0
-        half = int(round(p.doublet_s / 2 * fs))
+        half = round(p.doublet_s / 2 * fs)
         D = p.doublet_deg * DEG
         for side, banks in ((sgn, p.banks_first_deg), (-sgn, p.banks_second_deg)):
             for bank in banks:
                 phi_c = side * bank * DEG
                 # roll to the bank and hold it; altitude held by the column (autopilot)
-                for _ in range(int(round(p.hold_s * fs))):
+                for _ in range(round(p.hold_s * fs)):
                     yield self._hold(sim.s, 0.0, phi_c=phi_c)
                 de_hold, thr_hold = sim.act.de, sim.act.thr
-                prof = np.concatenate([np.full(half, -D), np.full(half, D), np.zeros(int(round(p.after_s * fs)))])
+                prof = np.concatenate([np.full(half, -D), np.full(half, D), np.zeros(round(p.after_s * fs))])
                 yield from self._stick(prof, de_hold, thr_hold, 0.0, phi_c=phi_c)
                 ap.engage_elevator(sim.s, self.h_c, sim.act.de)
         self.psi_hold = sim.s.psi

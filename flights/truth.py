@@ -286,7 +286,7 @@ def static_tests_truth(attitudes_deg=((0.0, 0.0), (-30.0, 0.0), (0.0, -30.0)), d
         if i:
             segs.append(("move", att[i - 1], att[i], transition_s))
         segs.append((f"static_roll{np.degrees(r):+.0f}_pitch{np.degrees(p):+.0f}", att[i], att[i], dwell_s))
-    n_tot = int(round(sum(s[3] for s in segs) * rate_hz))
+    n_tot = round(sum(s[3] for s in segs) * rate_hz)
     t = np.arange(n_tot) * dt
     roll, pitch = np.empty(n_tot), np.empty(n_tot)
     droll, dpitch = np.zeros(n_tot), np.zeros(n_tot)
