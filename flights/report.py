@@ -1,0 +1,408 @@
+"""`imurig flight`: the flight flown twice through the loosely coupled filter — with the IMU's
+datasheet-nominal conversions only, then corrected by the calibrations estimated on the
+virtual rigs — and the report (paper Figs. 6-8 side by side, errors, consistency, .rrd).
+
+The IMU is the lab drawn from ``seed`` exactly as the campaigns draw it
+(``ImuLab.draw(child_rng(SeedSequence(seed), "sensor_errors"))``), so the tilt-table and
+turn-table campaigns run with the same seed calibrate the very sensors that fly.
+"""
+from __future__ import annotations
+
+import math
+import time
+import tracemalloc
+from dataclasses import dataclass
+
+import numpy as np
+
+from imurig.errors import ConfigError
+from imurig.flights import earth as E
+from imurig.flights import ekf, ins
+from imurig.progress import progress
+from imurig.sensors.chain import ImuLab
+from imurig.sensors.noise import child_rng
+
+DEG = math.pi / 180
+
+
+@dataclass
+class FlightOptions:
+    flight: str = "default"            # "default" (6A's plan) or "static" (paper 4.2 static tests)
+    seed: int = 2005
+    duration_s: float | None = None
+    nav_rate_hz: float = 50.0
+    imu_rate_hz: float = 100.0
+    gps_rate_hz: float = 1.0
+    quick_calibration: bool = True
+
+    def validate(self):
+        if self.flight not in ("default", "static"):
+            raise ConfigError(f"unknown flight {self.flight!r}; choose 'default' or 'static'")
+        if self.gps_rate_hz > self.imu_rate_hz:
+            raise ConfigError(f"GPS rate {self.gps_rate_hz:g} Hz above the IMU rate {self.imu_rate_hz:g} Hz")
+        if not (0 < self.nav_rate_hz <= self.imu_rate_hz):
+            raise ConfigError("nav rate must be positive and at most the IMU rate")
+        if self.duration_s is not None and self.duration_s <= 10:
+            raise ConfigError("duration must be longer than 10 s")
+        return self
+
+
+def flight_truth(opt: FlightOptions):
+    from imurig.flights import truth as T
+
+    if opt.flight == "static":
+        tr = T.static_tests_truth(rate_hz=opt.imu_rate_hz)
+    else:
+        from imurig.flights.plan import simulate_flight
+
+        tr = simulate_flight(progress_bar=True)
+    if opt.duration_s is not None:
+        tr = tr.slice(tr.time_s[0], tr.time_s[0] + opt.duration_s)
+    return tr
+
+
+def flight_lab(seed: int) -> ImuLab:
+    return ImuLab.draw(child_rng(np.random.SeedSequence(seed), "sensor_errors"))
+
+
+def measure_volts(truth, lab: ImuLab, seed: int) -> dict:
+    """Raw volts of the flight: 6A's ``flights.imu.measure_flight`` when it exists; otherwise the
+    sensor models' own measurement equations (accelerometer, FOG, fluxgate, temperature sensors)
+    with their noise, at the truth's rate."""
+    try:
+        from imurig.flights.imu import measure_flight
+    except ImportError:
+        measure_flight = None
+    if measure_flight is not None:
+        rec = measure_flight(truth, lab, seed)
+        return {k: np.asarray(rec.channels[k]) for k in rec.channels}
+    ss = np.random.SeedSequence(seed, spawn_key=(6,))
+    fs = truth.rate_hz
+    T = np.asarray(truth.T_imu_K, float)
+    acc = lab.accelerometers
+    out = {}
+    v = acc.ideal_voltage(truth.f_B, T) + acc.noise_current(truth.n, fs, child_rng(ss, "acc")) * acc.load_resistor_ohm
+    g = lab.gyros
+    w = g.ideal_voltage(truth.w_IB_B, T) + g.noise_rate(truth.n, fs, child_rng(ss, "gyro")) * g.scale_V_per_rad_s
+    m = lab.magnetometer.output_voltage(truth.B_B, child_rng(ss, "mag"))
+    for j, a in enumerate("xyz"):
+        out[f"acc_{a}"] = v[:, j]
+        out[f"mag_{a}"] = m[:, j]
+        out[f"temp_acc_{a}"] = lab.temp_sensors[f"temp_acc_{a}"].voltage(T, child_rng(ss, f"temp{a}"))
+    for j, a in enumerate("pqr"):
+        out[f"gyro_{a}"] = w[:, j]
+    return out
+
+
+def gps_fixes(truth, opt: FlightOptions, seed: int):
+    """6A's receiver model when it exists; otherwise white-noise fixes at the antenna (DGPS-like σ)."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7,)))
+    try:
+        from imurig.flights.gps import GpsReceiver
+    except ImportError:
+        GpsReceiver = None
+    if GpsReceiver is not None:
+        return GpsReceiver(rate_hz=opt.gps_rate_hz).measure(truth, rng)
+    step = max(1, round(truth.rate_hz / opt.gps_rate_hz))
+    gi = np.arange(0, truth.n, step)
+    C = E.C_from_q(truth.q_NB[gi])
+    Cl = C @ np.asarray(truth.lever_gps_B, float)
+    sp = np.tile([0.5, 0.5, 1.0], (gi.size, 1))
+    sv = np.tile([0.05, 0.05, 0.1], (gi.size, 1))
+    lat, lon, h = E.geodetic_from_ned(Cl + rng.standard_normal((gi.size, 3)) * sp,
+                                      truth.lat_rad[gi], truth.lon_rad[gi], truth.h_m[gi])
+    v = truth.v_N[gi] + rng.standard_normal((gi.size, 3)) * sv
+    return ekf.SimpleGps(truth.time_s[gi].copy(), lat, lon, h, v, sp, sv, mode="white-noise fallback")
+
+
+def calibrations(seed: int, quick: bool = True) -> dict:
+    """Tilt-table (accelerometers) and turn-table (gyros) calibrations of the same IMU, with
+    reduced protocols when ``quick`` (4 tilts x 4 azimuths x 3 s; 3 rates x 2 directions x 3 axes)."""
+    from imurig.campaigns.tilt_table import TiltTableCampaign
+    from imurig.campaigns.tilt_table import calibrate as cal_acc
+    from imurig.campaigns.turn_table import TurnTableCampaign, calibrate_gyros
+    from imurig.rigs.tilt_table import TiltTableProtocol
+    from imurig.rigs.turn_table import TurnTableProtocol
+
+    if quick:
+        tp = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 90, 180, 270), dwell_s=3, settle_s=1,
+                               remount_s=10, sample_rate_hz=200)
+        rp = TurnTableProtocol(dial_rates_dps=(4, 20, 100), min_window_s=3, settle_s=1, ramp_s=1, remount_s=10,
+                               sample_rate_hz=200)
+    else:
+        tp, rp = TiltTableProtocol(), TurnTableProtocol()
+    acc = cal_acc(TiltTableCampaign(protocol=tp, seed=seed, pump=False, people=False).simulate())
+    gyro = calibrate_gyros(TurnTableCampaign(protocol=rp, seed=seed).simulate())
+    gyro = gyro[0] if isinstance(gyro, tuple) else gyro
+    return {"accelerometers": acc, "gyros": gyro}
+
+
+def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStream:
+    """SI samples for the filter: datasheet-nominal conversions (``cals`` None) or the campaign
+    calibrations (inverse models on the indicated values V / nominal sensitivity)."""
+    Va = np.stack([volts[f"acc_{a}"] for a in "xyz"], 1)
+    Vg = np.stack([volts[f"gyro_{a}"] for a in "pqr"], 1)
+    Vm = np.stack([volts[f"mag_{a}"] for a in "xyz"], 1)
+    sa = lab.accelerometers.nominal_sensitivity_V_per_m_s2()
+    sg = lab.gyros.nominal_sensitivity()
+    f = Va / sa
+    w = Vg / sg
+    if cals is not None:
+        f = cals["accelerometers"].predict(f)
+        w = cals["gyros"].predict(w)
+    B = Vm / 4.0e4
+    sensor = lab.temp_sensors["temp_acc_x"]
+    Tk = np.stack([sensor.temperature_K(volts[f"temp_acc_{a}"]) for a in "xyz"], 1)
+    return ekf.ImuStream(truth.time_s, w, f, B, Tk)
+
+
+def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None):
+    noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
+    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG)
+    decl = 0.0
+    try:
+        from imurig.site import decimal_year, parse_time
+
+        yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
+        decl = ekf.declination_rad(float(truth.lat_rad[0]), float(truth.lon_rad[0]), float(truth.h_m[0]), yr)
+    except Exception:  # noqa: BLE001  (no IGRF: heading aiding without declination)
+        decl = 0.0
+    f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
+    x0 = align(truth, stream, gps, decl)
+    last = [0]
+
+    def cb(k):
+        if pbar is not None:
+            pbar.update(k - last[0])
+        last[0] = k
+
+    return f.run(stream, gps, x0, progress=cb)
+
+
+def align(truth, stream, gps, decl, window_s=5.0) -> ins.NavState:
+    """Initial state: position/velocity from the first fix, roll/pitch by accelerometer levelling
+    over the first ``window_s`` s, heading from the magnetometer (+ declination)."""
+    n = max(1, int(window_s * truth.rate_hz))
+    fm = stream.f_B[:n].mean(0)
+    roll = math.atan2(-fm[1], -fm[2])
+    pitch = math.atan2(fm[0], math.hypot(fm[1], fm[2]))
+    yaw = ekf.mag_heading(stream.B_B[:n].mean(0), roll, pitch, decl)
+    q = E.q_from_euler(roll, pitch, yaw)
+    i = int(np.flatnonzero(np.asarray(gps.valid, bool))[0])
+    Cl = E.C_from_q(q) @ np.asarray(truth.lever_gps_B, float)
+    lat, lon, h = E.geodetic_from_ned(-Cl, gps.lat_rad[i], gps.lon_rad[i], gps.h_m[i])
+    return ins.NavState(float(lat), float(lon), float(h), np.asarray(gps.v_N[i], float).copy(), q)
+
+
+def errors(res: ekf.FilterResult, truth) -> dict:
+    K = res.meta["samples_per_step"]
+    idx = np.arange(res.time_s.size) * K
+    sol = ins.NavSolution(res.time_s, res.lat_rad, res.lon_rad, res.h_m, res.v_N, res.q_NB)
+    e = ins.nav_errors(sol, truth, idx)
+    r_est, p_est, y_est = E.euler_from_q(res.q_NB)
+    r_t, p_t, y_t = E.euler_from_q(truth.q_NB[idx])
+    return {"idx": idx, "pos_N_m": e["pos_N_m"], "vel_N_m_s": e["vel_N_m_s"],
+            "roll_rad": E.wrap_pi(r_est - r_t), "pitch_rad": E.wrap_pi(p_est - p_t),
+            "heading_rad": E.wrap_pi(y_est - y_t), "nees": ekf.nees_nav(res, truth, idx)}
+
+
+def _rms(x):
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def summarise(err: dict, res: ekf.FilterResult, settle_s: float = 60.0) -> dict:
+    m = res.time_s >= res.time_s[0] + settle_s
+    out = {"roll_rms_deg": _rms(err["roll_rad"][m]) / DEG, "pitch_rms_deg": _rms(err["pitch_rad"][m]) / DEG,
+           "heading_rms_deg": _rms(err["heading_rad"][m]) / DEG,
+           "horizontal_position_rms_m": _rms(np.linalg.norm(err["pos_N_m"][m, :2], axis=1)),
+           "vertical_position_rms_m": _rms(err["pos_N_m"][m, 2]),
+           "velocity_rms_m_s": _rms(np.linalg.norm(err["vel_N_m_s"][m], axis=1)),
+           "mean_nees_9dof": float(np.mean(err["nees"][m]))}
+    for kind, u in res.updates.items():
+        if len(u["nis"]):
+            out[f"mean_nis_per_dof_{kind}"] = float(u["nis"].sum() / u["dof"].sum())
+    return out
+
+
+def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
+    """The whole job; writes ``out`` atomically. Returns the summary."""
+    from imurig.report import OutputFolder
+
+    opt.validate()
+    folder = OutputFolder(out, overwrite=overwrite)
+    tracemalloc.start()
+    t_wall = time.perf_counter()
+    truth = flight_truth(opt)
+    if abs(truth.rate_hz - opt.imu_rate_hz) > 1e-9:
+        opt.imu_rate_hz = truth.rate_hz
+    lab = flight_lab(opt.seed)
+    volts = measure_volts(truth, lab, opt.seed)
+    gps = gps_fixes(truth, opt, opt.seed)
+    ekf.check_gps(gps, truth.rate_hz)
+    cals = calibrations(opt.seed, opt.quick_calibration)
+    runs = {}
+    n_epochs = int((truth.time_s[-1] - truth.time_s[0]) * opt.nav_rate_hz)
+    t_filter = 0.0
+    with progress(total=2 * n_epochs, desc="flight filter", unit="epoch") as pbar:
+        for name, c in (("uncalibrated", None), ("calibrated", cals)):
+            stream = imu_stream(truth, volts, lab, c)
+            t0 = time.perf_counter()
+            res = run_filter(truth, stream, gps, opt, lab, pbar)
+            t_filter += time.perf_counter() - t0
+            runs[name] = (res, errors(res, truth), stream)
+    duration = float(truth.time_s[-1] - truth.time_s[0])
+    summary = {"flight": opt.flight, "seed": opt.seed, "duration_s": duration, "vehicle": truth.vehicle,
+               "imu_rate_hz": truth.rate_hz, "nav_rate_hz": opt.nav_rate_hz, "gps_mode": getattr(gps, "mode", ""),
+               "states": list(runs["calibrated"][0].state_names),
+               "runs": {k: summarise(e, r) for k, (r, e, _) in runs.items()},
+               "filter_wall_s": t_filter, "real_time_factor": 2 * duration / t_filter}
+    write_products(folder, truth, runs, gps, summary)
+    summary["wall_s"] = time.perf_counter() - t_wall
+    summary["peak_memory_MB"] = tracemalloc.get_traced_memory()[1] / 1e6
+    tracemalloc.stop()
+    folder.write_json("summary.json", summary)
+    folder.commit()
+    return summary
+
+
+def write_products(folder, truth, runs, gps, summary):
+    """Figures (paper Figs. 6-8 analogues, errors, consistency), report.md and flight.rrd."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from imurig.report import md_table, published_figures
+
+    col = {"uncalibrated": "tab:red", "calibrated": "tab:blue"}
+    # Fig. 6: roll and pitch in the static phases (or the first minutes on the ground)
+    static = [p for p in truth.phases if p[0].startswith("static")] or [("start", truth.time_s[0],
+                                                                          truth.time_s[0] + 60.0)]
+    fig, ax = plt.subplots(len(static), 2, figsize=(10, 2.6 * len(static)), squeeze=False)
+    for i, (nm, a, b) in enumerate(static):
+        for name, (res, err, _) in runs.items():
+            m = (res.time_s >= a) & (res.time_s < b)
+            r, p_, _y = E.euler_from_q(res.q_NB[m])
+            ax[i, 0].plot(res.time_s[m], np.degrees(r), color=col[name], label=name)
+            ax[i, 1].plot(res.time_s[m], np.degrees(p_), color=col[name], label=name)
+        idx = (truth.time_s >= a) & (truth.time_s < b)
+        rt, pt, _ = E.euler_from_q(truth.q_NB[idx])
+        ax[i, 0].plot(truth.time_s[idx], np.degrees(rt), "k--", label="truth")
+        ax[i, 1].plot(truth.time_s[idx], np.degrees(pt), "k--", label="truth")
+        ax[i, 0].set_ylabel(f"roll, deg\n{nm}", fontsize=7)
+        ax[i, 1].set_ylabel("pitch, deg")
+    ax[0, 0].legend(fontsize=7)
+    ax[-1, 0].set_xlabel("time, s")
+    ax[-1, 1].set_xlabel("time, s")
+    fig.suptitle("Estimated roll and pitch in the static tests (cf. paper Fig. 6)")
+    fig.tight_layout()
+    fig.savefig(folder.file("fig6_static_roll_pitch.png"), dpi=90)
+    plt.close(fig)
+    # Fig. 7: bias estimates
+    fig, ax = plt.subplots(3, 2, figsize=(10, 7), sharex=True)
+    for name, (res, _, _) in runs.items():
+        for j in range(3):
+            ax[j, 0].plot(res.time_s, res.acc_bias_m_s2[:, j], color=col[name], label=name)
+            ax[j, 1].plot(res.time_s, np.degrees(res.gyro_bias_rad_s[:, j]), color=col[name], label=name)
+    for j, a in enumerate("XYZ"):
+        ax[j, 0].set_ylabel(f"{a} acc. bias, m/s²")
+        ax[j, 1].set_ylabel(f"{'pqr'[j]} gyro bias, deg/s")
+    ax[0, 0].legend(fontsize=7)
+    fig.suptitle("Accelerometer and gyro bias estimates before/after calibration (cf. paper Fig. 7)")
+    fig.tight_layout()
+    fig.savefig(folder.file("fig7_bias_estimates.png"), dpi=90)
+    plt.close(fig)
+    # Fig. 8: heading vs GPS track
+    v = np.asarray(gps.v_N, float)
+    track = np.degrees(np.arctan2(v[:, 1], v[:, 0])) % 360
+    moving = np.hypot(v[:, 0], v[:, 1]) > 3.0
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    ax[0].plot(gps.time_s, track, ".", ms=2, color="k", label="GPS track")
+    for name, (res, _, _) in runs.items():
+        y = np.degrees(E.euler_from_q(res.q_NB)[2]) % 360
+        ax[0].plot(res.time_s, y, color=col[name], lw=0.8, label=f"LC {name}")
+        yi = np.interp(gps.time_s, res.time_s, np.unwrap(np.radians(y)))
+        resid = np.degrees(E.wrap_pi(yi - np.radians(track)))
+        ax[1].plot(gps.time_s[moving], resid[moving], ".", ms=2, color=col[name], label=f"LC {name} − GPS track")
+    ax[0].set_ylabel("heading, deg")
+    ax[1].set_ylabel("residual, deg")
+    ax[1].set_xlabel("time, s")
+    ax[0].legend(fontsize=7)
+    ax[1].legend(fontsize=7)
+    fig.suptitle("Heading against GPS track (cf. paper Fig. 8; GPS track only where moving > 3 m/s)")
+    fig.tight_layout()
+    fig.savefig(folder.file("fig8_heading_vs_track.png"), dpi=90)
+    plt.close(fig)
+    # errors and consistency
+    fig, ax = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
+    for name, (res, err, _) in runs.items():
+        ax[0].plot(res.time_s, np.degrees(err["roll_rad"]), color=col[name], lw=0.7, label=f"roll {name}")
+        ax[0].plot(res.time_s, np.degrees(err["pitch_rad"]), color=col[name], lw=0.7, ls=":")
+        ax[1].plot(res.time_s, np.degrees(err["heading_rad"]), color=col[name], lw=0.7, label=name)
+        ax[1].plot(res.time_s, 3 * np.degrees(np.sqrt(res.P_diag[:, 8])), color=col[name], lw=0.5, ls="--")
+        ax[2].plot(res.time_s, np.linalg.norm(err["pos_N_m"], axis=1), color=col[name], lw=0.7, label=name)
+        ax[3].semilogy(res.time_s, np.maximum(err["nees"], 1e-3), color=col[name], lw=0.5, label=name)
+    ax[3].axhline(9, color="k", lw=0.5)
+    ax[0].set_ylabel("roll/pitch err, deg")
+    ax[1].set_ylabel("heading err, deg\n(-- 3σ)")
+    ax[2].set_ylabel("position err, m")
+    ax[3].set_ylabel("NEES (9 dof)")
+    ax[3].set_xlabel("time, s")
+    ax[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(folder.file("fig_errors_consistency.png"), dpi=90)
+    plt.close(fig)
+    # report.md
+    pub = published_figures().get("magnetometer", {}).get("heading_bias_corrected_deg", 10)
+    rows = []
+    for k in summary["runs"]["calibrated"]:
+        rows.append([k, f"{summary['runs']['uncalibrated'][k]:.4g}", f"{summary['runs']['calibrated'][k]:.4g}"])
+    text = f"""# imurig flight — loosely coupled GPS/INS, uncalibrated vs calibrated IMU
+
+Flight: `{summary['flight']}` ({summary['vehicle']}), {summary['duration_s']:.0f} s, IMU {summary['imu_rate_hz']:g} Hz,
+navigation {summary['nav_rate_hz']:g} Hz, GPS: {summary['gps_mode']}. Filter states ({len(summary['states'])}):
+{', '.join(summary['states'])}.
+Errors are RMS against truth after the first 60 s.
+
+{md_table(['quantity', 'uncalibrated', 'calibrated'], rows)}
+
+Real-time factor of the filter: {summary['real_time_factor']:.1f}x ({summary['filter_wall_s']:.1f} s for two runs).
+
+- `fig6_static_roll_pitch.png`: roll and pitch in the static phases (paper Fig. 6).
+- `fig7_bias_estimates.png`: bias states before/after calibration (paper Fig. 7).
+- `fig8_heading_vs_track.png`: heading vs GPS track; the paper removed a ~{pub} deg heading bias with
+  its magnetometer calibration (Fig. 8). The magnetometer calibration is not yet applied here
+  (both runs use the nominal fluxgate conversion), so the heading residual shows the uncalibrated
+  fluxgate's bias in both runs.
+- `fig_errors_consistency.png`: attitude, heading (with 3σ), position errors and NEES.
+- `flight.rrd`: open with `rerun flight.rrd`.
+
+![fig6](fig6_static_roll_pitch.png)
+![fig7](fig7_bias_estimates.png)
+![fig8](fig8_heading_vs_track.png)
+![errors](fig_errors_consistency.png)
+"""
+    folder.write_text("report.md", text)
+    # rerun
+    from imurig import viz
+
+    with viz.RrdWriter(folder.file("flight.rrd"), overwrite=True) as w:
+        lat0, lon0, h0 = truth.lat_rad[0], truth.lon_rad[0], truth.h_m[0]
+        sub = slice(None, None, max(1, int(truth.rate_hz)))
+        d_true = E.ned_from_geodetic(truth.lat_rad[sub], truth.lon_rad[sub], truth.h_m[sub], lat0, lon0, h0)
+        viz.log_points(w, "world/truth_route", d_true * [1, 1, -1], color=(200, 200, 200), radius=2.0)
+        d_gps = E.ned_from_geodetic(gps.lat_rad, gps.lon_rad, gps.h_m, lat0, lon0, h0)
+        viz.log_points(w, "world/gps_fixes", d_gps * [1, 1, -1], color=(255, 200, 0), radius=3.0)
+        for name, (res, err, _) in runs.items():
+            ss = slice(None, None, max(1, int(res.meta["nav_rate_hz"])))
+            d = E.ned_from_geodetic(res.lat_rad[ss], res.lon_rad[ss], res.h_m[ss], lat0, lon0, h0)
+            viz.log_points(w, f"world/ekf_{name}", d * [1, 1, -1],
+                           color=(220, 60, 60) if name == "uncalibrated" else (60, 60, 220), radius=1.5)
+            t = res.time_s[ss]
+            viz.log_scalars(w, f"errors/{name}", t, {
+                "roll_err_deg": np.degrees(err["roll_rad"][ss]), "pitch_err_deg": np.degrees(err["pitch_rad"][ss]),
+                "heading_err_deg": np.degrees(err["heading_rad"][ss]),
+                "heading_3sigma_deg": 3 * np.degrees(np.sqrt(res.P_diag[ss, 8])),
+                "pos_err_m": np.linalg.norm(err["pos_N_m"][ss], axis=1),
+                "pos_3sigma_m": 3 * np.sqrt(res.P_diag[ss, 0:3].sum(axis=1)), "nees": err["nees"][ss]})
+        viz.log_text(w, "summary", text)
