@@ -16,6 +16,10 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str = "physical", earth_
     recordings (appendix B)."""
     if rec.meta.get("rig") == "turn_table" and rec.meta.get("row_recording"):
         return {"kind": "rate_table_rows", **diagnose_rate_rows(rec, np.random.default_rng(seed))}
+    if {"attitude", "step", "branch"} <= set(rec.segments):
+        from imurig.diagnose.thermal import diagnose_thermal
+
+        return {"kind": "thermal", **diagnose_thermal(rec, np.random.default_rng(seed))}
     if rec.meta.get("rig") == "turn_table" or "rate_dial" in rec.segments:
         from imurig.diagnose.turn_table import diagnose_turn_table
 
@@ -32,6 +36,15 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str = "physical", earth_
 
 def _findings_rows(d: dict) -> list[list]:
     rows = []
+    if d.get("kind") == "thermal":
+        for ch, e in d["channels"].items():
+            for f in e["findings"]:
+                ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+                rows.append([f"{ch} six-position bias per step", f["effect"], f["physics"],
+                             f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
+                             f"{f['variance_share'] * 100:.0f} % of the residual",
+                             SEED_SAYS_TURN.get(f["effect"], "–")])
+        return rows
     if d.get("kind") == "turn_table":
         for g, e in d["gyros"].items():
             for f in e["findings"]:
@@ -103,6 +116,8 @@ SEED_SAYS_TILT = {
 SEED_SAYS_TURN = {
     "earth_rate_left_out": "4.4.2: the Earth's rate (15 deg/h) adds to the table rate along the vertical axis",
     "g_sensitivity": "– (not examined in the seed)",
+    "temperature_hysteresis": "4.5: the heating and cooling branches differ (hysteresis)",
+    "time_drift": "–",
 }
 
 
@@ -111,6 +126,8 @@ def _figure(out, rec: Recording, d: dict) -> str:
         return _figure_tilt(out, d)
     if d.get("kind") == "turn_table":
         return _figure_tilt(out, d, key="gyros", prefix="gyro_", unit="rad/s")
+    if d.get("kind") == "thermal":
+        return _figure_tilt(out, d, key="channels", prefix="", unit="SI")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -182,7 +199,7 @@ def _figure_tilt(out, d: dict, key: str = "axes", prefix: str = "acc_", unit: st
 
 
 def _rrd(path, rec: Recording, d: dict):
-    if d.get("kind") in ("tilt_table", "turn_table"):
+    if d.get("kind") in ("tilt_table", "turn_table", "thermal"):
         from imurig.viz import RrdWriter, log_text
 
         with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
@@ -221,7 +238,7 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
                         "BIC after", "residual white?"],
                        [[g, e["fit_before"]["sigma_res"], e["fit_after"]["sigma_res"], e["fit_before"]["r2_adj"],
                          e["fit_after"]["r2_adj"], e["fit_before"]["bic"], e["fit_after"]["bic"],
-                         e["unexplained"]["white"]] for g, e in (d.get("gyros") or d.get("axes")).items()]),
+                         e["unexplained"]["white"]] for g, e in (d.get("gyros") or d.get("axes") or d.get("channels")).items()]),
               "\nAn effect is accepted only when its statistic beats the max-statistic threshold simulated "
               "under the noise model over the whole library and all scanned parameters, it improves blocked "
               "cross-validation and lowers BIC; accepted effects are re-checked given each other.\n",

@@ -153,6 +153,43 @@ def _gyro_param(d, gyro, effect):
     return None
 
 
+SHORT_THERMAL = dict(low_C=-40, high_C=40, step_C=20, soak_s=2400, attitude_dwell_s=40)
+
+
+def _thermal(seed, bias_hysteresis=None):
+    """A short thermal campaign; ``bias_hysteresis`` (m/s^2, all three accelerometers) replaces the
+    drawn bias hysteresis (0 removes the hysteresis, scale hysteresis included)."""
+    from imurig.campaigns.thermal import ThermalCampaign
+    from imurig.rigs.thermal_chamber import ThermalProfile
+
+    camp = ThermalCampaign(profile=ThermalProfile(**SHORT_THERMAL), seed=seed)
+    chamber, lab, ss = camp.build()
+    if bias_hysteresis is not None:
+        acc = replace(lab.accelerometers, bias_hysteresis_m_s2=np.full(3, float(bias_hysteresis)),
+                      scale_hysteresis=lab.accelerometers.scale_hysteresis * (bias_hysteresis != 0))
+        lab = replace(lab, accelerometers=acc)
+    rig = chamber.simulate(camp.profile, camp.start_time)
+    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(6,)))
+    rec.meta["campaign"] = {"name": "thermal", **camp.to_dict()}
+    return rec
+
+
+def _thermal_gap_truth(rec, axis="x"):
+    """The branch gap H the noise-free twin of the same recording gives (the injected hysteresis
+    as the six-position bias sees it through the play operator's state)."""
+    from imurig.calibration.thermal import fit_thermal, step_table
+    from imurig.campaigns.thermal import twin_channels
+
+    return fit_thermal(step_table(rec, channels=twin_channels(rec))).results[f"acc_bias_{axis}"].coef("hysteresis")
+
+
+def _channel_param(d, channel, effect):
+    for f in d["channels"][channel]["findings"]:
+        if f["effect"] == effect:
+            return f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
+    return None
+
+
 def _simona(seed, **setup_kw):
     from imurig.campaigns.turn_table import SimonaSetup, simona_virtual
     from imurig.rigs.turn_table import TurnTableErrors
@@ -232,6 +269,10 @@ CASES = [
          sizes=tuple(x * DEG_PER_H_PER_G for x in (1, 2, 5, 10, 20)), size_unit="G (rad/s per m/s^2)",
          truth_param=lambda rec: rec.truth["sensors"]["gyros"]["g_sensitivity_rad_s_per_m_s2"][0][0],
          found_param=lambda d: _gyro_param(d, "p", "g_sensitivity"), null=lambda seed: _turn(seed)),
+    Case("temperature_hysteresis", "thermal", {(f"acc_{a}", "temperature_hysteresis") for a in "xyz"},
+         _thermal, 5e-3, sizes=(2e-5, 5e-5, 1e-4, 3e-4, 1e-3), size_unit="bias hysteresis (m/s^2)",
+         truth_param=_thermal_gap_truth, found_param=lambda d: _channel_param(d, "acc_x", "temperature_hysteresis"),
+         null=lambda seed: _thermal(seed, 0.0)),
     Case("instrument_range_change", "rate_table_rows", {("voltmeter", "instrument_range_change")}, _range_change, 0.01,
          sizes=(0.0005, 0.001, 0.002, 0.005, 0.01), size_unit="gain step (relative)"),
     Case("mains_rate_factor", "rate_table_rows", {("rate", "mains_rate_factor")}, _mains, 1.0),
@@ -247,6 +288,9 @@ def found_effects(d: dict) -> set:
         for a, e in d["axes"].items():
             out |= {(a, f["effect"]) for f in e["findings"]}
             out |= {(a, e["scatter"][k]["effect"]) for k in ("finding_spikes", "finding_vibration") if k in e["scatter"]}
+    if "channels" in d:
+        for ch, e in d["channels"].items():
+            out |= {(ch, f["effect"]) for f in e["findings"]}
     if "gyros" in d and "earth_rate_in_twin" in d:
         for g, e in d["gyros"].items():
             out |= {(g, f["effect"]) for f in e["findings"]}
@@ -274,6 +318,10 @@ def diagnose_case(case: Case, rec, seed: int, null: bool = False) -> dict:
         from imurig.diagnose.turn_table import diagnose_turn_table
 
         return diagnose_turn_table(rec, rng, **twin)
+    if case.rig == "thermal":
+        from imurig.diagnose.thermal import diagnose_thermal
+
+        return diagnose_thermal(rec, rng, **twin)
     from imurig.diagnose.rate_table import diagnose_rate_rows
 
     return diagnose_rate_rows(rec, rng, n_sim=200)
@@ -283,6 +331,8 @@ def null_recording(case: Case, seed: int):
     """A recording with nothing omitted from the case's twin."""
     if case.null is not None:
         return case.null(seed)
+    if case.rig == "thermal":
+        return _thermal(seed)
     return _tilt(seed) if case.rig == "tilt_table" else _simona(seed)
 
 
