@@ -335,6 +335,7 @@ class AutopilotGains:
     k_theta: float = 1.2       # pitch hold (take-off rotation)
     k_h: float = 0.12          # 1/s, climb rate per metre of altitude error
     gamma_max: float = 0.12
+    dn_max: float = 0.3        # incremental load factor the altitude loop may command
     k_V: float = 0.06          # throttle per m/s
     ki_V: float = 0.01
     k_psi: float = 1.2         # bank per heading error
@@ -347,13 +348,13 @@ class AutopilotGains:
 
 
 class Autopilot:
-    """PID loops: flight path/altitude -> elevator, airspeed -> throttle, heading -> bank ->
+    """PID loops: altitude -> flight path (rate-limited to ±dn_max g) -> elevator, airspeed -> throttle, heading -> bank ->
     aileron, yaw damper + sideslip -> rudder. Integrators persist across phases; hand-over
     from a held stick is bumpless (:meth:`engage_elevator`)."""
 
     def __init__(self, aero: CitationAero, dt: float, gains: AutopilotGains | None = None):
         self.aero, self.dt, self.g = aero, dt, gains or AutopilotGains()
-        self.i_gamma = self.i_V = self.i_phi = 0.0
+        self.i_gamma = self.i_V = self.i_phi = self.gamma_ref = 0.0
         self.de0, self.thr0 = 0.01, 0.35
 
     def _de_ff(self, s: State) -> float:
@@ -367,14 +368,18 @@ class Autopilot:
 
     def elevator(self, s: State, h_c: float) -> float:
         g = self.g
-        gamma_c = max(-g.gamma_max, min(g.gamma_max, g.k_h * (h_c - s.h) / max(s.V, 30.0)))
-        e = gamma_c - s.gamma
+        V = max(s.V, 30.0)
+        gamma_c = max(-g.gamma_max, min(g.gamma_max, g.k_h * (h_c - s.h) / V))
+        step = g.dn_max * G0 / V * self.dt            # flight-path rate limit = load-factor limit
+        self.gamma_ref += max(-step, min(step, gamma_c - self.gamma_ref))
+        e = self.gamma_ref - s.gamma
         self.i_gamma = max(-0.3, min(0.3, self.i_gamma + e * self.dt))
         return self.de0 + self._de_ff(s) - g.k_gamma * e - g.ki_gamma * self.i_gamma + g.k_q * s.q
 
     def engage_elevator(self, s: State, h_c: float, de_now: float):
         """Set the integrator so that :meth:`elevator` returns ``de_now`` now (bumpless)."""
         self.i_gamma = 0.0
+        self.gamma_ref = s.gamma
         de0 = self.elevator(s, h_c)
         self.i_gamma = (de0 - de_now) / self.g.ki_gamma
 
@@ -395,7 +400,8 @@ class Autopilot:
         C_lp/C_lδa), yaw damper and sideslip feedback on the rudder."""
         g, a = self.g, self.aero
         e = phi_c - s.phi
-        self.i_phi = max(-0.2, min(0.2, self.i_phi + e * self.dt))
+        if abs(e) < 0.1:   # conditional integration: no wind-up during large bank changes
+            self.i_phi = max(-0.2, min(0.2, self.i_phi + e * self.dt))
         p_c = max(-g.p_max, min(g.p_max, g.k_phi * e))
         V = max(s.V, 30.0)
         da = -a.Clp / a.Clda * a.b_m / (2 * V) * p_c + g.k_p * (p_c - s.p) + g.ki_phi * self.i_phi
@@ -534,11 +540,16 @@ class CitationSim(VehicleSim):
         States: longitudinal x = [u, w, q, θ] (CG velocity in body axes m/s, rad/s, rad),
         lateral x = [v, p, r, φ]. Each column perturbs the MuJoCo state, applies the
         aerodynamic forces of that state, runs one forward pass and reads qacc. The gear
-        struts are quasi-rigid here (their modes are 50 rad/s, far above the flight modes).
+        struts are locked (their modes are at 50 rad/s, far above the flight modes).
         The α̇ terms enter as ẋ = (I − b cᵀ)⁻¹ A x with α̇ = cᵀ ẋ.
         """
         trim = self.set_airborne(V, h_m)
         de, T = trim["de"], trim["thrust_N"]
+        # struts locked (huge armature on their slide joints): at the flight modes' frequencies the
+        # stiff gear (50 rad/s) moves with the airframe, so the wheels count as rigid mass
+        arm = self.model.dof_armature.copy()
+        for _, _, _, dadr, _, _, _ in self.wheels:
+            self.model.dof_armature[dadr] = 1e12
         th0, al0 = trim["theta"], trim["alpha"]
 
         def f(xlon, xlat, adot=0.0):
@@ -566,6 +577,7 @@ class CitationSim(VehicleSim):
         u0, w0 = x0lon[0], x0lon[1]
         c_ad = np.array([-w0, u0, 0.0, 0.0]) / (u0 ** 2 + w0 ** 2)   # α̇ = c·ẋ
         Alon = np.linalg.solve(np.eye(4) - np.outer(b, c_ad), Alon)
+        self.model.dof_armature[:] = arm
         self.set_airborne(V, h_m)
         return {"A_lon": Alon, "A_lat": Alat, "trim": trim, "residual_lon": f0lon[:3].tolist(),
                 "residual_lat": f0lat.tolist(), "mass_kg": float(self.model.body_subtreemass[self.bid])}
