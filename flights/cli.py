@@ -11,7 +11,7 @@ def add_flight_parser(sub) -> None:
                    help="'default': the Citation's default flight plan; 'static': the paper's static attitude tests")
     p.add_argument("--duration", type=float, default=None, help="cut the flight to this many seconds")
     p.add_argument("--seed", type=int, default=2005, help="the IMU (same seed as the calibration campaigns)")
-    p.add_argument("--nav-rate", type=float, default=50.0, help="navigation/filter rate, Hz")
+    p.add_argument("--nav-rate", type=float, default=25.0, help="navigation/filter rate, Hz")
     p.add_argument("--gps-rate", type=float, default=1.0, help="GPS fix rate, Hz")
     p.add_argument("--full-calibration", action="store_true", help="full campaign protocols instead of reduced ones")
     p.add_argument("--out", default="imurig-out/flight")

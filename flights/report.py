@@ -14,13 +14,13 @@ import tracemalloc
 from dataclasses import dataclass
 
 import numpy as np
-
-from imurig.errors import ConfigError
 from imurig.flights import earth as E
 from imurig.flights import ekf, ins
-from imurig.progress import progress
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.noise import child_rng
+
+from imurig.errors import ConfigError
+from imurig.progress import progress
 
 DEG = math.pi / 180
 
@@ -30,10 +30,11 @@ class FlightOptions:
     flight: str = "default"            # "default" (6A's plan) or "static" (paper 4.2 static tests)
     seed: int = 2005
     duration_s: float | None = None
-    nav_rate_hz: float = 50.0
+    nav_rate_hz: float = 25.0
     imu_rate_hz: float = 100.0
     gps_rate_hz: float = 1.0
     quick_calibration: bool = True
+    gps_latency_s: float = 0.0
 
     def validate(self):
         if self.flight not in ("default", "static"):
@@ -74,7 +75,7 @@ def measure_volts(truth, lab: ImuLab, seed: int) -> dict:
     except ImportError:
         measure_flight = None
     if measure_flight is not None:
-        rec = measure_flight(truth, lab, seed)
+        rec = measure_flight(truth, lab, np.random.SeedSequence(seed, spawn_key=(6,)))
         return {k: np.asarray(rec.channels[k]) for k in rec.channels}
     ss = np.random.SeedSequence(seed, spawn_key=(6,))
     fs = truth.rate_hz
@@ -102,7 +103,10 @@ def gps_fixes(truth, opt: FlightOptions, seed: int):
     except ImportError:
         GpsReceiver = None
     if GpsReceiver is not None:
-        return GpsReceiver(rate_hz=opt.gps_rate_hz).measure(truth, rng)
+        rx = GpsReceiver(rate_hz=opt.gps_rate_hz)
+        fixes = rx.measure(truth, rng)
+        opt.gps_latency_s = float(rx.latency_s)
+        return fixes
     step = max(1, round(truth.rate_hz / opt.gps_rate_hz))
     gi = np.arange(0, truth.n, step)
     C = E.C_from_q(truth.q_NB[gi])
@@ -118,11 +122,12 @@ def gps_fixes(truth, opt: FlightOptions, seed: int):
 def calibrations(seed: int, quick: bool = True) -> dict:
     """Tilt-table (accelerometers) and turn-table (gyros) calibrations of the same IMU, with
     reduced protocols when ``quick`` (4 tilts x 4 azimuths x 3 s; 3 rates x 2 directions x 3 axes)."""
+    from imurig.rigs.tilt_table import TiltTableProtocol
+    from imurig.rigs.turn_table import TurnTableProtocol
+
     from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.campaigns.tilt_table import calibrate as cal_acc
     from imurig.campaigns.turn_table import TurnTableCampaign, calibrate_gyros
-    from imurig.rigs.tilt_table import TiltTableProtocol
-    from imurig.rigs.turn_table import TurnTableProtocol
 
     if quick:
         tp = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 90, 180, 270), dwell_s=3, settle_s=1,
@@ -158,7 +163,7 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
 
 def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None):
     noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
-    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG)
+    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG, gps_latency_s=opt.gps_latency_s)
     decl = 0.0
     try:
         from imurig.site import decimal_year, parse_time
