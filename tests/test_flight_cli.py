@@ -2,10 +2,10 @@
 import json
 
 import pytest
+from imurig.flights.report import FlightOptions, run
 
 from imurig.cli import main
 from imurig.errors import ConfigError, OutputExistsError
-from imurig.flights.report import FlightOptions, run
 
 
 @pytest.mark.slow
