@@ -15,7 +15,9 @@ from imurig.recording import Recording
 @dataclass
 class TiltTableCalibrator:
     """Inverse-model least squares on per-position medians of the 100 Hz low-passed data
-    (:func:`imurig.campaigns.tilt_table.calibrate`), with the survey's uncertainty."""
+    (:func:`imurig.campaigns.tilt_table.calibrate`), with the survey's uncertainty. A
+    recording logged at 100 Hz or slower (averaged logging, as in the Monte-Carlo runs) is
+    used as it is, as the Monte-Carlo engine does."""
 
     model: str = "physical"
     name: str = "bench tilt-table (inverse model, medians)"
@@ -23,7 +25,8 @@ class TiltTableCalibrator:
     def fit(self, recording: Recording) -> list[dict]:
         from imurig.campaigns.tilt_table import calibrate
 
-        self.cal_ = calibrate(recording, model=self.model)
+        processed = recording if recording.sample_rate_hz <= 100.0 + 1e-9 else None
+        self.cal_ = calibrate(recording, model=self.model, processed=processed)
         return self.cal_.physical_parameters()
 
     def apply(self, recording: Recording) -> Recording:
