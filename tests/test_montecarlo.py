@@ -313,6 +313,30 @@ def test_user_distribution_sets_the_injected_errors():
     assert errors.theta_zero_rad == 1e-3
 
 
+def test_compare_schedules_reports_accuracy_and_lab_time(client, tmp_path):
+    """Design of experiments on a small base schedule: one study per schedule, paired seeds,
+    lab time like seed Table 4.7 (the seed's own schedule gives 270 min at its rates)."""
+    from imurig.montecarlo.doe import compare_schedules
+
+    s = compare_schedules("tilt-table", 2, 3, out=tmp_path / "doe", base_params={**SMALL_TILT, "dwell_s": 2.0},
+                          schedules={"4 phi, 2 s": {}, "2 phi, 2 s": {"phi_deg": [0, 180]}, "4 phi, 8 s": {"dwell_s": 8.0}},
+                          client=client)
+    by = {r["label"]: r for r in s["schedules"]}
+    assert by["2 phi, 2 s"]["lab_time"]["positions"] == 16 and by["4 phi, 8 s"]["lab_time"]["positions"] == 32
+    assert by["4 phi, 8 s"]["lab_time"]["lab_time_seed_rates_s"] == 900 + 32 * (8 + 45) + 900
+    assert set(by["4 phi, 2 s"]["groups"]) == {"sensitivity", "misalignment", "bias", "nonlinearity"}
+    # paired: run i of every schedule draws the same sensor
+    rows = {k: json.loads((tmp_path / "doe" / r["folder"] / "runs" / "run_000001.json").read_text())["rows"]
+            for k, r in by.items()}
+    inj = [{x["name"]: x["injected"] for x in v}["bias_x"] for v in rows.values()]
+    assert len(set(inj)) == 1
+    assert "Table 4.7" in (tmp_path / "doe" / "report.md").read_text()
+    from imurig.montecarlo.doe import table_47
+    from imurig.montecarlo.tilt import TILT_TABLE
+
+    assert table_47(TILT_TABLE, TILT_TABLE.validate({}))["complete calibration (2 mountings)"] == 270 * 60
+
+
 # ------------------------------------------------------------------ refused inputs
 @pytest.mark.parametrize("spec, msg", [
     ({"accelerometer.bias_m_s2": {"mean": 0.0, "variance": -1e-4}}, "negative variance"),

@@ -97,7 +97,8 @@ def compare_schedules(campaign, runs: int, master_seed: int = 0, out=None, base_
                            out=out / "schedules" / slug(label), resume=True, retries=retries, desc=label)
             p = camp.validate(params)
             results.append({"label": label, "folder": f"schedules/{slug(label)}", "params": p,
-                            "lab_time": camp.lab_time(p), "table_4_7": table_47(camp, p),
+                            "lab_time": camp.lab_time(p),
+                            "table_4_7": table_47(camp, p) if camp.name == "tilt-table" else {},
                             "groups": group_rms(st.stats, st.rows), "timing": st.timing})
     figs = _figure(results, out)
     summary = {"campaign": camp.name, "runs_per_schedule": runs, "master_seed": master_seed, "schedules": results,
@@ -114,6 +115,8 @@ def _figure(results, out: Path) -> dict:
     import matplotlib.pyplot as plt
 
     groups = [g for g in GROUPS if all(g in r["groups"] for r in results)]
+    if not groups or not all("lab_time_seed_rates_s" in r["lab_time"] for r in results):
+        return {}
     fig, axes = plt.subplots(1, len(groups), figsize=(3.2 * len(groups), 3.4), squeeze=False)
     for ax, g in zip(axes[0], groups):
         for r in results:
@@ -150,6 +153,8 @@ def _render(summary: dict) -> str:
     lines.append("\n## Accuracy against lab time\n")
     groups = [g for g in GROUPS if all(g in r["groups"] for r in res)]
     hdr = ["schedule", "positions", "lab time (h)"]
+    if not all("lab_time_seed_rates_s" in r["lab_time"] for r in res):
+        return "\n".join(lines)
     for g in groups:
         u = res[0]["groups"][g]["unit"]
         hdr += [f"{g} RMS ({u})", f"{g} CRLB ({u})"]
@@ -164,6 +169,7 @@ def _render(summary: dict) -> str:
     lines.append(md_table(hdr, rows))
     lines.append("\nEach schedule's full report (per-parameter table, histograms, coverage) is in its folder: "
                  + ", ".join(f"[{r['label']}]({r['folder']}/report.md)" for r in res) + ".\n")
-    lines.append("\n![schedules](fig_schedules.png)\n")
+    if summary.get("figures"):
+        lines.append("\n![schedules](fig_schedules.png)\n")
     return "\n".join(lines)
 

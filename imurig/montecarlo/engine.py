@@ -24,6 +24,7 @@ import contextlib
 import hashlib
 import json
 import os
+import resource
 import shutil
 import socket
 import tempfile
@@ -60,6 +61,7 @@ def execute_run(campaign, params: dict, distributions: dict, master_seed: int, i
     out = campaign.run(params, run_seed(master_seed, index), distributions, estimator)
     out["info"]["wall_s"] = time.perf_counter() - t0
     out["info"]["worker"] = f"{socket.gethostname()}:{os.getpid()}"
+    out["info"]["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # of the worker, so far
     return {"index": int(index), "seed": {"entropy": int(master_seed), "spawn_key": [int(index)]}, **out}
 
 

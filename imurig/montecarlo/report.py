@@ -189,6 +189,9 @@ def write_study_outputs(study, campaign) -> dict:
     per_run = {k: float(np.mean([i[k] for i in info if k in i])) for k in ("wall_s", "simulate_s", "estimate_s",
                                                                             "crlb_s", "samples")
                if any(k in i for i in info)}
+    peak = [i["peak_rss_mb"] for i in info if "peak_rss_mb" in i]
+    if peak:
+        study.timing = {**(study.timing or {}), "worker_peak_rss_mb": max(peak)}
     summary = {"config": study.config, "runs": len(study.runs), "timing": study.timing, "per_run_mean": per_run,
                "lab_time": lab, "overall": summary_lines(stats), "parameters": stats,
                "files": {"results": "results.h5", "runs": "runs/", **{k: v for k, v in figs.items()}}}
@@ -222,6 +225,7 @@ def render_report(study, stats, figs, lab, per_run) -> str:
                  ["runs per minute (this session; from first submission to last result)", t.get("runs_per_min")],
                  ["runs per minute including cluster start-up", t.get("runs_per_min_incl_startup")],
                  ["workers", t.get("workers")],
+                 ["peak memory of a worker process (MB)", t.get("worker_peak_rss_mb")],
                  ["mean time per run: simulate / estimate / CRLB (s)",
                   (f"{fmt(per_run.get('simulate_s'), 3)} / {fmt(per_run.get('estimate_s'), 3)} / "
                   f"{fmt(per_run.get('crlb_s'), 3)}")],
