@@ -67,8 +67,12 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         from imurig.calibration.terms import TermLibrary
 
         X0 = TermLibrary.from_names(res.names).design(inputs)
-        ref, _, _ = tilt_table_reference(rec100)
+        ref, J, _ = tilt_table_reference(rec100)
         y = ref[:, j]
+        # the survey leaves each table error uncertain (inclinometer accuracy): its effect on the
+        # reference, dref/d(error), joins the twin as nuisance columns where the model terms do
+        # not already hold it (a per-mounting phi-zero difference is not a misalignment)
+        X0, names0 = _with_survey_nuisance(X0, list(res.names), J[:, j, :])
         lib = []
         ch = f"acc_{a}"
         if ch in scan:
@@ -94,11 +98,24 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                                  lambda _, n=f"a{a}": inputs[n] ** 2))
         lib.append(Candidate("cross_coupling", "cross-coupling of the other two axes (product term)", ("c",),
                              lambda _, o=others: inputs[o[0]] * inputs[o[1]]))
-        d = select_effects(y, X0, list(res.names), lib, rng, alpha=alpha, n_sim=n_sim)
+        d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
         entry = d.to_dict()
         entry["scatter"] = _scatter(rec100, ch, mid)
         out["axes"][a] = entry
     return out
+
+
+def _with_survey_nuisance(X0: np.ndarray, names: list, Jj: np.ndarray, rtol: float = 1e-6):
+    """Append the survey-error columns of ``Jj`` (m, q) that add rank to X0 (m, p)."""
+    X, out = X0, list(names)
+    rank = np.linalg.matrix_rank(X, tol=rtol * np.linalg.norm(X, 2))
+    for k in range(Jj.shape[1]):
+        X1 = np.column_stack([X, Jj[:, k]])
+        r1 = np.linalg.matrix_rank(X1, tol=rtol * np.linalg.norm(X1, 2))
+        if r1 > rank:
+            X, rank = X1, r1
+            out.append(f"survey_error_{k}")
+    return X, out
 
 
 def _scatter(rec100: Recording, ch: str, mid: np.ndarray) -> dict:
