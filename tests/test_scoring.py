@@ -432,9 +432,8 @@ def test_octave_example_round_trip(tilt_export, tmp_path):
 
 # ------------------------------------------------------------------- pytest plugin
 def test_pytest_plugin_in_a_user_suite(pytester):
-    """A user's suite enables the plugin in conftest.py; a biased calibrator's failure names the
-    parameter and its miss in SE."""
-    pytester.makeconftest('pytest_plugins = ["imurig.scoring.pytest_plugin"]\n')
+    """The installed plugin (pytest11 entry point) gives a user's suite its fixtures with no
+    conftest line; a biased calibrator's failure names the parameter and its miss in SE."""
     pytester.makepyfile(test_user=(
         "from imurig.scoring.baselines import TiltTableCalibrator\n\n"
         "class Mine(TiltTableCalibrator):\n"
