@@ -27,7 +27,8 @@ def add_montecarlo_parser(sub) -> None:
                     "results.h5, summary.json and report.md (error histograms, RMS beside the Cramér-Rao bound, "
                     "coverage of the 95 % intervals). --compare-schedules compares schedules on accuracy against "
                     "lab time (seed Table 4.7).")
-    p.add_argument("campaign", choices=["tilt-table"], help="campaign to study")
+    p.add_argument("campaign", help="campaign to study: tilt-table (or any campaign registered with "
+                                    "imurig.montecarlo.register)")
     p.add_argument("--runs", type=int, default=200, help="number of runs N (per schedule with --compare-schedules)")
     p.add_argument("--seed", type=int, default=2005, help="master seed: run i uses SeedSequence(seed, spawn_key=(i,))")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -75,8 +76,10 @@ def _params(args) -> dict:
 def run_cli(args) -> None:
     from imurig.errors import ConfigError
     from imurig.montecarlo import distributions as dist
+    from imurig.montecarlo import registry
     from imurig.montecarlo.engine import RUN_FILE, load_study, reproduce_run, run_study
 
+    registry.get(args.campaign)  # an unknown campaign is refused with the list of known ones
     out = Path(args.out or f"imurig-out/montecarlo/{args.campaign}")
     user = dist.load(args.distributions) if args.distributions else None
     params = _params(args)
