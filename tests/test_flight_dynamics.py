@@ -101,7 +101,7 @@ def test_linearised_modes_match_approximations():
 
 def test_manoeuvres_come_from_control_inputs(short_flight):
     tr = short_flight
-    roll, pitch, yaw = tr.euler()
+    roll, _pitch, _yaw = tr.euler()
     names = [p[0] for p in tr.phases]
     assert names == ["level", "elevator_3211", "double_doublet", "alpha_dot_s_turns"]
     # the 3-2-1-1 happened in the elevator, and the aircraft answered in pitch rate
@@ -123,7 +123,7 @@ def test_truth_mechanisation_reproduces_itself(short_flight):
     lat, lon, h, v, q = mechanise(tr, scheme="euler")
     d = earth.ned_from_geodetic(lat, lon, h, tr.lat_rad, tr.lon_rad, tr.h_m)
     assert np.abs(d).max() < 1e-6 and np.abs(v - tr.v_N).max() < 1e-8
-    lat, lon, h, v, q = mechanise(tr, scheme="trapezoid")
+    lat, lon, h, v, _q = mechanise(tr, scheme="trapezoid")
     d = earth.ned_from_geodetic(lat, lon, h, tr.lat_rad, tr.lon_rad, tr.h_m)
     dt = 1 / tr.rate_hz
     # trapezoid vs the samples' piecewise-constant acceleration and end-of-step rate:
@@ -148,7 +148,7 @@ def test_static_truth_closed_form_earth_terms():
     wie_B = np.einsum("nji,nj->ni", C, earth.omega_IE_N(st.lat_rad))
     np.testing.assert_allclose(st.w_IB_B[static], wie_B[static], atol=1e-18)
     assert np.linalg.norm(st.w_IB_B[0]) == pytest.approx(earth.OMEGA_E_RAD_S, rel=1e-12)
-    roll, pitch, _ = st.euler()
+    roll, _pitch, _ = st.euler()
     i = st.phase_mask("static_roll-30_pitch+0")
     np.testing.assert_allclose(np.degrees(roll[i]), -30.0, atol=1e-9)
     import pyIGRF
@@ -204,3 +204,36 @@ def test_ground_circle_and_takeoff():
 def test_impossible_plans_are_refused(phase, match):
     with pytest.raises(ConfigError, match=match):
         FlightPlan(phases=(phase,)).validate()
+
+
+def test_van_ground_test():
+    from imurig.flights.van import (
+        VanCircle,
+        VanHardBrake,
+        VanParked,
+        VanPlan,
+        VanRamp,
+        VanStraight,
+        simulate_van,
+    )
+
+    plan = VanPlan(phases=(VanParked(2.0), VanStraight(4.0, 8.0), VanCircle(15.0, 5.0, 0.5, "right"),
+                           VanHardBrake(10.0), VanParked(2.0), VanRamp(angle_deg=5.0, park_s=6.0)))
+    tr = simulate_van(plan)
+    assert tr.vehicle == "van" and tr.lever_mag_B[0] < -7.0          # the boom: 5 m behind the van's back
+    roll, pitch, _ = tr.euler()
+    flat = np.degrees(pitch[tr.phase_mask("parked")][0])
+    brake = tr.phase_mask("hard_braking")
+    # tyre forces saturate at mu N: the deceleration cannot exceed (mu + c_rr) g
+    mu, crr = 0.9, 0.012
+    decel = -tr.f_B[brake, 0]
+    assert 0.6 * G0 < decel.max() <= (mu + crr) * earth.normal_gravity(tr.lat_rad[0], tr.h_m[0]) * 1.01
+    assert np.degrees(pitch[brake]).min() < flat - 1.0                 # the nose dives
+    assert np.degrees(roll[tr.phase_mask("circle")]).min() < -1.0      # right turn: body rolls out (left)
+    end = tr.time_s > tr.time_s[-1] - 1.0
+    np.testing.assert_allclose(np.degrees(pitch[end]), 5.0 + flat, atol=0.3)
+    assert np.abs(tr.v_N[end]).max() < 0.01
+    lat, lon, h, _v, _q = mechanise(tr, scheme="euler")
+    assert np.abs(earth.ned_from_geodetic(lat, lon, h, tr.lat_rad, tr.lon_rad, tr.h_m)).max() < 1e-6
+    with pytest.raises(ConfigError, match="skid"):
+        VanPlan(phases=(VanCircle(10.0, 12.0),)).validate()
