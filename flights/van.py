@@ -148,7 +148,7 @@ def _van_sim_class():
             if self.hold is None:
                 return (0.0,) * 6
             s, C = self.s, self.s.C
-            k, c = 2500.0 * 4.0, 2 * 2500.0 * 2.0       # 2 rad/s, critically damped, horizontal only
+            k, c = 2500.0 * 100.0, 2500.0 * 10.0       # 10 rad/s chocks (brakes add damping), horizontal
             fN = (-k * (s.pN - self.hold[0]) - c * s.vN, -k * (s.pE - self.hold[1]) - c * s.vE, 0.0)
             fB = tuple(C[i] * fN[0] + C[3 + i] * fN[1] for i in range(3))
             return (*fB, 0.0, 0.0, 0.0)

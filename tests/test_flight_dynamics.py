@@ -120,7 +120,7 @@ def test_truth_mechanisation_reproduces_itself(short_flight):
     """Integrating the NED mechanisation with the truth's own f_B and w_IB_B gives back its
     positions: to rounding with the scheme the samples obey, to O(dt) with a trapezoidal one."""
     tr = short_flight
-    lat, lon, h, v, q = mechanise(tr, scheme="euler")
+    lat, lon, h, v, _ = mechanise(tr, scheme="euler")
     d = earth.ned_from_geodetic(lat, lon, h, tr.lat_rad, tr.lon_rad, tr.h_m)
     assert np.abs(d).max() < 1e-6 and np.abs(v - tr.v_N).max() < 1e-8
     lat, lon, h, v, _q = mechanise(tr, scheme="trapezoid")
