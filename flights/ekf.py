@@ -101,7 +101,18 @@ class ImuNoise:
 @dataclass
 class FilterConfig:
     """Filter settings. Initial 1σ: position m, velocity m/s, attitude rad (roll/pitch and
-    heading), accelerometer bias m/s², gyro bias rad/s, temperature K, scale factors."""
+    heading), accelerometer bias m/s², gyro bias rad/s, temperature K, scale factors.
+
+    GPS position errors that are Gauss-Markov in time (``gps_pos_tau_s`` τ, white part
+    ``gps_pos_sigma_white_N_m``; the rest of the fix's σ is the correlated part σ_GM) are not
+    augmented as states: the filter inflates R so that N fixes of a correlated sequence carry the
+    information they really carry. For a first-order GM sampled at Δt (φ = e^{−Δt/τ}) the variance
+    of a long average is σ_GM² (1+φ)/(1−φ)/N instead of σ_GM²/N, hence
+
+        R = σ_w² + σ_GM² (1+φ)/(1−φ)            [m², per NED axis]
+
+    (≈ σ_GM² 2τ/Δt for τ ≫ Δt). This keeps the filter consistent on averages over ≳ τ; over
+    shorter spans it under-weights the fixes (conservative)."""
 
     nav_rate_hz: float = 50.0
     estimate_scale_factors: bool = False
@@ -124,6 +135,8 @@ class FilterConfig:
     sigma0_acc_scale: float = 0.01
     sigma0_gyro_scale: float = 0.02
     gps_sigma_scale: float = 1.0
+    gps_pos_tau_s: float | None = None
+    gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
 
     @property
     def n_states(self) -> int:
@@ -333,6 +346,11 @@ class LooseEKF:
             ok = np.asarray(gps.valid, bool) & (tg >= inc.t_s[0]) & (tg + c.gps_latency_s <= inc.t_s[-1])
             use_at = np.ceil((tg + c.gps_latency_s - inc.t_s[0]) / T - 1e-9).astype(int)
             gps_use = {int(e): [] for e in use_at[ok]}
+            gm_inflation = 1.0
+            if c.gps_pos_tau_s is not None and tg.size > 1:
+                phi_g = math.exp(-float(np.median(np.diff(tg))) / c.gps_pos_tau_s)
+                gm_inflation = (1.0 + phi_g) / (1.0 - phi_g)
+            s_w2 = np.asarray(c.gps_pos_sigma_white_N_m, float) ** 2
             for i in np.flatnonzero(ok):
                 gps_use[int(use_at[i])].append(int(i))
         mag_every = max(1, round(c.nav_rate_hz / c.mag_rate_hz)) if (c.use_magnetometer and imu.B_B is not None) else 0
@@ -413,7 +431,10 @@ class LooseEKF:
                     H[:, P] = np.eye(3)
                     H[:, V] = -lag * np.eye(3)
                     H[:, A] = ins._skew(Cl)
-                    R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_pos_N[i], float)) ** 2)
+                    s2 = np.asarray(gps.sigma_pos_N[i], float) ** 2
+                    if c.gps_pos_tau_s is not None:
+                        s2 = np.minimum(s_w2, s2) + np.maximum(s2 - s_w2, 0.0) * gm_inflation
+                    R = np.diag(c.gps_sigma_scale ** 2 * s2)
                     update("gps_pos", tk, z, H, R)
                     if c.use_gps_velocity:
                         C = ins._dcm(x.q_NB)

@@ -142,6 +142,63 @@ def calibrations(seed: int, quick: bool = True) -> dict:
     return {"accelerometers": acc, "gyros": gyro}
 
 
+def igrf_horizontal_T(truth) -> float:
+    """IGRF horizontal intensity H (T) at the start of the flight (pyIGRF)."""
+    import pyIGRF
+
+    from imurig.site import decimal_year, parse_time
+
+    yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
+    _d, _i, H_nT, *_ = pyIGRF.igrf_value(math.degrees(truth.lat_rad[0]), math.degrees(truth.lon_rad[0]),
+                                        float(truth.h_m[0]) / 1000.0, yr)
+    return float(H_nT) * 1e-9
+
+
+def mag_calibration(truth, volts: dict, gps=None, decl: float = 0.0) -> dict | None:
+    """Two-step ellipse fit (:func:`imurig.calibration.magnetometer.fit_ellipse_2d`, [Elk01]) of the
+    magnetometer's horizontal pair on the flight's own ground turning circle, as the seed did
+    (seed 5.2, paper 3.2 / Fig. 8):
+
+        m_xy,k = A2 h_k + b2 + e_k,   |h_k| = H (IGRF horizontal intensity at the airfield)
+
+    m = V / 4e4 (T, nominal sensitivity), samples of the phase ``ground_circle`` (aircraft level
+    on the ground). b2 holds the hard iron plus the vertical field leaking through soft iron.
+    A2 is only known up to a rotation (a constant heading offset); when GPS fixes are given it is
+    fixed with one reference heading: the GPS track on the straight take-off roll (no wind in the
+    simulation, nose wheel straight, so track = heading), as the campaign fixes it with one mark
+    of the compass rose. Returns None when the flight has no ground circle."""
+    from imurig.calibration.magnetometer import fit_ellipse_2d
+
+    circ = [p for p in truth.phases if p[0] == "ground_circle"]
+    if not circ:
+        return None
+    _, a, b = circ[0]
+    m = (truth.time_s >= a) & (truth.time_s < b)
+    mx, my = volts["mag_x"][m] / 4.0e4, volts["mag_y"][m] / 4.0e4
+    H = igrf_horizontal_T(truth)
+    e2 = fit_ellipse_2d(mx, my, H)
+    out = {"ellipse": e2, "window_s": (float(a), float(b)), "H_T": H, "heading_offset_rad": 0.0,
+           "reference": "none (field-domain fit only)"}
+    roll = [p for p in truth.phases if p[0] == "takeoff"]
+    if gps is not None and roll:
+        _, ta, tb = roll[0]
+        v = np.asarray(gps.v_N, float)
+        tg = np.asarray(gps.time_s, float)
+        sp = np.hypot(v[:, 0], v[:, 1])
+        sel = np.asarray(gps.valid, bool) & (tg >= ta) & (tg < tb) & (sp > 15.0)
+        # on the runway only: the first fixes of the take-off before the aircraft climbs
+        sel &= np.abs(v[:, 2]) < 0.3
+        if sel.sum() >= 3:
+            track = np.arctan2(v[sel, 1], v[sel, 0])
+            i = np.clip(np.searchsorted(truth.time_s, tg[sel]), 0, truth.n - 1)
+            hx, hy = e2.apply(volts["mag_x"][i] / 4.0e4, volts["mag_y"][i] / 4.0e4)
+            psi_m = np.arctan2(-np.asarray(hy), np.asarray(hx)) + decl
+            off = float(np.angle(np.mean(np.exp(1j * (psi_m - track)))))
+            out["heading_offset_rad"] = off
+            out["reference"] = f"GPS track on the take-off roll ({int(sel.sum())} fixes)"
+    return out
+
+
 def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStream:
     """SI samples for the filter: datasheet-nominal conversions (``cals`` None) or the campaign
     calibrations (inverse models on the indicated values V / nominal sensitivity)."""
@@ -156,22 +213,39 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
         f = cals["accelerometers"].predict(f)
         w = cals["gyros"].predict(w)
     B = Vm / 4.0e4
+    mc = None if cals is None else cals.get("magnetometer")
+    if mc is not None:
+        hx, hy = mc["ellipse"].apply(B[:, 0], B[:, 1])
+        c, s_ = math.cos(mc["heading_offset_rad"]), math.sin(mc["heading_offset_rad"])
+        # rotate the calibrated horizontal pair by the reference-heading offset (FRD: psi = atan2(-hy, hx))
+        B = np.column_stack([c * hx - s_ * hy, s_ * hx + c * hy, B[:, 2]])
     sensor = lab.temp_sensors["temp_acc_x"]
     Tk = np.stack([sensor.temperature_K(volts[f"temp_acc_{a}"]) for a in "xyz"], 1)
     return ekf.ImuStream(truth.time_s, w, f, B, Tk)
 
 
+def flight_declination(truth) -> float:
+    """IGRF declination (rad, east positive) at the start of the flight."""
+    from imurig.site import decimal_year, parse_time
+
+    yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
+    return ekf.declination_rad(float(truth.lat_rad[0]), float(truth.lon_rad[0]), float(truth.h_m[0]), yr)
+
+
+def gps_error_model(gps) -> dict:
+    """The receiver's Gauss-Markov position error (σ_GM per NED axis, τ) from the fixes' meta, for the
+    filter's correlated-error treatment; empty for white-noise fixes."""
+    rx = (getattr(gps, "meta", None) or {}).get("receiver")
+    if not rx:
+        return {}
+    return {"gps_pos_tau_s": float(rx["tau_gm_s"]), "gps_pos_sigma_white_N_m": tuple(rx["sigma_white_N_m"])}
+
+
 def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None):
     noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
-    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG, gps_latency_s=opt.gps_latency_s)
-    decl = 0.0
-    try:
-        from imurig.site import decimal_year, parse_time
-
-        yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
-        decl = ekf.declination_rad(float(truth.lat_rad[0]), float(truth.lon_rad[0]), float(truth.h_m[0]), yr)
-    except Exception:  # noqa: BLE001  (no IGRF: heading aiding without declination)
-        decl = 0.0
+    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG, gps_latency_s=opt.gps_latency_s,
+                           **gps_error_model(gps))
+    decl = flight_declination(truth)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
     x0 = align(truth, stream, gps, decl)
     last = [0]
@@ -211,6 +285,16 @@ def errors(res: ekf.FilterResult, truth) -> dict:
             "heading_rad": E.wrap_pi(y_est - y_t), "nees": ekf.nees_nav(res, truth, idx)}
 
 
+def mag_heading_error_rms_deg(truth, stream, decl: float, every_s: float = 1.0) -> float:
+    """RMS (deg) of the magnetometer's own heading (levelled with the TRUE roll and pitch, + IGRF
+    declination) against the true heading, once per ``every_s``: the compass error alone."""
+    step = max(1, round(every_s * truth.rate_hz))
+    i = np.arange(0, truth.n, step)
+    r, p_, y = E.euler_from_q(truth.q_NB[i])
+    psi = np.array([ekf.mag_heading(stream.B_B[j], r[k], p_[k], decl) for k, j in enumerate(i)])
+    return _rms(E.wrap_pi(psi - y)) / DEG
+
+
 def _rms(x):
     return float(np.sqrt(np.mean(np.square(x))))
 
@@ -245,6 +329,7 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     gps = gps_fixes(truth, opt, opt.seed)
     ekf.check_gps(gps, truth.rate_hz)
     cals = calibrations(opt.seed, opt.quick_calibration)
+    cals["magnetometer"] = mag_calibration(truth, volts, gps, flight_declination(truth))
     runs = {}
     n_epochs = int((truth.time_s[-1] - truth.time_s[0]) * opt.nav_rate_hz)
     t_filter = 0.0
@@ -261,6 +346,14 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
                "states": list(runs["calibrated"][0].state_names),
                "runs": {k: summarise(e, r) for k, (r, e, _) in runs.items()},
                "filter_wall_s": t_filter, "real_time_factor": 2 * duration / t_filter}
+    mc = cals.get("magnetometer")
+    decl = flight_declination(truth)
+    for k, (_r, _e, st) in runs.items():
+        summary["runs"][k]["mag_heading_rms_deg"] = mag_heading_error_rms_deg(truth, st, decl)
+    summary["magnetometer_calibration"] = None if mc is None else {
+        "method": "two-step ellipse fit on the ground turning circle [Elk01]", "window_s": list(mc["window_s"]),
+        "H_nT": mc["H_T"] * 1e9, "heading_reference": mc["reference"],
+        "heading_offset_deg": math.degrees(mc["heading_offset_rad"]), **mc["ellipse"].to_dict()}
     write_products(folder, truth, runs, gps, summary)
     summary["wall_s"] = time.perf_counter() - t_wall
     summary["peak_memory_MB"] = tracemalloc.get_traced_memory()[1] / 1e6
