@@ -142,60 +142,45 @@ def calibrations(seed: int, quick: bool = True) -> dict:
     return {"accelerometers": acc, "gyros": gyro}
 
 
-def igrf_horizontal_T(truth) -> float:
-    """IGRF horizontal intensity H (T) at the start of the flight (pyIGRF)."""
-    import pyIGRF
+def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
+    """Calibration of the flight's magnetometer (the very fluxgate and installation iron of ``lab``)
+    on the virtual magnetometer rig: a tumble on the MuJoCo gimbal (:class:`imurig.rigs.mag_rig.Tumble`,
+    ``tumble_s`` s), measured through the lab's chain, then the two-step ellipsoid fit
+    (:func:`imurig.calibration.magnetometer.fit_ellipsoid_3d`, [Elk01], paper 3.2 / Fig. 5):
 
-    from imurig.site import decimal_year, parse_time
+        m_k = A B_C,k + b + e_k,   |B_C,k| = F (IGRF total intensity at the rig)      [T]
+        calibrated field  B̂ = T (m − b),  T = A⁻¹ up to a rotation
 
-    yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
-    _d, _i, H_nT, *_ = pyIGRF.igrf_value(math.degrees(truth.lat_rad[0]), math.degrees(truth.lon_rad[0]),
-                                        float(truth.h_m[0]) / 1000.0, yr)
-    return float(H_nT) * 1e-9
+    This removes the hard iron b (all three axes, so the heading stays right when the aircraft
+    banks) and the soft iron / scale factors. A is only known up to a rotation (a heading offset
+    no field-domain fit can see); the rig fixes it: its gimbal angles and the IGRF field give the
+    field direction in the sensor frame, and Wahba's problem (SVD) gives the rotation R_fix with
+    B_ref ≈ R_fixᵀ B̂. Mounting C_BC = I (see :mod:`imurig.flights.imu`), so the calibrated field
+    is the body field. The seed instead fitted an ellipse on the ground turning circle; a 2-D fit
+    leaves the vertical hard iron, which leaks ~5 deg into the heading at 60 deg of bank."""
+    from dataclasses import replace
 
+    from imurig.calibration.magnetometer import fit_ellipsoid_3d
+    from imurig.rigs.mag_rig import MagRig, Tumble
+    from imurig.sensors.adc import DAQ6036E
+    from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 
-def mag_calibration(truth, volts: dict, gps=None, decl: float = 0.0) -> dict | None:
-    """Two-step ellipse fit (:func:`imurig.calibration.magnetometer.fit_ellipse_2d`, [Elk01]) of the
-    magnetometer's horizontal pair on the flight's own ground turning circle, as the seed did
-    (seed 5.2, paper 3.2 / Fig. 8):
-
-        m_xy,k = A2 h_k + b2 + e_k,   |h_k| = H (IGRF horizontal intensity at the airfield)
-
-    m = V / 4e4 (T, nominal sensitivity), samples of the phase ``ground_circle`` (aircraft level
-    on the ground). b2 holds the hard iron plus the vertical field leaking through soft iron.
-    A2 is only known up to a rotation (a constant heading offset); when GPS fixes are given it is
-    fixed with one reference heading: the GPS track on the straight take-off roll (no wind in the
-    simulation, nose wheel straight, so track = heading), as the campaign fixes it with one mark
-    of the compass rose. Returns None when the flight has no ground circle."""
-    from imurig.calibration.magnetometer import fit_ellipse_2d
-
-    circ = [p for p in truth.phases if p[0] == "ground_circle"]
-    if not circ:
-        return None
-    _, a, b = circ[0]
-    m = (truth.time_s >= a) & (truth.time_s < b)
-    mx, my = volts["mag_x"][m] / 4.0e4, volts["mag_y"][m] / 4.0e4
-    H = igrf_horizontal_T(truth)
-    e2 = fit_ellipse_2d(mx, my, H)
-    out = {"ellipse": e2, "window_s": (float(a), float(b)), "H_T": H, "heading_offset_rad": 0.0,
-           "reference": "none (field-domain fit only)"}
-    roll = [p for p in truth.phases if p[0] == "takeoff"]
-    if gps is not None and roll:
-        _, ta, tb = roll[0]
-        v = np.asarray(gps.v_N, float)
-        tg = np.asarray(gps.time_s, float)
-        sp = np.hypot(v[:, 0], v[:, 1])
-        sel = np.asarray(gps.valid, bool) & (tg >= ta) & (tg < tb) & (sp > 15.0)
-        # on the runway only: the first fixes of the take-off before the aircraft climbs
-        sel &= np.abs(v[:, 2]) < 0.3
-        if sel.sum() >= 3:
-            track = np.arctan2(v[sel, 1], v[sel, 0])
-            i = np.clip(np.searchsorted(truth.time_s, tg[sel]), 0, truth.n - 1)
-            hx, hy = e2.apply(volts["mag_x"][i] / 4.0e4, volts["mag_y"][i] / 4.0e4)
-            psi_m = np.arctan2(-np.asarray(hy), np.asarray(hx)) + decl
-            off = float(np.angle(np.mean(np.exp(1j * (psi_m - track)))))
-            out["heading_offset_rad"] = off
-            out["reference"] = f"GPS track on the take-off roll ({int(sel.sum())} fixes)"
+    ss = np.random.SeedSequence(seed, spawn_key=(8,))
+    rig = MagRig().simulate([Tumble(duration_s=tumble_s)], "2005-06-21T10:00:00+02:00", child_rng(ss, "rig"))
+    mlab = replace(lab, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
+                   adc=DAQ6036E(scan_list=("mag_x", "mag_y", "mag_z", "temp_box"), sample_rate_hz=100.0,
+                                averaging=10))
+    rec = mlab.measure(rig, np.random.SeedSequence(seed, spawn_key=(9,)))
+    m = rec.stack(("mag_x", "mag_y", "mag_z")) / 4.0e4
+    e3 = fit_ellipsoid_3d(m, float(rec.meta["igrf_total_T"]))
+    # the rotation left free by the fit: Wahba's problem between the calibrated field and the field
+    # direction the rig's gimbal angles and IGRF give in the sensor frame (B_C of the rig recording)
+    B_ref = np.stack([rec.truth_signals[f"B_C_{a}"] for a in "xyz"], 1)
+    U, _s, Vt = np.linalg.svd(e3.apply(m).T @ B_ref)
+    R_fix = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt        # B_ref ≈ R_fix.T @ B̂
+    out = {"ellipsoid": e3, "R_fix": R_fix, "tumble_s": tumble_s, "heading_offset_rad": 0.0,
+           "rotation_fix_deg": float(np.degrees(np.arccos(np.clip((np.trace(R_fix) - 1) / 2, -1, 1)))),
+           "reference": "rig gimbal angles + IGRF (Wahba)", "n_samples": int(m.shape[0])}
     return out
 
 
@@ -215,10 +200,10 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
     B = Vm / 4.0e4
     mc = None if cals is None else cals.get("magnetometer")
     if mc is not None:
-        hx, hy = mc["ellipse"].apply(B[:, 0], B[:, 1])
+        B = mc["ellipsoid"].apply(B) @ mc["R_fix"]
         c, s_ = math.cos(mc["heading_offset_rad"]), math.sin(mc["heading_offset_rad"])
-        # rotate the calibrated horizontal pair by the reference-heading offset (FRD: psi = atan2(-hy, hx))
-        B = np.column_stack([c * hx - s_ * hy, s_ * hx + c * hy, B[:, 2]])
+        # rotate about body z by the reference-heading offset (FRD: psi = atan2(-h_y, h_x))
+        B = np.column_stack([c * B[:, 0] - s_ * B[:, 1], s_ * B[:, 0] + c * B[:, 1], B[:, 2]])
     sensor = lab.temp_sensors["temp_acc_x"]
     Tk = np.stack([sensor.temperature_K(volts[f"temp_acc_{a}"]) for a in "xyz"], 1)
     return ekf.ImuStream(truth.time_s, w, f, B, Tk)
@@ -329,7 +314,7 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     gps = gps_fixes(truth, opt, opt.seed)
     ekf.check_gps(gps, truth.rate_hz)
     cals = calibrations(opt.seed, opt.quick_calibration)
-    cals["magnetometer"] = mag_calibration(truth, volts, gps, flight_declination(truth))
+    cals["magnetometer"] = mag_calibration(lab, opt.seed)
     runs = {}
     n_epochs = int((truth.time_s[-1] - truth.time_s[0]) * opt.nav_rate_hz)
     t_filter = 0.0
@@ -351,9 +336,10 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     for k, (_r, _e, st) in runs.items():
         summary["runs"][k]["mag_heading_rms_deg"] = mag_heading_error_rms_deg(truth, st, decl)
     summary["magnetometer_calibration"] = None if mc is None else {
-        "method": "two-step ellipse fit on the ground turning circle [Elk01]", "window_s": list(mc["window_s"]),
-        "H_nT": mc["H_T"] * 1e9, "heading_reference": mc["reference"],
-        "heading_offset_deg": math.degrees(mc["heading_offset_rad"]), **mc["ellipse"].to_dict()}
+        "method": "two-step ellipsoid fit [Elk01] on a virtual-rig tumble of the flight's magnetometer",
+        "tumble_s": mc["tumble_s"], "heading_reference": mc["reference"],
+        "rotation_fixed_deg": mc["rotation_fix_deg"],
+        "heading_offset_deg": math.degrees(mc["heading_offset_rad"]), **mc["ellipsoid"].to_dict()}
     write_products(folder, truth, runs, gps, summary)
     summary["wall_s"] = time.perf_counter() - t_wall
     summary["peak_memory_MB"] = tracemalloc.get_traced_memory()[1] / 1e6
