@@ -112,7 +112,11 @@ class FilterConfig:
         R = σ_w² + σ_GM² (1+φ)/(1−φ)            [m², per NED axis]
 
     (≈ σ_GM² 2τ/Δt for τ ≫ Δt). This keeps the filter consistent on averages over ≳ τ; over
-    shorter spans it under-weights the fixes (conservative)."""
+    shorter spans it under-weights the fixes (conservative).
+
+    GPS times: ``gps.time_s`` is the fix's time of validity, used at the first epoch at or after
+    ``time_s + gps_latency_s``. A residual error of the time of validity (σ ``gps_time_sigma_s``,
+    e.g. the IMU-clock quantisation of the tag) adds σ_t² v vᵀ to R of the position fix."""
 
     nav_rate_hz: float = 50.0
     estimate_scale_factors: bool = False
@@ -136,6 +140,7 @@ class FilterConfig:
     sigma0_gyro_scale: float = 0.02
     gps_sigma_scale: float = 1.0
     gps_pos_tau_s: float | None = None
+    gps_time_sigma_s: float = 0.0
     gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
 
     @property
@@ -435,6 +440,9 @@ class LooseEKF:
                     if c.gps_pos_tau_s is not None:
                         s2 = np.minimum(s_w2, s2) + np.maximum(s2 - s_w2, 0.0) * gm_inflation
                     R = np.diag(c.gps_sigma_scale ** 2 * s2)
+                    if c.gps_time_sigma_s > 0:
+                        vg = np.asarray(gps.v_N[i], float)
+                        R = R + c.gps_time_sigma_s ** 2 * np.outer(vg, vg)
                     update("gps_pos", tk, z, H, R)
                     if c.use_gps_velocity:
                         C = ins._dcm(x.q_NB)
@@ -514,6 +522,7 @@ class SimpleGps:
     sigma_vel_N: np.ndarray
     mode: str = "synthetic"
     valid: np.ndarray | None = None
+    meta: dict | None = None
 
     def __post_init__(self):
         if self.valid is None:

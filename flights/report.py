@@ -35,6 +35,7 @@ class FlightOptions:
     gps_rate_hz: float = 1.0
     quick_calibration: bool = True
     gps_latency_s: float = 0.0
+    gps_time_sigma_s: float = 0.0
 
     def validate(self):
         if self.flight not in ("default", "static"):
@@ -104,9 +105,16 @@ def gps_fixes(truth, opt: FlightOptions, seed: int):
         GpsReceiver = None
     if GpsReceiver is not None:
         rx = GpsReceiver(rate_hz=opt.gps_rate_hz)
-        fixes = rx.measure(truth, rng)
-        opt.gps_latency_s = float(rx.latency_s)
-        return fixes
+        fx = rx.measure(truth, rng)
+        # The receiver's tag is the IMU sample at which the logger sees the fix: time of validity
+        # + latency + jitter, rounded UP to the IMU clock. Time of validity used by the filter:
+        # tag − latency − Δt_IMU/2 (the mean of the rounding); what remains is uniform over
+        # ±Δt_IMU/2 plus the jitter: σ_t² = Δt_IMU²/12 + σ_jitter², added to R as σ_t² v vᵀ.
+        dti = 1.0 / truth.rate_hz if rx.quantise_to_imu else 0.0
+        opt.gps_latency_s = float(rx.latency_s + dti / 2)   # time_offset_s is an unknown error: not removed
+        opt.gps_time_sigma_s = math.sqrt(dti ** 2 / 12 + rx.time_jitter_s ** 2)
+        return ekf.SimpleGps(fx.time_s - opt.gps_latency_s, fx.lat_rad, fx.lon_rad, fx.h_m, fx.v_N, fx.sigma_pos_N,
+                             fx.sigma_vel_N, mode=fx.mode, valid=np.asarray(fx.valid, bool), meta=fx.meta)
     step = max(1, round(truth.rate_hz / opt.gps_rate_hz))
     gi = np.arange(0, truth.n, step)
     C = E.C_from_q(truth.q_NB[gi])
@@ -229,7 +237,7 @@ def gps_error_model(gps) -> dict:
 def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None):
     noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
     cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG, gps_latency_s=opt.gps_latency_s,
-                           **gps_error_model(gps))
+                           gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))
     decl = flight_declination(truth)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
     x0 = align(truth, stream, gps, decl)
