@@ -206,3 +206,18 @@ def test_diagnose_cli_on_thermal_and_turn_table(tmp_path):
     d = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     assert d["kind"] == "thermal" and (tmp_path / "d" / "diagnosis.rrd").exists()
     assert "temperature_hysteresis" in (tmp_path / "d" / "report.md").read_text()
+
+
+def test_slip_ring_noise_found_at_its_angles():
+    """Slip-ring contact noise (the rig's rough spots at 40, 166, 252 deg) is found on every gyro
+    at those table angles, and not on the same schedule without it."""
+    case = next(c for c in CASES if c.effect == "slip_ring_noise")
+    rec = case.make(1, case.realistic_size)
+    d = diagnose_case(case, rec, 1)
+    assert found_effects(d) == case.expected
+    spots = np.degrees(rec.truth["chain"]["slip_rings"]["spots_rad"])
+    for e in d["gyros"].values():
+        angles = np.array(e["scatter"]["finding"]["angles_deg"])
+        # every rough spot lies within two 10-degree bins of a flagged angle
+        assert all(np.min(np.abs((angles - s + 180) % 360 - 180)) <= 20 for s in spots), (angles, spots)
+    assert found_effects(diagnose_case(case, null_recording(case, 1), 1, null=True)) == set()

@@ -129,14 +129,14 @@ def _inverse_k2(rec, j):
 TURN_REMOUNTS = dict(dial_rates_dps=(20, 100), mounts=("p_up", "q_up", "r_up") * 4, min_window_s=8.0)
 
 
-def _turn(seed, g_sensitivity=0.0):
+def _turn(seed, g_sensitivity=0.0, slip_rings=False):
     """A turn-table campaign (each axis up four times) whose gyros have a diagonal g-sensitivity
     ``g_sensitivity`` ((rad/s)/(m/s^2)) times (1, -1, 1)."""
     from imurig.campaigns.turn_table import TurnTableCampaign
     from imurig.rigs.turn_table import TurnTableProtocol
     from imurig.sensors.noise import child_rng
 
-    camp = TurnTableCampaign(protocol=TurnTableProtocol(**TURN_REMOUNTS), seed=seed)
+    camp = TurnTableCampaign(protocol=TurnTableProtocol(**TURN_REMOUNTS), seed=seed, slip_rings=slip_rings)
     camp.check_identifiable()
     table, lab, ss = camp.build()
     gyros = replace(lab.gyros, g_sensitivity_rad_s_per_m_s2=np.diag([1.0, -1.0, 1.0]) * g_sensitivity)
@@ -269,6 +269,9 @@ CASES = [
          sizes=tuple(x * DEG_PER_H_PER_G for x in (1, 2, 5, 10, 20)), size_unit="G (rad/s per m/s^2)",
          truth_param=lambda rec: rec.truth["sensors"]["gyros"]["g_sensitivity_rad_s_per_m_s2"][0][0],
          found_param=lambda d: _gyro_param(d, "p", "g_sensitivity"), null=lambda seed: _turn(seed)),
+    Case("slip_ring_noise", "turn_table", {(a, "slip_ring_noise") for a in "pqr"},
+         lambda seed, _size: _turn(seed, slip_rings=True), 1.0, size_unit="(the seed's rings: 20 uV, depth 8)",
+         null=lambda seed: _turn(seed)),
     Case("temperature_hysteresis", "thermal", {(f"acc_{a}", "temperature_hysteresis") for a in "xyz"},
          _thermal, 5e-3, sizes=(2e-5, 5e-5, 1e-4, 3e-4, 1e-3), size_unit="bias hysteresis (m/s^2)",
          truth_param=_thermal_gap_truth, found_param=lambda d: _channel_param(d, "acc_x", "temperature_hysteresis"),
@@ -294,6 +297,8 @@ def found_effects(d: dict) -> set:
     if "gyros" in d and "earth_rate_in_twin" in d:
         for g, e in d["gyros"].items():
             out |= {(g, f["effect"]) for f in e["findings"]}
+            if "finding" in e.get("scatter", {}):
+                out.add((g, e["scatter"]["finding"]["effect"]))
     elif "gyros" in d:
         if d.get("rate_factor"):
             out.add(("rate", "mains_rate_factor"))
