@@ -28,7 +28,7 @@ acceleration and the body rate constant over each IMU interval, so f_B[k] and w_
 the values HELD over [t_k, t_k+1) (what an integrating IMU reports as Δv/Δt and Δθ/Δt),
 while positions, velocities and attitudes are exact at t_k:
 v_{k+1} = v_k + Δt dv_N/dt_k,  q_{k+1} = q_k ⊗ exp(Δt w_NB_B,k). :func:`mechanise` with
-``scheme="euler"`` reproduces the truth to rounding error (5e-6 m after the 15-min default
+``scheme="euler"`` reproduces the truth to rounding error (4e-7 m after the 15-min default
 flight); a scheme that reads the samples as instantaneous values of smooth signals
 (``scheme="trapezoid"``) is off by half a sample and drifts by its O(Δt) error.
 """
