@@ -188,7 +188,8 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
     R_fix = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt        # B_ref ≈ R_fix.T @ B̂
     out = {"ellipsoid": e3, "R_fix": R_fix, "tumble_s": tumble_s, "heading_offset_rad": 0.0,
            "rotation_fix_deg": float(np.degrees(np.arccos(np.clip((np.trace(R_fix) - 1) / 2, -1, 1)))),
-           "reference": "rig gimbal angles + IGRF (Wahba)", "n_samples": int(m.shape[0])}
+           "reference": "rig gimbal angles + IGRF (Wahba)", "n_samples": int(m.shape[0]),
+           "H_T": float(rec.meta["igrf_horizontal_T"])}
     return out
 
 
@@ -234,9 +235,28 @@ def gps_error_model(gps) -> dict:
     return {"gps_pos_tau_s": float(rx["tau_gm_s"]), "gps_pos_sigma_white_N_m": tuple(rx["sigma_white_N_m"])}
 
 
-def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None):
+def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
+    """Filter priors of the calibrated run from the calibrations' reported standard errors:
+    σ0 of the accelerometer bias = the largest bias SE of the tilt-table fit; σ0 of the gyro bias =
+    √(SE² + σ_GM²) (turn-table SE plus the FOG's bias instability); magnetic heading σ = the
+    ellipsoid fit's RMS field residual / H (rad). Empty (datasheet priors) when ``cals`` is None."""
+    if cals is None:
+        return {}
+    out = {}
+    se = lambda c, pre: max(d["std_error"] for d in c.physical_parameters() if d["name"].startswith(pre))
+    out["sigma0_acc_bias_m_s2"] = float(se(cals["accelerometers"], "bias_"))
+    out["sigma0_gyro_bias_rad_s"] = float(math.hypot(se(cals["gyros"], "bias_"), noise.gyro_bias_sigma))
+    mc = cals.get("magnetometer")
+    if mc is not None:
+        e3 = mc["ellipsoid"]
+        out["mag_heading_sigma_rad"] = float(e3.rms_residual_T / mc["H_T"])
+    return out
+
+
+def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, cals: dict | None = None):
     noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
-    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, mag_heading_sigma_rad=2 * DEG, gps_latency_s=opt.gps_latency_s,
+    pri = {"mag_heading_sigma_rad": 2 * DEG} | calibrated_priors(cals, noise)
+    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s, **pri,
                            gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))
     decl = flight_declination(truth)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
@@ -330,7 +350,7 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
         for name, c in (("uncalibrated", None), ("calibrated", cals)):
             stream = imu_stream(truth, volts, lab, c)
             t0 = time.perf_counter()
-            res = run_filter(truth, stream, gps, opt, lab, pbar)
+            res = run_filter(truth, stream, gps, opt, lab, pbar, c)
             t_filter += time.perf_counter() - t0
             runs[name] = (res, errors(res, truth), stream)
     duration = float(truth.time_s[-1] - truth.time_s[0])
