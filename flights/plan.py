@@ -422,7 +422,11 @@ def fly(plan: FlightPlan | None = None, progress_bar: bool = True) -> FlownPlan:
         pilot.h_c, pilot.V_c = alt, V
         pilot.psi_hold = plan.heading_deg * DEG
     labels = []
-    with progress(total=len(plan.phases), desc="flying", unit="phase") as bar:
+    import contextlib
+
+    bar_cm = (progress(total=len(plan.phases), desc="flying", unit="phase") if progress_bar
+              else contextlib.nullcontext(type("NoBar", (), {"update": lambda self, n: None})()))
+    with bar_cm as bar:
         for ph in plan.phases:
             t_start = sim.t
             for cmd in pilot.run(ph):
@@ -437,8 +441,9 @@ def fly(plan: FlightPlan | None = None, progress_bar: bool = True) -> FlownPlan:
 def simulate_flight(plan: FlightPlan | None = None, progress_bar: bool = True) -> FlightTruth:
     """Fly ``plan`` (default: the default flight) and return its :class:`FlightTruth` at the IMU.
 
-    ``meta`` carries the plan, the wall time of the MuJoCo flight (``sim_wall_s``) and the
-    real-time factor (``real_time_factor`` = flight time / wall time, MuJoCo part only)."""
+    ``meta`` carries the plan, the wall time of the MuJoCo flight (``sim_wall_s``), the
+    real-time factor (``real_time_factor`` = flight time / wall time, MuJoCo part only) and the
+    control inputs per sample (``controls``: de, da, dr in rad, thr and brake 0-1, steer rad)."""
     import time
 
     t0 = time.perf_counter()
@@ -448,7 +453,7 @@ def simulate_flight(plan: FlightPlan | None = None, progress_bar: bool = True) -
     T = cabin_temperature_K(k.time_s, -k.p_N[:, 2])
     meta = {"plan": p.to_dict(), "sim_wall_s": flown.wall_s,
             "real_time_factor": float((k.time_s[-1] - k.time_s[0] + 1 / p.rate_hz) / flown.wall_s),
-            "controls_rad": {c: v.tolist()[:0] for c, v in k.controls.items()}, "trim": flown.trim}
+            "controls": dict(k.controls), "trim": flown.trim}
     truth = truth_from_kinematics(k, p.origin, p.start_time, "citation", flown.sites["gps_antenna"],
                                   flown.sites["magnetometer"], flown.phases, meta, T)
     truth.meta["total_wall_s"] = time.perf_counter() - t0
