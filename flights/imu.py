@@ -62,7 +62,8 @@ def rig_recording(truth: FlightTruth, C_BC_: np.ndarray = C_BC) -> Recording:
     flight = {"vehicle": truth.vehicle, "lever_gps_B_m": truth.lever_gps_B.tolist(),
               "lever_mag_B_m": truth.lever_mag_B.tolist(), "mounting_C_BC": np.asarray(C_BC_, float).tolist(),
               "phases": [list(p) for p in truth.phases],
-              "meta": {k: v for k, v in truth.meta.items() if isinstance(v, (str, int, float, list, dict))}}
+              "meta": {k: v for k, v in truth.meta.items()
+                       if isinstance(v, (str, int, float, list, dict)) and k != "controls"}}
     return Recording(time_s=truth.time_s, channels={}, units={}, meta=meta, truth={"flight": flight},
                      truth_signals=ts, truth_units=tu)
 
