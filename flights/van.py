@@ -180,6 +180,7 @@ class _Driver:
     def __init__(self, sim, Cmd):
         self.sim, self.Cmd = sim, Cmd
         self.i_v = 0.0
+        self.delta = 0.0
         self.psi_hold = sim.s.psi
 
     def speed(self, v_c):
@@ -188,14 +189,25 @@ class _Driver:
         e = v_c - v
         self.i_v = max(-10.0, min(10.0, self.i_v + e * self.sim.dt))
         u = 0.25 * e + 0.05 * self.i_v + 0.012 * 2500 * 9.81 / 8000.0
-        return (max(0.0, min(1.0, u)), max(0.0, min(1.0, -0.3 * e)) if e < -0.5 else 0.0)
+        return (max(0.0, min(1.0, u)), min(0.3, -0.08 * e) if e < -0.5 else 0.0)   # gentle service braking
 
     def heading(self, psi_c):
         s = self.sim.s
         e = (psi_c - s.psi + math.pi) % (2 * math.pi) - math.pi
         return max(-0.5, min(0.5, 1.5 * e - 0.3 * s.r))
 
+    def steer(self, delta_c):
+        """The driver turns the wheel at most 0.4 rad/s at the road wheels."""
+        step = 0.4 * self.sim.dt
+        self.delta += max(-step, min(step, delta_c - self.delta))
+        return self.delta
+
     def run(self, p):
+        for cmd in self._run(p):
+            cmd.steer = self.steer(cmd.steer)
+            yield cmd
+
+    def _run(self, p):
         sim, Cmd, fs = self.sim, self.Cmd, self.sim.rate_hz
         if isinstance(p, VanParked):
             for _ in range(round(p.duration_s * fs)):
@@ -206,6 +218,13 @@ class _Driver:
                 yield Cmd(thr=thr, brake=br, steer=self.heading(self.psi_hold))
         elif isinstance(p, VanCircle):
             sgn = 1.0 if p.direction == "right" else -1.0
+            while True:                                     # slow to the circle's speed, straight on
+                s = sim.s
+                v = s.C[0] * s.vN + s.C[3] * s.vE
+                if abs(v - p.speed_m_s) < 0.3:
+                    break
+                thr, br = self.speed(p.speed_m_s)
+                yield Cmd(thr=thr, brake=br, steer=self.heading(self.psi_hold))
             s = sim.s
             cx, cy = s.pN - sgn * p.radius_m * math.sin(s.psi), s.pE + sgn * p.radius_m * math.cos(s.psi)
             turned, last = 0.0, s.psi
