@@ -34,34 +34,32 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str = "physical", earth_
                          "appendix-B format (imurig.calibration.simona.read_simona)")
 
 
+def _engine_row(where: str, f: dict, seed_says: dict) -> list:
+    """One report row for a finding of the selection engine."""
+    ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+    alias = f"; indistinguishable from {f['indistinguishable_from']}" if f.get("indistinguishable_from") else ""
+    return [where, f["effect"], f["physics"], f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
+            f"{f['variance_share'] * 100:.0f} % of the residual{alias}", seed_says.get(f["effect"], "–")]
+
+
 def _findings_rows(d: dict) -> list[list]:
     rows = []
     if d.get("kind") == "thermal":
-        for ch, e in d["channels"].items():
-            for f in e["findings"]:
-                ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
-                rows.append([f"{ch} six-position bias per step", f["effect"], f["physics"],
-                             f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
-                             f"{f['variance_share'] * 100:.0f} % of the residual",
-                             SEED_SAYS_TURN.get(f["effect"], "–")])
-        return rows
+        return [_engine_row(f"{ch} six-position bias per step", f, SEED_SAYS_TURN)
+                for ch, e in d["channels"].items() for f in e["findings"]]
     if d.get("kind") == "turn_table":
         for g, e in d["gyros"].items():
-            for f in e["findings"]:
-                ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
-                alias = f"; indistinguishable from {f['indistinguishable_from']}" if f["indistinguishable_from"] else ""
-                rows.append([f"gyro_{g} whole-round means", f["effect"], f["physics"],
-                             f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
-                             f"{f['variance_share'] * 100:.0f} % of the residual{alias}",
-                             SEED_SAYS_TURN.get(f["effect"], "–")])
+            rows += [_engine_row(f"gyro_{g} whole-round means", f, SEED_SAYS_TURN) for f in e["findings"]]
+            sc = e.get("scatter", {}).get("finding")
+            if sc:
+                rows.append([f"gyro_{g} sample noise", sc["effect"], sc["physics"],
+                             f"noise up to {sc['peak_to_median_noise']:.2f}× the median at table angles "
+                             f"{', '.join(f'{x:.0f}' for x in sc['angles_deg'])} deg; p = {sc['p_value']:.2g}",
+                             SEED_SAYS_TURN.get(sc["effect"], "–")])
         return rows
     if d.get("kind") == "tilt_table":
         for a, e in d["axes"].items():
-            for f in e["findings"]:
-                ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
-                rows.append([f"acc_{a} position means", f["effect"], f["physics"],
-                             f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
-                             f"{f['variance_share'] * 100:.0f} % of the residual", SEED_SAYS_TILT.get(f["effect"], "–")])
+            rows += [_engine_row(f"acc_{a} position means", f, SEED_SAYS_TILT) for f in e["findings"]]
             for k in ("finding_spikes", "finding_vibration"):
                 if k in e["scatter"]:
                     f = e["scatter"][k]
@@ -117,6 +115,7 @@ SEED_SAYS_TURN = {
     "earth_rate_left_out": "4.4.2: the Earth's rate (15 deg/h) adds to the table rate along the vertical axis",
     "g_sensitivity": "– (not examined in the seed)",
     "temperature_hysteresis": "4.5: the heating and cooling branches differ (hysteresis)",
+    "slip_ring_noise": "4.4.3, Fig. 4.16: noise from the slip rings, depending on the table angle",
     "time_drift": "–",
 }
 
