@@ -85,7 +85,8 @@ def test_linearised_modes_match_approximations():
     # and gravity/alpha0 terms O(g/(V w_sp)) ~ 2 %
     assert sp["omega_n_rad_s"] == pytest.approx(wn, rel=0.02)
     assert sp["zeta"] == pytest.approx(zeta, rel=0.03)
-    assert 1.5 < sp["omega_n_rad_s"] < 5.0 and 0.3 < sp["zeta"] < 0.9      # light business jet
+    assert 1.5 < sp["omega_n_rad_s"] < 5.0            # light business jet
+    assert 0.3 < sp["zeta"] < 0.9
     ph = md["phugoid"]
     # Lanchester: w = sqrt(2) g / V, accurate to ~15 % (it ignores pitch stiffness and density gradient)
     assert ph["omega_n_rad_s"] == pytest.approx(math.sqrt(2) * G0 / V0, rel=0.15)
@@ -113,7 +114,8 @@ def test_manoeuvres_come_from_control_inputs(short_flight):
     assert np.degrees(roll[s]).max() == pytest.approx(30.0, abs=2.0)
     assert np.degrees(roll[s]).min() == pytest.approx(-30.0, abs=2.0)
     n_z = -tr.f_B[:, 2] / G0
-    assert 1 / math.cos(math.radians(28)) < n_z[s].max() < 3.0      # banked turn + doublet, below the limit load
+    n_level_turn_28deg = 1 / math.cos(math.radians(28))          # load factor of a level turn at 28 deg bank
+    assert n_level_turn_28deg < n_z[s].max() < 3.0               # banked turn + doublet, below the limit load
 
 
 def test_truth_mechanisation_reproduces_itself(short_flight):

@@ -120,7 +120,7 @@ def calibration_dict(res) -> dict:
 
 def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:
     out = OutputFolder(out_dir, overwrite=overwrite)
-    try:
+    with out:  # committed on success, removed on any error
         with progress(total=3, desc="magnetometer campaign", unit="stage") as bar:
             t0 = time.perf_counter()
             rec = camp.simulate()
@@ -145,10 +145,6 @@ def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_rec
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report(camp, rec, res, figs, timing))
             bar.update()
-        out.commit()
-    except BaseException:
-        out.abort()
-        raise
     return summary
 
 

@@ -105,7 +105,7 @@ def thermal_calibration_dict(res: dict) -> dict:
 
 def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:
     out = OutputFolder(out_dir, overwrite=overwrite)
-    try:
+    with out:  # committed on success, removed on any error
         with progress(total=4, desc="thermal campaign", unit="stage") as bar:
             t0 = time.perf_counter()
             rec = camp.simulate()
@@ -135,8 +135,4 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report(camp, rec, res, figs, timing))
             bar.update()
-        out.commit()
-    except BaseException:
-        out.abort()
-        raise
     return summary

@@ -250,7 +250,7 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse", "figures"] + (["recording.h5"] if save_recording else []) + \
         (["campaign.rrd"] if rrd else []) + ["report"]
-    try:
+    with out:  # committed on success, removed on any error
         with progress(total=len(stages), desc="tilt-table campaign", unit="stage") as bar:
             def stage(name):
                 bar.set_postfix_str(name)
@@ -287,8 +287,4 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report_md(camp, rec, res, figs, timing))
             bar.update()
-        out.commit()
-    except BaseException:
-        out.abort()
-        raise
     return summary

@@ -209,7 +209,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse"] + (["timer study", "arm study", "SIMONA"] if studies else []) + \
         ["figures"] + (["recording.h5"] if save_recording else []) + (["campaign.rrd"] if rrd else []) + ["report"]
-    try:
+    with out:  # committed on success, removed on any error
         with progress(total=len(stages), desc="turn-table campaign", unit="stage") as bar:
             def stage(name):
                 bar.set_postfix_str(name)
@@ -264,10 +264,6 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report_md(camp, rec, res, ts, arm, simona, figs, timing))
             bar.update()
-        out.commit()
-    except BaseException:
-        out.abort()
-        raise
     return summary
 
 
