@@ -55,6 +55,7 @@ from imurig.errors import ConfigError, RecordingError
 BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d",
                "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
 SCALE_STATES = ("dsa_x", "dsa_y", "dsa_z", "dsg_p", "dsg_q", "dsg_r")
+GPS_STATES = ("dgps_n", "dgps_e", "dgps_d")
 P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                slice(15, 18), slice(18, 21), slice(21, 24))
 
@@ -142,13 +143,24 @@ class FilterConfig:
     gps_pos_tau_s: float | None = None
     gps_time_sigma_s: float = 0.0
     gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
+    gps_pos_states: bool = True
+
+    @property
+    def augment_gps(self) -> bool:
+        """Whether the receiver's Gauss-Markov position error is carried as 3 extra states."""
+        return bool(self.gps_pos_states and self.gps_pos_tau_s is not None)
 
     @property
     def n_states(self) -> int:
-        return 24 if self.estimate_scale_factors else 18
+        return 18 + (6 if self.estimate_scale_factors else 0) + (3 if self.augment_gps else 0)
 
     def state_names(self) -> tuple:
-        return BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
+        return (BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
+                + (GPS_STATES if self.augment_gps else ()))
+
+    def gps_slice(self) -> slice:
+        n0 = 24 if self.estimate_scale_factors else 18
+        return slice(n0, n0 + 3)
 
 
 @dataclass
@@ -157,6 +169,8 @@ class ImuStream:
 
     ``time_s`` (N,) uniform; ``w_IB_B`` (N, 3) rad/s; ``f_B`` (N, 3) m/s²; optional ``B_B``
     (N, 3) T magnetometer field; optional ``T_acc_K`` (N, 3) accelerometer temperature channels.
+    ``samples``: ``"held"`` (each sample the mean over [t_k, t_k+1), an integrating IMU, the flight
+    truth and the sensor chain) or ``"instantaneous"`` (see :func:`imurig.flights.ins.preintegrate`).
     """
 
     time_s: np.ndarray
@@ -164,6 +178,7 @@ class ImuStream:
     f_B: np.ndarray
     B_B: np.ndarray | None = None
     T_acc_K: np.ndarray | None = None
+    samples: str = "held"
 
 
 @dataclass
@@ -231,6 +246,28 @@ def declination_rad(lat_rad: float, lon_rad: float, h_m: float, year: float) -> 
     return math.radians(d)
 
 
+class IgrfDeclination:
+    """IGRF declination D(φ, λ, h) (rad, east positive) along the route at decimal ``year``,
+    cached on a ``cell_deg`` grid (0.01 deg ≈ 1 km: D changes by ~0.005 deg per km over the
+    Netherlands, below the fluxgate's noise). Callable as ``D(lat_rad, lon_rad, h_m)``. The
+    filter evaluates it at its own position at every magnetometer update: a constant D from the
+    take-off point is 0.13 deg (mean) off over the default route (0.29 deg at the coast)."""
+
+    def __init__(self, year: float, cell_deg: float = 0.01):
+        self.year = float(year)
+        self.cell_deg = float(cell_deg)
+        self._cache: dict = {}
+
+    def __call__(self, lat_rad: float, lon_rad: float, h_m: float) -> float:
+        key = (round(math.degrees(lat_rad) / self.cell_deg), round(math.degrees(lon_rad) / self.cell_deg),
+               round(h_m / 500.0))
+        d = self._cache.get(key)
+        if d is None:
+            d = self._cache[key] = declination_rad(key[0] * self.cell_deg * math.pi / 180,
+                                                   key[1] * self.cell_deg * math.pi / 180, key[2] * 500.0, self.year)
+        return d
+
+
 def mag_heading(B_B, roll, pitch, decl):
     """Heading (rad, from true north) of the field ``B_B`` (3,) levelled by roll and pitch:
     B_h = Ry(θ) Rx(φ) B_B;  ψ = atan2(−B_h,y, B_h,x) + D."""
@@ -248,9 +285,12 @@ class LooseEKF:
         self.cfg = config or FilterConfig()
         self.noise = noise or ImuNoise()
         self.l_gps = np.asarray(lever_gps_B, float)
-        self.decl = float(declination)
+        self.decl = declination if callable(declination) else float(declination)
         if self.cfg.nav_rate_hz <= 0:
             raise ConfigError("nav_rate_hz must be positive")
+        if self.cfg.gps_pos_tau_s is not None and not self.cfg.gps_pos_tau_s > 0:
+            raise ConfigError(f"gps_pos_tau_s must be > 0 s, got {self.cfg.gps_pos_tau_s!r}")
+        self._gps_gm_var = np.zeros(3)   # σ_GM² per NED axis of the receiver's correlated error (set by run)
 
     # ---------------------------------------------------------------------------- model
     def _F(self, x: ins.NavState, f_B, w_B, C):
@@ -286,6 +326,9 @@ class LooseEKF:
         if self.cfg.estimate_scale_factors:
             F[V, SA] = -C * f_B
             F[A, SG] = C * w_B
+        if self.cfg.augment_gps:
+            G = self.cfg.gps_slice()
+            F[G, G] = -np.eye(3) / self.cfg.gps_pos_tau_s
         return F
 
     def _Qc(self):
@@ -298,6 +341,8 @@ class LooseEKF:
         q[TA] = nz.temp_rw ** 2
         if self.cfg.estimate_scale_factors:
             q[SA] = q[SG] = nz.scale_rw ** 2
+        if self.cfg.augment_gps:
+            q[self.cfg.gps_slice()] = 2.0 * self._gps_gm_var / self.cfg.gps_pos_tau_s
         return q
 
     def initial_covariance(self):
@@ -312,6 +357,8 @@ class LooseEKF:
         if c.estimate_scale_factors:
             s[SA] = c.sigma0_acc_scale
             s[SG] = c.sigma0_gyro_scale
+        if c.augment_gps:
+            s[c.gps_slice()] = np.sqrt(self._gps_gm_var)
         return np.diag(s ** 2)
 
     # ---------------------------------------------------------------------------- run
@@ -324,15 +371,27 @@ class LooseEKF:
         K = max(1, round(fs / c.nav_rate_hz))
         if gps is not None:
             check_gps(gps, fs)
-        inc = ins.preintegrate(t_imu, imu.w_IB_B, imu.f_B, K)
+        inc = ins.preintegrate(t_imu, imu.w_IB_B, imu.f_B, K, samples=getattr(imu, "samples", "held"))
         T = inc.T_s
         M = inc.dtheta_B.shape[0]
         idx = np.arange(M + 1) * K
         w_mean = np.asarray(imu.w_IB_B)[idx]        # rates at the epochs (for F and lever arms)
         f_mean = np.asarray(imu.f_B)[idx]
         n = c.n_states
+        G = c.gps_slice() if c.augment_gps else None
+        s_w2 = np.asarray(c.gps_pos_sigma_white_N_m, float) ** 2
+        valid_g = np.zeros(0, bool)
+        if gps is not None:
+            valid_g = np.asarray(gps.valid, bool)
+            if G is not None and np.any(valid_g):
+                s2_first = np.asarray(gps.sigma_pos_N, float)[np.flatnonzero(valid_g)[0]] ** 2
+                self._gps_gm_var = np.maximum(s2_first - s_w2, 0.0)
         Pm = self.initial_covariance() if P0 is None else np.array(P0, float)
+        if Pm.shape != (n, n):
+            raise ConfigError(f"P0 has shape {Pm.shape}, the filter has {n} states ({', '.join(c.state_names())})")
         qc = self._Qc()
+        bgps = np.zeros(3)          # estimate of the receiver's Gauss-Markov position error, NED m
+        phi_gps = math.exp(-inc.T_s / c.gps_pos_tau_s) if G is not None else 1.0
         x = x0.copy()
         ba = np.zeros(3)
         bg = np.zeros(3)
@@ -355,7 +414,6 @@ class LooseEKF:
             if c.gps_pos_tau_s is not None and tg.size > 1:
                 phi_g = math.exp(-float(np.median(np.diff(tg))) / c.gps_pos_tau_s)
                 gm_inflation = (1.0 + phi_g) / (1.0 - phi_g)
-            s_w2 = np.asarray(c.gps_pos_sigma_white_N_m, float) ** 2
             for i in np.flatnonzero(ok):
                 gps_use[int(use_at[i])].append(int(i))
         mag_every = max(1, round(c.nav_rate_hz / c.mag_rate_hz)) if (c.use_magnetometer and imu.B_B is not None) else 0
@@ -379,7 +437,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, Ta, sa, sg, x
+            nonlocal ba, bg, Ta, sa, sg, x, bgps
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -394,6 +452,8 @@ class LooseEKF:
             if c.estimate_scale_factors:
                 sa = sa - dx[SA]
                 sg = sg - dx[SG]
+            if G is not None:
+                bgps = bgps - dx[G]
 
         def update(kind, tk, z, H, R):
             nonlocal Pm
@@ -437,7 +497,19 @@ class LooseEKF:
                     H[:, V] = -lag * np.eye(3)
                     H[:, A] = ins._skew(Cl)
                     s2 = np.asarray(gps.sigma_pos_N[i], float) ** 2
-                    if c.gps_pos_tau_s is not None:
+                    if G is not None:
+                        # the correlated part is a state: re-started (receiver re-acquired) after a gap
+                        self._gps_gm_var = np.maximum(s2 - s_w2, 0.0)
+                        qc[G] = 2.0 * self._gps_gm_var / c.gps_pos_tau_s
+                        if i == 0 or not valid_g[i - 1]:
+                            bgps = np.zeros(3)
+                            Pm[G, :] = 0.0
+                            Pm[:, G] = 0.0
+                            Pm[G, G] = np.diag(self._gps_gm_var)
+                        z = z + bgps
+                        H[:, G] = np.eye(3)
+                        s2 = np.minimum(s_w2, s2)
+                    elif c.gps_pos_tau_s is not None:
                         s2 = np.minimum(s_w2, s2) + np.maximum(s2 - s_w2, 0.0) * gm_inflation
                     R = np.diag(c.gps_sigma_scale ** 2 * s2)
                     if c.gps_time_sigma_s > 0:
@@ -455,11 +527,17 @@ class LooseEKF:
                         H[:, A] = ins._skew(lv)
                         H[:, BG] = C @ ins._skew(self.l_gps)
                         R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_vel_N[i], float)) ** 2)
+                        if c.gps_time_sigma_s > 0:
+                            # time-of-validity error δt: the fix's velocity is off by a_N δt
+                            w_ie_, w_en_, g_n, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
+                            a_n = C @ f_mean[k] + g_n - np.cross(2.0 * w_ie_ + w_en_, x.v_N)
+                            R = R + c.gps_time_sigma_s ** 2 * np.outer(a_n, a_n)
                         update("gps_vel", tk, z, H, R)
                     C = ins._dcm(x.q_NB)
             if mag_every and k % mag_every == 0:
                 roll, pitch, yaw = E.euler_from_C(C)
-                psi_m = mag_heading(np.asarray(imu.B_B[idx[k]], float), roll, pitch, self.decl)
+                decl = self.decl(x.lat_rad, x.lon_rad, x.h_m) if callable(self.decl) else self.decl
+                psi_m = mag_heading(np.asarray(imu.B_B[idx[k]], float), roll, pitch, decl)
                 z = np.array([E.wrap_pi(yaw - psi_m)])
                 d = C[0, 0] ** 2 + C[1, 0] ** 2
                 H = np.zeros((1, n))
@@ -486,6 +564,7 @@ class LooseEKF:
             dv = (inc.dv_B[k] - f_corr * T) * (1.0 - sa)
             F = self._F(x, (fB - f_corr) * (1 - sa), (wB - bg) * (1 - sg), C)
             x = ins.nav_step(x, dth, dv, T)
+            bgps = bgps * phi_gps
             FT = F * T
             Phi = I_n + FT + 0.5 * FT @ FT
             Qd = 0.5 * (Phi * qc) @ Phi.T * T + 0.5 * np.diag(qc) * T
@@ -576,4 +655,5 @@ def synthetic_sensors(truth, noise: ImuNoise, rng: np.random.Generator, *, acc_b
     for t0, t1 in outages:
         valid &= ~((t[gi] >= t0) & (t[gi] < t1))
     gps = SimpleGps(t[gi].copy(), lat, lon, h, v, sp, sv, valid=valid)
-    return ImuStream(t, w, f, B_B, Tm), gps, {"acc_bias_m_s2": ba, "gyro_bias_rad_s": bg}
+    return ImuStream(t, w, f, B_B, Tm, samples=ins.sample_semantics(truth)), gps, {"acc_bias_m_s2": ba,
+                                                                                 "gyro_bias_rad_s": bg}

@@ -108,11 +108,15 @@ def gps_fixes(truth, opt: FlightOptions, seed: int):
         fx = rx.measure(truth, rng)
         # The receiver's tag is the IMU sample at which the logger sees the fix: time of validity
         # + latency + jitter, rounded UP to the IMU clock. Time of validity used by the filter:
-        # tag − latency − Δt_IMU/2 (the mean of the rounding); what remains is uniform over
-        # ±Δt_IMU/2 plus the jitter: σ_t² = Δt_IMU²/12 + σ_jitter², added to R as σ_t² v vᵀ.
+        # tag − latency − Δt_IMU/2 (the mid-point of the rounding interval); what remains lies in
+        # ±Δt_IMU/2 plus the jitter. The phase of the GPS epochs against the IMU clock is unknown
+        # and constant (both clocks are stable), so the rounding error is NOT uniform: with the
+        # epochs on the IMU grid it is ±Δt_IMU/2 with equal odds (the jitter decides). Its largest
+        # possible variance, (Δt_IMU/2)², is the one used: σ_t² = (Δt_IMU/2)² + σ_jitter²,
+        # added to R as σ_t² v vᵀ (position) and σ_t² a aᵀ (velocity).
         dti = 1.0 / truth.rate_hz if rx.quantise_to_imu else 0.0
         opt.gps_latency_s = float(rx.latency_s + dti / 2)   # time_offset_s is an unknown error: not removed
-        opt.gps_time_sigma_s = math.sqrt(dti ** 2 / 12 + rx.time_jitter_s ** 2)
+        opt.gps_time_sigma_s = math.sqrt((dti / 2) ** 2 + rx.time_jitter_s ** 2)
         return ekf.SimpleGps(fx.time_s - opt.gps_latency_s, fx.lat_rad, fx.lon_rad, fx.h_m, fx.v_N, fx.sigma_pos_N,
                              fx.sigma_vel_N, mode=fx.mode, valid=np.asarray(fx.valid, bool), meta=fx.meta)
     step = max(1, round(truth.rate_hz / opt.gps_rate_hz))
@@ -215,7 +219,7 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
         B = np.column_stack([c * B[:, 0] - s_ * B[:, 1], s_ * B[:, 0] + c * B[:, 1], B[:, 2]])
     sensor = lab.temp_sensors["temp_acc_x"]
     Tk = np.stack([sensor.temperature_K(volts[f"temp_acc_{a}"]) for a in "xyz"], 1)
-    return ekf.ImuStream(truth.time_s, w, f, B, Tk)
+    return ekf.ImuStream(truth.time_s, w, f, B, Tk, samples=ins.sample_semantics(truth))
 
 
 def flight_declination(truth) -> float:
@@ -224,6 +228,13 @@ def flight_declination(truth) -> float:
 
     yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
     return ekf.declination_rad(float(truth.lat_rad[0]), float(truth.lon_rad[0]), float(truth.h_m[0]), yr)
+
+
+def declination_model(truth) -> ekf.IgrfDeclination:
+    """IGRF declination along the route (callable D(lat, lon, h), rad) at the flight's date."""
+    from imurig.site import decimal_year, parse_time
+
+    return ekf.IgrfDeclination(decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00"))))
 
 
 def gps_error_model(gps) -> dict:
@@ -259,7 +270,7 @@ def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, c
     cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s, **pri,
                            gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))
     decl = flight_declination(truth)
-    f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
+    f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=declination_model(truth))
     x0 = align(truth, stream, gps, decl)
     last = [0]
 
@@ -298,13 +309,15 @@ def errors(res: ekf.FilterResult, truth) -> dict:
             "heading_rad": E.wrap_pi(y_est - y_t), "nees": ekf.nees_nav(res, truth, idx)}
 
 
-def mag_heading_error_rms_deg(truth, stream, decl: float, every_s: float = 1.0) -> float:
+def mag_heading_error_rms_deg(truth, stream, decl, every_s: float = 1.0) -> float:
     """RMS (deg) of the magnetometer's own heading (levelled with the TRUE roll and pitch, + IGRF
-    declination) against the true heading, once per ``every_s``: the compass error alone."""
+    declination ``decl``: rad, or a callable D(lat, lon, h)) against the true heading, once per
+    ``every_s``: the compass error alone."""
     step = max(1, round(every_s * truth.rate_hz))
     i = np.arange(0, truth.n, step)
     r, p_, y = E.euler_from_q(truth.q_NB[i])
-    psi = np.array([ekf.mag_heading(stream.B_B[j], r[k], p_[k], decl) for k, j in enumerate(i)])
+    dec = (lambda j: decl(truth.lat_rad[j], truth.lon_rad[j], truth.h_m[j])) if callable(decl) else (lambda j: decl)
+    psi = np.array([ekf.mag_heading(stream.B_B[j], r[k], p_[k], dec(j)) for k, j in enumerate(i)])
     return _rms(E.wrap_pi(psi - y)) / DEG
 
 
@@ -360,7 +373,7 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
                "runs": {k: summarise(e, r) for k, (r, e, _) in runs.items()},
                "filter_wall_s": t_filter, "real_time_factor": 2 * duration / t_filter}
     mc = cals.get("magnetometer")
-    decl = flight_declination(truth)
+    decl = declination_model(truth)
     for k, (_r, _e, st) in runs.items():
         summary["runs"][k]["mag_heading_rms_deg"] = mag_heading_error_rms_deg(truth, st, decl)
     summary["magnetometer_calibration"] = None if mc is None else {

@@ -205,7 +205,8 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
     if T_imu_K is None:
         T_imu_K = cabin_temperature_K(t, h)
     m = {"start_time": start_time, "origin_deg": list(origin_deg), "earth_model": "WGS-84 (imurig.flights.earth)",
-         "magnetic_model": "IGRF (pyIGRF 0.3.3)", "kinematics": "MuJoCo flat world, semi-implicit Euler"}
+         "magnetic_model": "IGRF (pyIGRF 0.3.3)", "kinematics": "MuJoCo flat world, semi-implicit Euler",
+         "imu_samples": "held" if zoh else "instantaneous"}
     m.update(meta or {})
     return FlightTruth(time_s=t, rate_hz=float(kin.rate_hz), lat_rad=lat, lon_rad=lon, h_m=h, v_N=kin.v_N.copy(),
                        q_NB=q, f_B=f_B, w_IB_B=w_IB_B, B_B=B_B, T_imu_K=np.asarray(T_imu_K, float),
