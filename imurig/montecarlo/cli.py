@@ -27,8 +27,8 @@ def add_montecarlo_parser(sub) -> None:
                     "results.h5, summary.json and report.md (error histograms, RMS beside the Cramér-Rao bound, "
                     "coverage of the 95 % intervals). --compare-schedules compares schedules on accuracy against "
                     "lab time (seed Table 4.7).")
-    p.add_argument("campaign", help="campaign to study: tilt-table (or any campaign registered with "
-                                    "imurig.montecarlo.register)")
+    p.add_argument("campaign", help="campaign to study: tilt-table, turn-table or flight (or any campaign "
+                                    "registered with imurig.montecarlo.register)")
     p.add_argument("--runs", type=int, default=200, help="number of runs N (per schedule with --compare-schedules)")
     p.add_argument("--seed", type=int, default=2005, help="master seed: run i uses SeedSequence(seed, spawn_key=(i,))")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -44,32 +44,52 @@ def add_montecarlo_parser(sub) -> None:
     p.add_argument("--distributions", default=None, metavar="FILE",
                    help="TOML/JSON of user-set error distributions {source: {mean, std|variance}} (SI)")
     p.add_argument("--compare-schedules", action="store_true",
-                   help="design of experiments: 12 vs 6 phi positions x 15 vs 60 s dwell, accuracy vs lab time")
+                   help="design of experiments, accuracy vs lab time: tilt-table 12 vs 6 phi positions x 15 vs "
+                        "60 s dwell; turn-table 9 vs 15 gyro rates")
     s = p.add_argument_group("schedule (default: the seed's 10 x 12 x 2 positions, 15 s, 100 Hz averaged logging)")
     s.add_argument("--theta", type=_floats, default=None, metavar="DEG,...", help="tilt angles")
     s.add_argument("--phi", type=_floats, default=None, metavar="DEG,...", help="rotation angles")
-    s.add_argument("--mounts", type=_words, default=None, metavar="MOUNT,...", help="mountings: z_down, z_up")
+    s.add_argument("--mounts", type=_words, default=None, metavar="MOUNT,...",
+                   help="mountings: z_down, z_up (tilt table); p_up, q_up, r_up, ..._down (turn table)")
     s.add_argument("--dwell", type=float, default=None, help="seconds acquired per position")
     s.add_argument("--rate", type=float, default=None, help="logged sample rate, Hz")
     s.add_argument("--logging", choices=["averaged", "direct"], default=None,
                    help="averaged: each sample the mean of the 1 kHz conversions; direct: 1 kHz samples")
     s.add_argument("--rig", choices=["static", "mujoco"], default=None,
                    help="static: closed-form rest windows; mujoco: the full MuJoCo table every run (slow)")
-    s.add_argument("--model", choices=["physical", "linear", "cross"], default=None, help="calibration model")
+    s.add_argument("--model", default=None, help="calibration model (tilt table: physical, linear, cross; "
+                                                  "turn table: physical)")
     s.add_argument("--statistic", choices=["median", "mean"], default=None, help="per-position statistic")
     s.add_argument("--setting-resolution-arcmin", type=float, default=None, help="table angle-setting resolution")
     s.add_argument("--survey-arcsec", type=float, default=None, help="inclinometer survey accuracy (1 sigma)")
     s.add_argument("--no-people", action="store_true", help="no door/chair transients")
+    t = p.add_argument_group("turn-table schedule (default: the quick protocol, 5 dial rates 10-100 deg/s, 8 s, "
+                             "200 Hz)")
+    t.add_argument("--protocol", choices=["quick", "full"], default=None,
+                   help="quick (~1 s per run) or full: the seed's 9 dial rates 1-100 deg/s, 10 s, 1 kHz (~20 s per run)")
+    t.add_argument("--rates", type=_floats, default=None, metavar="DPS,...", help="dial rates, deg/s")
+    t.add_argument("--directions", type=_floats, default=None, metavar="1,-1", help="directions: 1, -1 or both")
+    t.add_argument("--window", type=float, default=None, help="least whole-round acquisition per step, s")
+    t.add_argument("--timer", choices=["adc", "gps_mark", "hp6700"], default=None, help="round timer")
+    f = p.add_argument_group("flight (error budget)")
+    f.add_argument("--duration", type=float, default=None, help="flight length, s (the short default plan is cut)")
+    f.add_argument("--budget", choices=["one-at-a-time", "all-on"], default=None,
+                   help="one-at-a-time: every run flies once per error source alone, once with all on, once "
+                        "with none (the budget); all-on: only the all-on flight")
     p.set_defaults(func=run_cli)
 
 
 def _params(args) -> dict:
     m = {"theta": "theta_deg", "phi": "phi_deg", "mounts": "mounts", "dwell": "dwell_s", "rate": "sample_rate_hz",
          "logging": "logging", "rig": "rig", "model": "model", "statistic": "statistic",
-         "setting_resolution_arcmin": "setting_resolution_arcmin", "survey_arcsec": "survey_accuracy_arcsec"}
+         "setting_resolution_arcmin": "setting_resolution_arcmin", "survey_arcsec": "survey_accuracy_arcsec",
+         "protocol": "protocol", "rates": "dial_rates_dps", "window": "min_window_s", "timer": "timer",
+         "duration": "duration_s", "budget": "budget"}
     out = {v: getattr(args, k) for k, v in m.items() if getattr(args, k) is not None}
     if args.no_people:
         out["people"] = False
+    if args.directions is not None:
+        out["directions"] = [int(d) for d in args.directions]
     return out
 
 

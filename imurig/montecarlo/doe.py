@@ -23,15 +23,20 @@ GROUPS = {"sensitivity": ("sensitivity_", 1e6, "ppm of S"), "misalignment": ("mi
           "bias": ("bias_", 1e6 / 9.80665, "µg"), "nonlinearity": ("nonlinearity_", 1e6 * 9.80665, "µg/g²")}
 
 
+TILT_NOTE = ("Acquiring time in seconds; the rest in minutes. The seed: warm-up 15 min, 15 s acquisition, "
+             "10 min for 12 phi positions, 120 min for 10 tilt angles, 280 min for the complete calibration.")
+
+
 def slug(label: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", label.lower()).strip("-")
 
 
-def group_rms(stats: list[dict], study_rows) -> dict:
-    """RMS error and CRLB per parameter group (RMS over the group's parameters), in display units.
+def group_rms(stats: list[dict], study_rows, groups: dict | None = None) -> dict:
+    """RMS error and CRLB per parameter group (RMS over the group's parameters), in display units
+    (``groups``: {group: (name prefix, scale, unit)}, default the accelerometer's).
     Sensitivity errors are relative (estimate / injected - 1)."""
     out = {}
-    for g, (prefix, scale, unit) in GROUPS.items():
+    for g, (prefix, scale, unit) in (groups or GROUPS).items():
         sel = [s for s in stats if s["name"].startswith(prefix) and s.get("rms") is not None]
         if not sel:
             continue
@@ -98,11 +103,12 @@ def compare_schedules(campaign, runs: int, master_seed: int = 0, out=None, base_
             p = camp.validate(params)
             results.append({"label": label, "folder": f"schedules/{slug(label)}", "params": p,
                             "lab_time": camp.lab_time(p),
-                            "table_4_7": table_47(camp, p) if camp.name == "tilt-table" else {},
-                            "groups": group_rms(st.stats, st.rows), "timing": st.timing})
+                            "table_4_7": camp.table_4_7(p) if hasattr(camp, "table_4_7") else {},
+                            "groups": group_rms(st.stats, st.rows, getattr(camp, "doe_groups", None)),
+                            "timing": st.timing})
     figs = _figure(results, out)
     summary = {"campaign": camp.name, "runs_per_schedule": runs, "master_seed": master_seed, "schedules": results,
-               "figures": figs}
+               "figures": figs, "table_4_7_note": getattr(camp, "table_4_7_note", None)}
     _atomic_text(out / "summary.json", json.dumps(clean_json(summary), indent=2, allow_nan=False) + "\n")
     _atomic_text(out / "report.md", _render(summary))
     return summary
@@ -114,7 +120,7 @@ def _figure(results, out: Path) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    groups = [g for g in GROUPS if all(g in r["groups"] for r in results)]
+    groups = [g for g in results[0]["groups"] if all(g in r["groups"] for r in results)]
     if not groups or not all("lab_time_seed_rates_s" in r["lab_time"] for r in results):
         return {}
     fig, axes = plt.subplots(1, len(groups), figsize=(3.2 * len(groups), 3.4), squeeze=False)
@@ -146,12 +152,11 @@ def _render(summary: dict) -> str:
     keys = list(dict.fromkeys(k for r in res for k in r["table_4_7"]))
     lines.append(md_table(["step"] + [r["label"] for r in res],
                           [[k] + [None if k not in r["table_4_7"] else
-                                  (r["table_4_7"][k] if k.startswith("acquiring") else r["table_4_7"][k] / 60)
+                                  (r["table_4_7"][k] if k == "acquiring time per position" else r["table_4_7"][k] / 60)
                                   for r in res] for k in keys]))
-    lines.append("\nAcquiring time in seconds; the rest in minutes. The seed: warm-up 15 min, 15 s acquisition, "
-                 "10 min for 12 phi positions, 120 min for 10 tilt angles, 280 min for the complete calibration.\n")
+    lines.append("\n" + (summary.get("table_4_7_note") or TILT_NOTE) + "\n")
     lines.append("\n## Accuracy against lab time\n")
-    groups = [g for g in GROUPS if all(g in r["groups"] for r in res)]
+    groups = [g for g in res[0]["groups"] if all(g in r["groups"] for r in res)]
     hdr = ["schedule", "positions", "lab time (h)"]
     if not all("lab_time_seed_rates_s" in r["lab_time"] for r in res):
         return "\n".join(lines)

@@ -46,4 +46,8 @@ def names() -> list[str]:
 
 
 def _load_builtin() -> None:
-    from imurig.montecarlo import tilt  # noqa: F401  (registers "tilt-table")
+    from imurig.montecarlo import (
+        flight,  # noqa: F401  (registers "flight")
+        tilt,  # noqa: F401  (registers "tilt-table")
+        turn,  # noqa: F401  (registers "turn-table")
+    )

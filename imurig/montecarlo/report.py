@@ -183,7 +183,10 @@ def write_study_outputs(study, campaign) -> dict:
     folder = Path(study.path)
     stats = parameter_stats(study.rows)
     write_results_h5(folder / "results.h5", study)
-    figs = figures(study, stats, folder)
+    figs = figures(study, stats, folder) if getattr(campaign, "generic_figures", True) else {}
+    extra = campaign.extra_report(study, folder) if hasattr(campaign, "extra_report") else None
+    if extra:
+        figs.update(extra.get("figures", {}))
     lab = campaign.lab_time(study.config["params"]) if hasattr(campaign, "lab_time") else {}
     info = [r["info"] for r in study.runs.values()]
     per_run = {k: float(np.mean([i[k] for i in info if k in i])) for k in ("wall_s", "simulate_s", "estimate_s",
@@ -195,13 +198,16 @@ def write_study_outputs(study, campaign) -> dict:
     summary = {"config": study.config, "runs": len(study.runs), "timing": study.timing, "per_run_mean": per_run,
                "lab_time": lab, "overall": summary_lines(stats), "parameters": stats,
                "files": {"results": "results.h5", "runs": "runs/", **{k: v for k, v in figs.items()}}}
+    if extra:
+        summary.update(extra.get("summary", {}))
     _atomic_text(folder / "summary.json", json.dumps(clean_json(summary), indent=2, allow_nan=False) + "\n")
     _write_rrd(folder / "study.rrd", study, stats)
-    _atomic_text(folder / "report.md", render_report(study, stats, figs, lab, per_run))
+    _atomic_text(folder / "report.md", render_report(study, stats, figs, lab, per_run,
+                                                     extra.get("markdown", "") if extra else ""))
     return summary
 
 
-def render_report(study, stats, figs, lab, per_run) -> str:
+def render_report(study, stats, figs, lab, per_run, extra_md: str = "") -> str:
     cfg = study.config
     ov = summary_lines(stats)
     t = study.timing or {}
@@ -230,6 +236,7 @@ def render_report(study, stats, figs, lab, per_run) -> str:
                   (f"{fmt(per_run.get('simulate_s'), 3)} / {fmt(per_run.get('estimate_s'), 3)} / "
                   f"{fmt(per_run.get('crlb_s'), 3)}")],
                  ["samples per run", per_run.get("samples")]]),
+             extra_md,
              "\n## Per parameter\n", stats_table(stats)]
     if lab:
         lines += ["\n## Schedule and lab time\n", md_table(["quantity", "value"], [[k, v] for k, v in lab.items()]),

@@ -172,6 +172,12 @@ class TiltTableMC:
                 "rig_time_s": rig_s, "lab_time_seed_rates_s": seed_s,
                 "samples": int(lay["n_window"] * nruns), "sample_rate_hz": p["sample_rate_hz"]}
 
+    def table_4_7(self, p: dict) -> dict:
+        """The seed's Table 4.7 rows for this schedule (seconds)."""
+        from imurig.montecarlo.doe import table_47
+
+        return table_47(self, p)
+
     def schedules(self) -> dict[str, dict]:
         """Design-of-experiments variants (issue 7): 12 vs 6 phi positions, 15 vs 60 s dwell."""
         return {"12 phi, 15 s (seed)": {}, "6 phi, 15 s": {"phi_deg": PHI_6},
