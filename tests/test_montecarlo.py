@@ -444,3 +444,215 @@ def test_tilt_table_study_intervals_cover(tilt_study):
     """Every parameter's 95 % interval coverage inside its 99 % binomial band."""
     bad = [(s["name"], s["coverage"]) for s in tilt_study.stats if not s["coverage_ok"]]
     assert not bad, bad
+
+
+# ------------------------------------------------------------------ turn table
+@pytest.fixture(scope="module")
+def turn_run():
+    """One quick turn-table run (its recording, whole-round windows, rates, params)."""
+    from imurig.calibration.gyro import round_windows
+
+    from imurig.montecarlo.turn import TURN_TABLE
+
+    p = TURN_TABLE.validate({})
+    rec = TURN_TABLE.simulate(p, np.random.SeedSequence(12))
+    rw, rate = round_windows(rec, p["timer"])
+    return p, rec, rw, rate
+
+
+def test_turn_table_forward_model_matches_the_sensor(turn_run):
+    """The CRLB's forward model is FOGTriad.ideal_voltage at the reference temperature, for the
+    rates of the schedule along each mounted axis (closed form, machine precision)."""
+    from imurig.calibration.gyro import AXIS_OF_MOUNT
+    from imurig.sensors.gyro import FOGTriad
+
+    from imurig.montecarlo.turn import forward_volts
+
+    _, rec, rw, rate = turn_run
+    g = rec.truth["sensors"]["gyros"]
+    tri = FOGTriad(**{k: g[k] for k in ("scale_V_per_rad_s", "bias_rad_s", "misalignment_rad", "k2_per_rad_s")})
+    M = tri.misalignment_rad
+    th = np.concatenate([tri.scale_V_per_rad_s, [M[i, j] for i in range(3) for j in range(3) if i != j],
+                         tri.bias_rad_s, tri.k2_per_rad_s])
+    E = np.zeros((rw.n_segments, 3))
+    for i, m in enumerate(rw.segments["mount"]):
+        j, s = AXIS_OF_MOUNT[str(m)]
+        E[i, j] = s
+    wv = 4.7e-5
+    np.testing.assert_allclose(forward_volts(th, rate, E, wv), tri.ideal_voltage(E * (rate + wv)[:, None]),
+                               rtol=1e-14, atol=1e-15)
+
+
+def test_turn_table_noise_model_matches_simulated_whole_round_means(turn_run):
+    """The CRLB's noise model (whole_round_noise: ARW + bias instability via segment_covariance,
+    ADC, common mode, slip rings) against the chain: the 90 whole-round means of (measured -
+    noise-free) volts, whitened by it, give r' C^-1 r ~ chi2(90); two-sided bound at 1e-3.
+    The ADC and slip-ring terms matter: without them (the calibration's GLS covariance alone) the
+    expected chi2 would be > 1.2 per degree of freedom."""
+    from imurig.sensors.gyro import FOGTriad
+
+    from imurig.montecarlo.turn import whole_round_noise
+
+    p, rec, rw, rate = turn_run
+    g = rec.truth["sensors"]["gyros"]
+    tri = FOGTriad(**{k: g[k] for k in ("scale_V_per_rad_s", "bias_rad_s", "misalignment_rad", "k2_per_rad_s")})
+    w = np.stack([rec.truth_signals[f"w_C_{a}"] for a in "xyz"], 1)
+    d = rec.stack(["gyro_p", "gyro_q", "gyro_r"]) - tri.ideal_voltage(w)
+    r = np.concatenate([d[s].mean(0) for s in rw.segment_slices()])
+    C = whole_round_noise(rec, rw, rate, p)
+    n = r.size
+    chi = float(r @ np.linalg.solve(C, r))
+    assert sst.chi2.ppf(5e-4, n) <= chi <= sst.chi2.isf(5e-4, n), chi / n
+    # the FOG terms alone (no ADC, common mode or slip rings) understate these means' noise
+    from imurig.calibration.gyro import segment_covariance
+
+    K = segment_covariance(rw, rate, rec.meta["gyro_noise_model"], 0.0)
+    C_fog = np.einsum("ij,k,kl->ikjl", K, tri.scale_V_per_rad_s**2, np.eye(3)).reshape(n, n)
+    assert np.trace(np.linalg.solve(C_fog, C)) / n > 1.2
+
+
+def test_turn_table_lab_time_follows_the_rig_and_the_seed(turn_run):
+    """Acquisition = whole rounds at the true rate: within 1 % (the dial setting error, 0.3 %)
+    of the timer's windows of a simulated run; the seed's schedule gives its 60 min per gyro;
+    15 rates take longer than 9."""
+    from imurig.montecarlo.turn import SEED_9_RATES, TURN_TABLE
+
+    p, _rec, rw, _ = turn_run
+    lab = TURN_TABLE.lab_time(p)
+    T = rw.segments["stop_s"] - rw.segments["start_s"]
+    sim_acq = float(T.sum()) / len(p["mounts"])
+    assert lab["acquiring_per_gyro_s"] == pytest.approx(sim_acq, rel=0.01)
+    assert lab["positions"] == rw.n_segments == 30
+    full = TURN_TABLE.validate({"dial_rates_dps": SEED_9_RATES, "min_window_s": 10.0})
+    assert TURN_TABLE.lab_time(full)["per_gyro_s"] == pytest.approx(3600.0)
+    assert TURN_TABLE.lab_time(full)["lab_time_seed_rates_s"] == pytest.approx(900 + 3 * 3600)
+    sch = TURN_TABLE.schedules()
+    times = [TURN_TABLE.lab_time(TURN_TABLE.validate(o))["lab_time_seed_rates_s"] for o in sch.values()]
+    assert len(sch) == 2 and times[1] > times[0]
+    assert "complete calibration (3 gyros)" in TURN_TABLE.table_4_7(full)
+
+
+def test_turn_table_run_reproduced_alone_equals_its_row(client, tmp_path):
+    """A turn-table run on the dask cluster reproduced alone equals its row; every row carries
+    injected value, estimate, SE, z and a positive Cramér-Rao bound."""
+    st = run_study("turn-table", 1, master_seed=31, client=client, out=tmp_path / "tt")
+    alone = reproduce_run("turn-table", 0, 31)
+    assert alone["rows"] == st.rows[0]
+    assert len(alone["rows"]) == 15
+    for r in alone["rows"]:
+        assert r["crlb"] > 0 and r["std_error"] > 0 and r["injected"] is not None
+        assert abs(r["z"]) <= 5, r
+    assert "turn-table" in (tmp_path / "tt" / "report.md").read_text()
+
+
+@pytest.mark.parametrize("params, msg", [({"timer": "sundial"}, "timer"), ({"protocol": "long"}, "protocol"),
+                                         ({"theta_deg": [0, 90]}, "unknown turn-table setting"),
+                                         ({"sample_rate_hz": 2000}, "1000 Hz")])
+def test_bad_turn_table_settings_refused(params, msg):
+    with pytest.raises((ConfigError, ScheduleError), match=msg):
+        registry.get("turn-table").validate(params)
+
+
+def test_too_few_gyro_rates_refused():
+    with pytest.raises(UnidentifiableTermsError):
+        registry.get("turn-table").validate({"dial_rates_dps": [10.0], "directions": [1]})
+
+
+@pytest.mark.slow
+def test_turn_table_study_sits_on_its_bound_and_covers(client, tmp_path):
+    """40 quick turn-table runs: the GLS calibration is efficient, N (RMS/CRLB)^2 in the chi2(N)
+    band for every parameter (Bonferroni over 15, 1e-3), and every coverage in its 99 % band."""
+    st = run_study("turn-table", 40, master_seed=2005, client=client, out=tmp_path / "tt40")
+    a = 1e-3 / 15
+    for s in st.stats:
+        v = 40 * s["rms_over_crlb"] ** 2
+        assert sst.chi2.ppf(a / 2, 40) <= v <= sst.chi2.isf(a / 2, 40), (s["name"], s["rms_over_crlb"])
+        assert s["coverage_ok"], (s["name"], s["coverage"])
+
+
+# ------------------------------------------------------------------ flight error budget
+FLIGHT_SMALL = {"duration_s": 50.0, "settle_s": 20.0, "nav_rate_hz": 5.0, "residuals": "datasheet",
+                "sources": ["gyro_bias", "magnetometer"]}
+
+
+@pytest.fixture(scope="module")
+def flight_parts():
+    from imurig.flights.imu import measure_flight
+    from imurig.sensors.chain import ImuLab
+    from imurig.sensors.noise import child_rng
+
+    from imurig.montecarlo.flight import FLIGHT, _truth_key, flight_truth
+
+    p = FLIGHT.validate(FLIGHT_SMALL)
+    truth = flight_truth(_truth_key(p))
+    ss = np.random.SeedSequence(5)
+    lab = ImuLab.draw(child_rng(ss, "sensor_errors"))
+    rec = measure_flight(truth, lab, np.random.SeedSequence(6))
+    return p, truth, lab, rec
+
+
+def test_flight_stream_without_residuals_is_the_truth_plus_noise(flight_parts):
+    """The exact inverse sensor models with no residual (a perfect calibration) give the true
+    rate and specific force up to the noise: the flight-mean error of each gyro lies within 5
+    sigma of its mean noise (ARW^2/T + bias instability^2), and the accelerometers' within 5
+    sigma of the averaged current and ADC noise (< 1e-4 m/s^2); a residual bias delta_b comes
+    out as -(I + M)^-1 delta_b (closed form to first order in the nonlinearity, 2 k2 w < 1e-4)."""
+    from imurig.montecarlo.flight import calibrated_stream
+
+    _, truth, lab, rec = flight_parts
+    s0 = calibrated_stream(truth, rec, lab, {})
+    T = truth.time_s[-1] - truth.time_s[0]
+    g = lab.gyros
+    sig = math.sqrt(g.arw_rad_s_per_sqrt_hz**2 / T + g.bias_instability_rad_s**2)
+    e_w = (s0.w_IB_B - truth.w_IB_B).mean(0)
+    assert np.all(np.abs(e_w) < 5 * sig), (e_w, sig)
+    e_f = (s0.f_B - truth.f_B).mean(0)
+    assert np.all(np.abs(e_f) < 1e-4), e_f
+    db = np.array([1e-4, -2e-4, 3e-4])
+    s1 = calibrated_stream(truth, rec, lab, {"gyro_bias": {"bias_rad_s": db}})
+    want = -np.linalg.solve(np.eye(3) + g.misalignment_rad, db)
+    np.testing.assert_allclose((s1.w_IB_B - s0.w_IB_B).mean(0), want, rtol=1e-4)
+    s2 = calibrated_stream(truth, rec, lab, {"magnetometer": {"heading_rad": 0.02}})
+    h0 = np.arctan2(s0.B_B[:, 1], s0.B_B[:, 0])
+    h2 = np.arctan2(s2.B_B[:, 1], s2.B_B[:, 0])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (h2 - h0))), 0.02, atol=1e-12)
+
+
+def test_flight_budget_arithmetic():
+    """budget(): mean squares per configuration, the part each source adds, and additivity (1
+    when the squares add: RMS_all^2 = floor^2 + sum of the parts)."""
+    from imurig.montecarlo.flight import budget
+
+    rows = {}
+    for i, (fl, a, b) in enumerate([(1.0, 2.0, 0.5), (1.2, 1.8, 0.7), (0.9, 2.1, 0.4)]):
+        v = {"none": fl, "s1": math.hypot(fl, a), "s2": math.hypot(fl, b), "all": math.hypot(fl, a, b)}
+        rows[i] = [{"name": f"heading_rms_deg | {c}", "estimate": x} for c, x in v.items()]
+    d = budget(rows, ["none", "s1", "s2", "all"])["heading_rms_deg"]
+    assert d["additivity"] == pytest.approx(1.0, rel=1e-12)
+    assert d["sources"]["s1"]["mean_square_added"] == pytest.approx(np.mean([4.0, 1.8**2, 2.1**2]), rel=1e-12)
+    assert d["sources"]["s1"]["share_of_all"] > 0.9
+
+
+def test_flight_error_budget_study(client, tmp_path):
+    """A 2-run flight study (50 s, datasheet residuals of two sources): the report holds the
+    budget; the 2 deg magnetometer residual adds more heading error than a 0.003 deg/s gyro
+    bias over 50 s; every run flies none / each source / all."""
+    st = run_study("flight", 2, master_seed=9, params=FLIGHT_SMALL, client=client, out=tmp_path / "fl")
+    s = json.loads((tmp_path / "fl" / "summary.json").read_text())
+    b = s["budget"]["heading_rms_deg"]
+    assert b["runs"] == 2 and set(b["sources"]) == {"gyro_bias", "magnetometer"}
+    assert b["sources"]["magnetometer"]["mean_square_added"] > b["sources"]["gyro_bias"]["mean_square_added"]
+    assert b["rms"]["all"] > b["rms"]["none"]
+    assert len(st.rows[0]) == 6 * 4
+    txt = (tmp_path / "fl" / "report.md").read_text()
+    assert "Navigation error budget" in txt and (tmp_path / "fl" / "fig_budget.png").exists()
+
+
+def test_bad_flight_settings_refused():
+    fl = registry.get("flight")
+    with pytest.raises(ConfigError, match="error source"):
+        fl.validate({"sources": ["gremlins"]})
+    with pytest.raises(ConfigError, match="duration_s"):
+        fl.validate({"duration_s": 20.0})
+    with pytest.raises(ConfigError, match="residuals"):
+        fl.validate({"residuals": "perfect"})
