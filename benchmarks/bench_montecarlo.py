@@ -1,8 +1,11 @@
 """Benchmark of the Monte-Carlo engine (issue 7): simulated sensor samples per second for one
-tilt-table run, runs per minute for a study on this machine, peak memory, and how the run
-time grows with the campaign length and with the number of runs.
+tilt-table (or turn-table) run, runs per minute for a study on this machine, peak memory, and
+how the run time grows with the campaign length and with the number of runs.
 
-    python benchmarks/bench_montecarlo.py [--workers 2] [--quick]
+    python benchmarks/bench_montecarlo.py [--workers 2] [--quick] [--campaign turn-table]
+
+Campaign length: the dwell per position (tilt table) or the least whole-round window per
+step (turn table, quick protocol).
 
 Prints Markdown tables (pasted into docs/montecarlo.md) and writes nothing else.
 """
@@ -22,19 +25,23 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def one_run(dwells, repeats: int = 3) -> list[dict]:
-    """Wall time of one run (simulate + calibrate + CRLB) in this process vs dwell per position."""
-    from imurig.montecarlo.engine import run_seed
-    from imurig.montecarlo.tilt import TILT_TABLE
+LENGTH = {"tilt-table": "dwell_s", "turn-table": "min_window_s"}
 
+
+def one_run(dwells, repeats: int = 3, campaign: str = "tilt-table") -> list[dict]:
+    """Wall time of one run (simulate + calibrate + CRLB) in this process vs campaign length."""
+    from imurig.montecarlo import registry
+    from imurig.montecarlo.engine import run_seed
+
+    camp = registry.get(campaign)
     out = []
     for dwell in dwells:
-        p = TILT_TABLE.validate({"dwell_s": float(dwell)})
-        TILT_TABLE.run(p, run_seed(0, 999))  # warm the per-process caches (layout, IGRF field)
+        p = camp.validate({LENGTH[campaign]: float(dwell)})
+        camp.run(p, run_seed(0, 999))  # warm the per-process caches (layout, IGRF field)
         walls, sims = [], []
         for i in range(repeats):
             t0 = time.perf_counter()
-            r = TILT_TABLE.run(p, run_seed(0, i))
+            r = camp.run(p, run_seed(0, i))
             walls.append(time.perf_counter() - t0)
             sims.append(r["info"]["simulate_s"])
         n = r["info"]["samples"]
@@ -46,17 +53,17 @@ def one_run(dwells, repeats: int = 3) -> list[dict]:
     return out
 
 
-def study(ns, workers: int) -> list[dict]:
+def study(ns, workers: int, campaign: str = "tilt-table") -> list[dict]:
     """Compute time of studies of N runs on one local cluster (started once)."""
     from imurig.montecarlo.engine import dask_client, run_study
 
     out = []
     with dask_client(workers=workers) as c:
-        run_study("tilt-table", 2, 0, client=c, report=False)  # warm the workers
+        run_study(campaign, 2, 0, client=c, report=False)  # warm the workers
         for n in ns:
             d = tempfile.mkdtemp(prefix="bench_mc_")
             try:
-                st = run_study("tilt-table", n, 1, client=c, out=os.path.join(d, "s"), report=False)
+                st = run_study(campaign, n, 1, client=c, out=os.path.join(d, "s"), report=False)
             finally:
                 shutil.rmtree(d, ignore_errors=True)
             out.append({"runs": n, "compute_s": st.timing["compute_s"], "runs_per_min": st.timing["runs_per_min"]})
@@ -76,13 +83,17 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="fewer points")
+    ap.add_argument("--campaign", choices=sorted(LENGTH), default="tilt-table")
     a = ap.parse_args()
     os.environ.setdefault("IMURIG_PROGRESS", "0")
-    dwells = (5, 15, 30) if a.quick else (5, 15, 30, 60)
+    if a.campaign == "turn-table":
+        dwells = (4, 8, 16) if a.quick else (4, 8, 16, 32)
+    else:
+        dwells = (5, 15, 30) if a.quick else (5, 15, 30, 60)
     ns = (8, 16) if a.quick else (10, 20, 40)
 
-    s, worker_rss = study(ns, a.workers)
-    print(f"## Studies on a local cluster of {a.workers} worker processes (default schedule, 360 k samples/run)\n")
+    s, worker_rss = study(ns, a.workers, a.campaign)
+    print(f"## {a.campaign}: studies on a local cluster of {a.workers} worker processes (default schedule)\n")
     print("| runs | compute (s) | runs/min |")
     print("|---|---|---|")
     for r in s:
@@ -92,9 +103,9 @@ def main():
           f"{60 / coef[1]:.1f} runs/min at the margin")
     print(f"peak RSS per worker: {worker_rss:.0f} MB; client process so far: {_rss_mb():.0f} MB\n")
 
-    t = one_run(dwells)
-    print("## One run (this process): time vs campaign length\n")
-    print("| dwell per position (s) | samples | run (s) | simulate (s) | samples/s | channel-samples/s |")
+    t = one_run(dwells, campaign=a.campaign)
+    print(f"## One {a.campaign} run (this process): time vs campaign length ({LENGTH[a.campaign]})\n")
+    print(f"| {LENGTH[a.campaign]} | samples | run (s) | simulate (s) | samples/s | channel-samples/s |")
     print("|---|---|---|---|---|---|")
     for r in t:
         print(f"| {r['dwell_s']:g} | {r['samples']} | {r['run_s']:.3f} | {r['simulate_s']:.3f} | "

@@ -135,9 +135,17 @@ def run_cli(args) -> None:
         return
     st = run_study(args.campaign, args.runs, args.seed, params=params, distributions=user, scheduler=args.scheduler,
                    workers=args.workers, out=out, overwrite=args.overwrite, resume=args.resume, retries=args.retries)
-    s = json.loads((out / "summary.json").read_text())["overall"]
+    doc = json.loads((out / "summary.json").read_text())
+    s = doc["overall"]
     t = st.timing
-    print(f"wrote {out}/report.md: {len(st.runs)} runs; RMS/CRLB {s['rms_over_crlb_min']:.2f}-"
-          f"{s['rms_over_crlb_max']:.2f} (median {s['rms_over_crlb_median']:.2f}); mean coverage "
-          f"{s['coverage_mean']:.3f}, {s['coverage_in_band']} parameters in their binomial band; "
-          + (f"{t['runs_per_min']:.1f} runs/min" if t.get("runs_per_min") else "no new runs"))
+    rate = f"{t['runs_per_min']:.1f} runs/min" if t.get("runs_per_min") else "no new runs"
+    if s.get("rms_over_crlb_min") is not None:
+        print(f"wrote {out}/report.md: {len(st.runs)} runs; RMS/CRLB {s['rms_over_crlb_min']:.2f}-"
+              f"{s['rms_over_crlb_max']:.2f} (median {s['rms_over_crlb_median']:.2f}); mean coverage "
+              f"{s['coverage_mean']:.3f}, {s['coverage_in_band']} parameters in their binomial band; {rate}")
+    elif "budget" in doc:
+        h = doc["budget"].get("heading_rms_deg", {})
+        print(f"wrote {out}/report.md: {len(st.runs)} runs; heading RMS floor {h.get('rms', {}).get('none', float('nan')):.4f}"
+              f" deg, all sources {h.get('rms', {}).get('all', float('nan')):.4f} deg; {rate}")
+    else:
+        print(f"wrote {out}/report.md: {len(st.runs)} runs; {rate}")
