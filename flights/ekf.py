@@ -56,6 +56,8 @@ BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e",
                "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
 SCALE_STATES = ("dsa_x", "dsa_y", "dsa_z", "dsg_p", "dsg_q", "dsg_r")
 GPS_STATES = ("dgps_n", "dgps_e", "dgps_d")
+MIS_PAIRS = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))   # (i, j): input j sensed by axis i
+MIS_STATES = tuple(f"dma_{i}{j}" for i, j in MIS_PAIRS) + tuple(f"dmg_{i}{j}" for i, j in MIS_PAIRS)
 P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                slice(15, 18), slice(18, 21), slice(21, 24))
 
@@ -144,6 +146,9 @@ class FilterConfig:
     gps_time_sigma_s: float = 0.0
     gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
     gps_pos_states: bool = True
+    estimate_misalignments: bool = False
+    sigma0_acc_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
+    sigma0_gyro_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
 
     @property
     def augment_gps(self) -> bool:
@@ -152,14 +157,20 @@ class FilterConfig:
 
     @property
     def n_states(self) -> int:
-        return 18 + (6 if self.estimate_scale_factors else 0) + (3 if self.augment_gps else 0)
+        return (18 + (6 if self.estimate_scale_factors else 0) + (12 if self.estimate_misalignments else 0)
+                + (3 if self.augment_gps else 0))
 
     def state_names(self) -> tuple:
         return (BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
-                + (GPS_STATES if self.augment_gps else ()))
+                + (MIS_STATES if self.estimate_misalignments else ()) + (GPS_STATES if self.augment_gps else ()))
+
+    def mis_slices(self) -> tuple[slice, slice]:
+        """Slices of the accelerometer and gyro misalignment states (6 each, :data:`MIS_PAIRS`)."""
+        n0 = 24 if self.estimate_scale_factors else 18
+        return slice(n0, n0 + 6), slice(n0 + 6, n0 + 12)
 
     def gps_slice(self) -> slice:
-        n0 = 24 if self.estimate_scale_factors else 18
+        n0 = (24 if self.estimate_scale_factors else 18) + (12 if self.estimate_misalignments else 0)
         return slice(n0, n0 + 3)
 
 
@@ -326,6 +337,11 @@ class LooseEKF:
         if self.cfg.estimate_scale_factors:
             F[V, SA] = -C * f_B
             F[A, SG] = C * w_B
+        if self.cfg.estimate_misalignments:
+            MA, MG = self.cfg.mis_slices()
+            for p_, (i, j) in enumerate(MIS_PAIRS):
+                F[V, MA.start + p_] = -C[:, i] * f_B[j]
+                F[A, MG.start + p_] = C[:, i] * w_B[j]
         if self.cfg.augment_gps:
             G = self.cfg.gps_slice()
             F[G, G] = -np.eye(3) / self.cfg.gps_pos_tau_s
@@ -341,6 +357,9 @@ class LooseEKF:
         q[TA] = nz.temp_rw ** 2
         if self.cfg.estimate_scale_factors:
             q[SA] = q[SG] = nz.scale_rw ** 2
+        if self.cfg.estimate_misalignments:
+            MA, MG = self.cfg.mis_slices()
+            q[MA] = q[MG] = nz.scale_rw ** 2
         if self.cfg.augment_gps:
             q[self.cfg.gps_slice()] = 2.0 * self._gps_gm_var / self.cfg.gps_pos_tau_s
         return q
@@ -357,6 +376,10 @@ class LooseEKF:
         if c.estimate_scale_factors:
             s[SA] = c.sigma0_acc_scale
             s[SG] = c.sigma0_gyro_scale
+        if c.estimate_misalignments:
+            MA, MG = c.mis_slices()
+            s[MA] = c.sigma0_acc_misalignment_rad
+            s[MG] = c.sigma0_gyro_misalignment_rad
         if c.augment_gps:
             s[c.gps_slice()] = np.sqrt(self._gps_gm_var)
         return np.diag(s ** 2)
@@ -397,6 +420,11 @@ class LooseEKF:
         bg = np.zeros(3)
         sa = np.zeros(3)
         sg = np.zeros(3)
+        Ma = np.zeros((3, 3))      # misalignment estimates (zero diagonal): f = (I − diag(s) − M) f_in
+        Mg = np.zeros((3, 3))
+        MA, MG = c.mis_slices()
+        mis_i = tuple(i for i, _ in MIS_PAIRS)
+        mis_j = tuple(j for _, j in MIS_PAIRS)
         Tm = None if imu.T_acc_K is None else np.asarray(imu.T_acc_K, float)
         Ta = np.full(3, c.reference_temperature_K) if Tm is None else Tm[0].copy()
         kT = np.asarray(c.thermal_slope_m_s2_per_K, float)
@@ -437,7 +465,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, Ta, sa, sg, x, bgps
+            nonlocal ba, bg, Ta, sa, sg, x, bgps, Ma, Mg
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -452,6 +480,11 @@ class LooseEKF:
             if c.estimate_scale_factors:
                 sa = sa - dx[SA]
                 sg = sg - dx[SG]
+            if c.estimate_misalignments:
+                Ma = Ma.copy()
+                Mg = Mg.copy()
+                Ma[mis_i, mis_j] -= dx[MA]
+                Mg[mis_i, mis_j] -= dx[MG]
             if G is not None:
                 bgps = bgps - dx[G]
 
@@ -562,6 +595,9 @@ class LooseEKF:
             dth = (inc.dtheta_B[k] - bg * T) * (1.0 - sg)
             f_corr = ba + kT * (Ta - c.reference_temperature_K)
             dv = (inc.dv_B[k] - f_corr * T) * (1.0 - sa)
+            if c.estimate_misalignments:
+                dth = dth - Mg @ dth
+                dv = dv - Ma @ dv
             F = self._F(x, (fB - f_corr) * (1 - sa), (wB - bg) * (1 - sg), C)
             x = ins.nav_step(x, dth, dv, T)
             bgps = bgps * phi_gps
@@ -575,7 +611,8 @@ class LooseEKF:
                    "innovation": u["innovation"]} for k, u in ups.items()}
         return FilterResult(inc.t_s, out_lat, out_lon, out_h, out_v, out_q, out_ba, out_bg, out_T, out_sa, out_sg,
                             out_Pd, out_Pn, c.state_names(), ups,
-                            meta={"nav_rate_hz": 1.0 / T, "imu_rate_hz": fs, "samples_per_step": K})
+                            meta={"nav_rate_hz": 1.0 / T, "imu_rate_hz": fs, "samples_per_step": K,
+                                  "misalignment_acc_rad": Ma.tolist(), "misalignment_gyro_rad": Mg.tolist()})
 
 
 def nees_nav(res: FilterResult, truth, idx) -> np.ndarray:

@@ -43,7 +43,8 @@ def gramian(truth, *, scale_factors=True, misalignments=True, nav_rate_hz=10.0, 
             sigma0_scale=0.01, sigma0_mis_rad=2e-3, lever_gps_B=(0.0, 0.0, 0.0)) -> ObservabilityReport:
     """Eq. 4 along ``truth`` (FlightTruth-like: time_s, rate_hz, lat/lon/h, v_N, q_NB, f_B, w_IB_B)."""
     cfg = config or ekf.FilterConfig()
-    base = ekf.FilterConfig(**{**cfg.__dict__, "estimate_scale_factors": False})
+    base = ekf.FilterConfig(**{**cfg.__dict__, "estimate_scale_factors": False, "estimate_misalignments": False,
+                               "gps_pos_states": False})
     filt = ekf.LooseEKF(base)
     names = list(ekf.BASE_STATES)
     if scale_factors:

@@ -186,15 +186,33 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
     m = rec.stack(("mag_x", "mag_y", "mag_z")) / 4.0e4
     e3 = fit_ellipsoid_3d(m, float(rec.meta["igrf_total_T"]))
     # the rotation left free by the fit: Wahba's problem between the calibrated field and the field
-    # direction the rig's gimbal angles and IGRF give in the sensor frame (B_C of the rig recording)
-    B_ref = np.stack([rec.truth_signals[f"B_C_{a}"] for a in "xyz"], 1)
+    # the lab predicts in the sensor frame from what it knows: the IGRF field at the site (W = ENU)
+    # and the gimbal's angle encoders, B_ref = R_WCᵀ B_W, R_WC = Rz(yaw) Ry(pitch) Rx(roll)
+    B_ref = gimbal_field_C(rec)
     U, _s, Vt = np.linalg.svd(e3.apply(m).T @ B_ref)
     R_fix = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt        # B_ref ≈ R_fix.T @ B̂
     out = {"ellipsoid": e3, "R_fix": R_fix, "tumble_s": tumble_s, "heading_offset_rad": 0.0,
            "rotation_fix_deg": float(np.degrees(np.arccos(np.clip((np.trace(R_fix) - 1) / 2, -1, 1)))),
-           "reference": "rig gimbal angles + IGRF (Wahba)", "n_samples": int(m.shape[0]),
+           "reference": "rig gimbal encoder angles + IGRF field at the site (Wahba)", "n_samples": int(m.shape[0]),
            "H_T": float(rec.meta["igrf_horizontal_T"])}
     return out
+
+
+def gimbal_field_C(rec) -> np.ndarray:
+    """Field (n, 3) T the magnetometer rig's gimbal puts along the sensor axes, from the lab's own
+    knowledge only: the IGRF field at the site ``meta["igrf_field_W_T"]`` (W = ENU) and the gimbal's
+    angle encoders (joint angles yaw, pitch, roll, rad; :mod:`imurig.rigs.mag_rig`):
+
+        B_C = R_WCᵀ B_W,   R_WC = Rz(yaw) Ry(pitch) Rx(roll)
+    """
+    B_W = np.asarray(rec.meta["igrf_field_W_T"], float)
+    y, p, r = (np.asarray(rec.truth_signals[k], float) for k in ("yaw", "pitch", "roll"))
+    cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
+    R = np.empty((y.size, 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = -sp, cp * sr, cp * cr
+    return np.einsum("nji,j->ni", R, B_W)
 
 
 def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStream:

@@ -158,3 +158,96 @@ def test_observability_table_of_the_paper():
     assert max(r1[k] for k in ("dTa_x", "dTa_y", "dTa_z")) < 0.1   # temperature channels
     # G is positive definite on the S-turns (all singular values > 0)
     assert turns.singular_values[-1] > 0
+
+
+# --- the real GPS chain (Euro4 receiver model, IMU-clock tags) on the MuJoCo flight ------------------
+REAL_SEEDS = (1, 2, 3, 4)
+REAL_DUR = 300.0
+
+
+@pytest.fixture(scope="module")
+def flight_truth():
+    from imurig.flights.plan import simulate_flight
+
+    tr = simulate_flight(progress_bar=False)
+    return tr.slice(tr.time_s[0], tr.time_s[0] + REAL_DUR)
+
+
+def _perfect_imu_real_gps(tr, seed):
+    """The filter as ``imurig flight`` sets it up (:func:`report.run_filter`: GPS Gauss-Markov states,
+    time-of-validity error in R, IGRF declination along the route), fed the truth's own IMU samples
+    (held over each interval) plus the white noise of the filter's IMU model, the magnetometer's
+    true field, and the receiver model's fixes. The accelerometer-bias prior is 1e-3 m/s² (the
+    true bias is zero): with the datasheet's 0.1 m/s² and a heading σ of 0.015 deg the filter
+    diverges while parked (tilt and bias unseparable, see docs/flights-navigation.md)."""
+    from imurig.flights import report as R
+
+    class Opt:
+        nav_rate_hz, gps_rate_hz, gps_latency_s, gps_time_sigma_s = 25.0, 1.0, 0.0, 0.0
+
+    opt = Opt()
+    gps = R.gps_fixes(tr, opt, seed)
+    lab = R.flight_lab(seed)
+    T = np.full((tr.n, 3), 298.15)
+    noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, tr.rate_hz)
+    # the IMU's white noise as the filter models it (VRW, ARW at the sample rate): a calibrated IMU
+    # without residual systematic errors
+    rng = np.random.default_rng(np.random.SeedSequence([66, seed]))
+    sq = math.sqrt(tr.rate_hz)
+    w = tr.w_IB_B + rng.standard_normal((tr.n, 3)) * noise.arw * sq
+    f = tr.f_B + rng.standard_normal((tr.n, 3)) * noise.vrw * sq
+    imu = ekf.ImuStream(tr.time_s, w, f, tr.B_B, T, samples=ins.sample_semantics(tr))
+    # the true field: the heading σ is the fluxgate's own noise over the horizontal intensity
+    H = float(np.median(np.hypot(tr.B_B[:, 0], tr.B_B[:, 1])))
+    cfg = ekf.FilterConfig(nav_rate_hz=25.0, gps_latency_s=opt.gps_latency_s, gps_time_sigma_s=opt.gps_time_sigma_s,
+                           mag_heading_sigma_rad=lab.magnetometer.noise_T_rms / H, sigma0_acc_bias_m_s2=1e-3,
+                           **R.gps_error_model(gps))
+    f = ekf.LooseEKF(cfg, noise, lever_gps_B=tr.lever_gps_B, declination=R.declination_model(tr))
+    return f.run(imu, gps, R.align(tr, imu, gps, R.flight_declination(tr))), gps
+
+
+@pytest.fixture(scope="module")
+def real_gps_runs(flight_truth):
+    return [_perfect_imu_real_gps(flight_truth, s) for s in REAL_SEEDS]
+
+
+@pytest.mark.xfail(strict=True, reason="open (issue 6): on the MuJoCo flight with the receiver model the mean NEES "
+                   "is ~12 (9 expected), inside the 99 % band at ~82 % of the epochs (90 % required)")
+def test_consistent_on_the_real_gps_chain(flight_truth, real_gps_runs):
+    """IMU with white noise only, the receiver model's fixes (Gauss-Markov RTK error with the ppm baseline term,
+    20 ms latency, jitter, tags rounded to the IMU clock): after the 60 s alignment the mean NEES
+    over the runs stays inside the 99 % χ²(9N)/N band at ≥ 90 % of the epochs, and the summed NIS
+    of the GPS position and velocity updates inside their 99.9 % χ² intervals. Before the GPS error
+    states, the held-sample pre-integration and the a·σ_t velocity term this NEES was ~18 and the
+    position NIS 0.06/dof (R inflated 11x in σ)."""
+    N = len(real_gps_runs)
+    nees = []
+    for res, _ in real_gps_runs:
+        idx = np.arange(res.time_s.size) * res.meta["samples_per_step"]
+        m = res.time_s >= res.time_s[0] + 60.0
+        nees.append(ekf.nees_nav(res, flight_truth, idx)[m][::25])
+    mean = np.mean(nees, axis=0)
+    lo, hi = chi2.ppf([0.005, 0.995], 9 * N) / N
+    inside = np.mean((mean >= lo) & (mean <= hi))
+    assert inside >= 0.9, (inside, mean.mean(), lo, hi)
+    for kind in ("gps_pos", "gps_vel"):
+        s = sum(r.updates[kind]["nis"].sum() for r, _ in real_gps_runs)
+        dof = sum(r.updates[kind]["dof"].sum() for r, _ in real_gps_runs)
+        a, b = chi2.ppf([0.0005, 0.9995], dof)
+        assert a < s < b, (kind, s / dof, a / dof, b / dof)
+
+
+def test_position_error_is_the_receivers_own(flight_truth, real_gps_runs):
+    """With a perfect IMU the position error is the receiver's own: while parked (first 30 s,
+    after 10 s) it is within 3σ of the receiver's Gauss-Markov + white σ (1 cm + 1 ppm of the
+    35 km baseline to Delft); on the move the time-tag error adds σ_t |v| per fix (5 ms, 0.6 m at
+    120 m/s), and the filter's own σ covers the error (NEES test above)."""
+    for res, gps in real_gps_runs:
+        K = res.meta["samples_per_step"]
+        idx = np.arange(res.time_s.size) * K
+        sol = ins.NavSolution(res.time_s, res.lat_rad, res.lon_rad, res.h_m, res.v_N, res.q_NB)
+        e = ins.nav_errors(sol, flight_truth, idx)["pos_N_m"]
+        m = (res.time_s >= 10.0) & (res.time_s < 30.0)
+        sig = np.asarray(gps.sigma_pos_N, float)[np.asarray(gps.valid)][0]
+        rms = np.sqrt(np.mean(e[m] ** 2, axis=0))
+        assert np.all(rms < 3 * sig), (rms, sig)
