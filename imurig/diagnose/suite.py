@@ -284,8 +284,36 @@ CASES = [
 ]
 
 
+def _mg():
+    from imurig.diagnose import magnetometer
+
+    return magnetometer
+
+
+def _mag_case(effect, size, sizes, unit, twin_model, expected=None, notes=""):
+    """A magnetometer case (imurig.diagnose.magnetometer): one joint analysis of the three axes ('mag')."""
+    return Case(effect, "magnetometer", expected or {("mag", effect)}, lambda seed, s: _mg().case_recording(effect, seed, s),
+                size, sizes=sizes, size_unit=unit, truth_param=lambda rec: _mg().truth_param(effect, rec),
+                found_param=lambda d: _mg().found_param(effect, d), twin={"twin_model": twin_model},
+                null=lambda seed: _mg().null_recording(seed, twin_model), notes=notes)
+
+
+CASES += [
+    _mag_case("hard_iron", 2000.0, (0.01, 0.03, 0.1, 0.3, 1.0), "hard iron |b| (nT)", "nominal"),
+    _mag_case("soft_iron", 0.02, (1e-6, 3e-6, 1e-5, 3e-5, 1e-4), "soft iron s_xy (1)", "nominal"),
+    _mag_case("misalignment", 2e-3, (1e-6, 3e-6, 1e-5, 3e-5, 1e-4), "rotation w_xy (rad)", "nominal"),
+    _mag_case("local_field_anomaly", 300.0, (0.1, 0.3, 1.0, 3.0, 10.0), "anomaly |dB| (nT)", "calibrated",
+              notes="the anomaly's component along the IGRF field is absorbed by the gains (indistinguishable)"),
+    _mag_case("temperature_drift", 2.0, (0.01, 0.03, 0.1, 0.3, 1.0), "offset tempco (nT/K), air +3 K", "calibrated"),
+    _mag_case("installation", 1.0, (), "(the campaign's drawn hard and soft iron and misalignment)", "nominal",
+              expected={("mag", "hard_iron"), ("mag", "soft_iron"), ("mag", "misalignment")}),
+]
+
+
 def found_effects(d: dict) -> set:
     """(channel, effect) pairs a diagnosis reports (tilt table or rate-table rows)."""
+    if "magnetometer" in d:
+        return _mg().found_effects(d)
     out = set()
     if "axes" in d:
         for a, e in d["axes"].items():
@@ -327,6 +355,8 @@ def diagnose_case(case: Case, rec, seed: int, null: bool = False) -> dict:
         from imurig.diagnose.thermal import diagnose_thermal
 
         return diagnose_thermal(rec, rng, **twin)
+    if case.rig == "magnetometer":
+        return _mg().diagnose_magnetometer(rec, rng, **twin)
     from imurig.diagnose.rate_table import diagnose_rate_rows
 
     return diagnose_rate_rows(rec, rng, n_sim=200)
