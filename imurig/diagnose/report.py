@@ -222,6 +222,10 @@ def _rrd(path, rec: Recording, d: dict):
 
 def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "physical",
         earth_rate: bool = True) -> dict:
+    if rec.meta.get("rig") == "mag_rig":  # magnetometer recordings: own report (imurig.diagnose.magnetometer)
+        from imurig.diagnose.magnetometer import TWIN_MODELS, run as run_magnetometer
+
+        return run_magnetometer(rec, out_dir, overwrite, seed, twin_model if twin_model in TWIN_MODELS else "nominal")
     d = diagnose(rec, seed, twin_model, earth_rate)
     with OutputFolder(out_dir, overwrite=overwrite) as out:
         fig = _figure(out, rec, d)
