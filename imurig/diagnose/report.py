@@ -43,6 +43,10 @@ def _engine_row(where: str, f: dict, seed_says: dict) -> list:
 
 
 def _findings_rows(d: dict) -> list[list]:
+    if d.get("kind") == "magnetometer":
+        from imurig.diagnose.magnetometer import findings_rows
+
+        return findings_rows(d)
     rows = []
     if d.get("kind") == "thermal":
         return [_engine_row(f"{ch} six-position bias per step", f, SEED_SAYS_TURN)
