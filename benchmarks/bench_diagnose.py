@@ -106,8 +106,8 @@ def record_tests(d: dict, alpha: float) -> list[tuple[str, str, float, bool]]:
 def fdr_study(seeds, groups=None, log=print) -> dict:
     """Null records of every null group over ``seeds``; per-record and per-test false discoveries."""
     res = {}
-    for group, case in null_groups().items():
-        if groups and not any(w in group for w in groups):
+    for i, (group, case) in enumerate(null_groups().items()):
+        if groups and not any(w == str(i) or (not w.isdigit() and w in group) for w in groups):
             continue
         alpha = engine_alpha(case.rig)
         t0 = time.perf_counter()
@@ -161,13 +161,20 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--quick", action="store_true", help="skip the power curves")
     ap.add_argument("--fdr", type=int, default=0, metavar="N", help="only the false-discovery study, N seeds per group")
-    ap.add_argument("--groups", default="", help="comma-separated words; null groups whose name holds one")
+    ap.add_argument("--groups", default="", help="comma-separated null-group indices (see --list) or words "
+                    "that the group's name holds")
+    ap.add_argument("--list", action="store_true", help="list the null groups and cases, then stop")
     ap.add_argument("--power", action="store_true", help="only detection and power curves (no null study)")
     ap.add_argument("--effects", default="", help="comma-separated effect names (default: all)")
     ap.add_argument("--out", default="", help="write the results as JSON to this file")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     groups = [w for w in a.groups.split(",") if w]
+    if a.list:
+        for i, (g, c) in enumerate(null_groups().items()):
+            print(f"null group {i}: {g} (case {c.effect})")
+        print("cases:", ", ".join(c.effect for c in CASES))
+        return {}
     if a.fdr:
         out = {"fdr": fdr_study(list(range(1000, 1000 + a.fdr)), groups)}
         print(fdr_table(out["fdr"]))
@@ -191,10 +198,45 @@ def main(argv=None):
     return out
 
 
+def _acc_noise(rec, d, axis="y"):
+    """Within-position sample noise of an accelerometer (m/s^2, 100 Hz): robust sigma / sensitivity."""
+    j = "xyz".index(axis)
+    return d["axes"][axis]["scatter"]["robust_sigma_V"] / rec.meta["acc_nominal_sensitivity_V_per_m_s2"][j]
+
+
+def _record_seconds(rec, d):
+    """Acquisition time of the record (s): spike rates become expected spikes per record."""
+    seg = rec.segments
+    return float(np.sum(seg["stop_s"] - seg["start_s"]))
+
+
+def _mag_noise(rec, d):
+    """The fluxgate's sample noise (nT, 100 Hz) from the diagnosis' noise model."""
+    return float(np.mean(d["noise"]["sample_sigma_nT"]))
+
+
+def _mag_noise_per_field(rec, d):
+    """Sample noise over the field intensity: a coupling s of the field is s |B| nT."""
+    return _mag_noise(rec, d) / float(np.linalg.norm(d["igrf_field_W_nT"]))
+
+
+def _mag_noise_per_kelvin(rec, d):
+    """Sample noise over the temperature swing of the record: a tempco c moves the offset c dT nT."""
+    from imurig.diagnose.magnetometer import _temperature_K
+
+    return _mag_noise(rec, d) / float(np.ptp(_temperature_K(rec)))
+
+
+#: effect -> (recording, diagnosis) -> the noise (or exposure) the effect's size is compared with
+NOISE_REFERENCE = {"building_vibration": _acc_noise, "cable_fault_spikes": lambda rec, d: 1.0 / _record_seconds(rec, d),
+                   "hard_iron": _mag_noise, "local_field_anomaly": _mag_noise, "soft_iron": _mag_noise_per_field,
+                   "misalignment": _mag_noise_per_field, "temperature_drift": _mag_noise_per_kelvin}
+
+
 def effect_study(case, seeds, power=True) -> dict:
     """Detection, parameter z and (``power``) the power curve of one case."""
     t0 = time.perf_counter()
-    hits, z = 0, []
+    hits, z, snr, noise = 0, [], [], []
     for s in seeds:
         rec = case.make(s, case.realistic_size)
         d = diagnose_case(case, rec, s)
@@ -202,9 +244,15 @@ def effect_study(case, seeds, power=True) -> dict:
         if case.truth_param and case.found_param and case.found_param(d):
             est, se = case.found_param(d)
             z.append((est - case.truth_param(rec)) / se)
+            snr.append(abs(case.truth_param(rec)) / se)
+        if case.effect in NOISE_REFERENCE:
+            noise.append(NOISE_REFERENCE[case.effect](rec, d))
     row = {"realistic_size": case.realistic_size, "size_unit": case.size_unit, "seeds": len(seeds),
            "detection_rate": hits / len(seeds),
-           "parameter_z_rms": float(np.sqrt(np.mean(np.square(z)))) if z else None}
+           "parameter_z_rms": float(np.sqrt(np.mean(np.square(z)))) if z else None,
+           # the injected parameter in units of its standard error at the realistic size (the fit's SNR)
+           "parameter_snr_realistic": float(np.median(snr)) if snr else None,
+           "noise_reference": float(np.median(noise)) if noise else None}
     if power and case.sizes:
         curve = {}
         for size in case.sizes:
@@ -212,7 +260,12 @@ def effect_study(case, seeds, power=True) -> dict:
             curve[size] = h / len(seeds)
         row["power_curve"] = curve
         ok = [sz for sz, p in curve.items() if p >= 0.95]
-        row["smallest_size_detected_95pct"] = min(ok) if ok else None
+        row["smallest_size_detected_95pct"] = s95 = min(ok) if ok else None
+        if s95 is not None and row["parameter_snr_realistic"]:
+            # linear effects: the parameter and its SNR scale with the size, the SE does not
+            row["snr_at_95pct"] = row["parameter_snr_realistic"] * s95 / case.realistic_size
+        if s95 is not None and row["noise_reference"]:
+            row["size_over_noise_at_95pct"] = s95 / row["noise_reference"]
     row["wall_s"] = round(time.perf_counter() - t0, 1)
     return row
 
