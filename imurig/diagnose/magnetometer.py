@@ -149,9 +149,10 @@ class Twin:
 def build_twin(rec: Recording) -> Twin:
     """Re-run the recording's manoeuvres on the gimbal in the IGRF field (see module doc)."""
     meta = rec.meta
-    for k in ("site", "start_time"):
+    for k in ("site", "start_time", "manoeuvres"):
         if k not in meta:
-            raise RecordingError(f"the recording's metadata lacks '{k}': the twin needs the site and start time")
+            raise RecordingError(f"the recording's metadata lacks '{k}': the twin is built from the site, the "
+                                 "start time and the manoeuvres (imurig.rigs.mag_rig) of the recording")
     key = json.dumps({"site": Site.from_dict(meta["site"]).to_dict(), "start_time": meta["start_time"],
                       "rate": float(meta.get("sample_rate_hz", rec.sample_rate_hz)),
                       "manoeuvres": meta["manoeuvres"]}, sort_keys=True, default=list)
