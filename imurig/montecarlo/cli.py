@@ -73,6 +73,9 @@ def add_montecarlo_parser(sub) -> None:
     t.add_argument("--timer", choices=["adc", "gps_mark", "hp6700"], default=None, help="round timer")
     f = p.add_argument_group("flight (error budget)")
     f.add_argument("--duration", type=float, default=None, help="flight length, s (the short default plan is cut)")
+    f.add_argument("--residuals", choices=["calibrated", "datasheet"], default=None,
+                   help="residual errors after calibration: the rig calibrations' Monte-Carlo RMS, or the "
+                        "datasheet spread (an uncalibrated IMU)")
     f.add_argument("--budget", choices=["one-at-a-time", "all-on"], default=None,
                    help="one-at-a-time: every run flies once per error source alone, once with all on, once "
                         "with none (the budget); all-on: only the all-on flight")
@@ -84,7 +87,7 @@ def _params(args) -> dict:
          "logging": "logging", "rig": "rig", "model": "model", "statistic": "statistic",
          "setting_resolution_arcmin": "setting_resolution_arcmin", "survey_arcsec": "survey_accuracy_arcsec",
          "protocol": "protocol", "rates": "dial_rates_dps", "window": "min_window_s", "timer": "timer",
-         "duration": "duration_s", "budget": "budget"}
+         "duration": "duration_s", "budget": "budget", "residuals": "residuals"}
     out = {v: getattr(args, k) for k, v in m.items() if getattr(args, k) is not None}
     if args.no_people:
         out["people"] = False
