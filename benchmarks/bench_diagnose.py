@@ -97,9 +97,9 @@ def record_tests(d: dict, alpha: float) -> list[tuple[str, str, float, bool]]:
             for g, e in d["gyros"].items():
                 engine(g, e)
     if "magnetometer" in d:
-        engine("magnetometer", d["magnetometer"])
-        for k, e in d.get("scatter", {}).items():
-            out.append((k, e["kind"], float(e["threshold_p"]), bool(e.get("finding"))))
+        engine("mag", d["magnetometer"])
+        for k, e in d["residual_checks"].items():
+            out.append((k, e["kind"], float(e["threshold_p"]), bool(e["finding"])))
     return out
 
 
