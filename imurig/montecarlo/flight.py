@@ -61,9 +61,10 @@ CALIBRATED = {
     "acc_scale_misalignment": {"scale_rel": [6.1e-6, 6.0e-6, 5.9e-6],
                                "misalignment_rad": [[0, 6.5e-6, 1.4e-6], [6.4e-6, 0, 1.4e-6], [2.3e-6, 2.3e-6, 0]]},
     "acc_nonlinearity": {"k2_per_m_s2": [2.5e-7, 2.7e-7, 2.7e-7]},
-    "gyro_bias": {"bias_rad_s": [8.3e-6, 8.3e-6, 8.3e-6]},
-    "gyro_scale_misalignment": {"scale_rel": [9.5e-6, 9.5e-6, 9.5e-6], "misalignment_rad": 9.0e-6},
-    "gyro_nonlinearity": {"k2_per_rad_s": [7.0e-6, 7.0e-6, 7.0e-6]},
+    "gyro_bias": {"bias_rad_s": [6.18e-6, 6.90e-6, 7.07e-6]},
+    "gyro_scale_misalignment": {"scale_rel": [9.2e-6, 8.8e-6, 9.4e-6],
+                                "misalignment_rad": [[0, 8.0e-6, 8.9e-6], [8.6e-6, 0, 7.7e-6], [8.0e-6, 8.1e-6, 0]]},
+    "gyro_nonlinearity": {"k2_per_rad_s": [6.85e-6, 5.59e-6, 6.30e-6]},
     "magnetometer": {"heading_rad": 0.1 * DEG, "hard_iron_T": 20e-9},
 }
 #: an uncalibrated IMU: the datasheet spread (uniform within +-limit -> sigma = limit / sqrt 3)
@@ -84,6 +85,7 @@ class FlightMC:
 
     name = "flight"
     generic_figures = False
+    lab_time_note = "`flight_s`: the flight's length; one navigation filter run per configuration and run."
 
     def default_params(self) -> dict:
         return {"plan": "short", "duration_s": None, "imu_rate_hz": 100.0, "nav_rate_hz": 10.0, "gps_rate_hz": 1.0,

@@ -203,11 +203,16 @@ def write_study_outputs(study, campaign) -> dict:
     _atomic_text(folder / "summary.json", json.dumps(clean_json(summary), indent=2, allow_nan=False) + "\n")
     _write_rrd(folder / "study.rrd", study, stats)
     _atomic_text(folder / "report.md", render_report(study, stats, figs, lab, per_run,
-                                                     extra.get("markdown", "") if extra else ""))
+                                                     extra.get("markdown", "") if extra else "",
+                                                     getattr(campaign, "lab_time_note", LAB_NOTE)))
     return summary
 
 
-def render_report(study, stats, figs, lab, per_run, extra_md: str = "") -> str:
+LAB_NOTE = ("`lab_time_seed_rates_s` uses the seed's Table 4.7 rates: 15 min warm-up and 60 s per position at 15 s "
+            "acquisition (45 s to set and check the angles), plus the remount between mountings.")
+
+
+def render_report(study, stats, figs, lab, per_run, extra_md: str = "", lab_note: str = LAB_NOTE) -> str:
     cfg = study.config
     ov = summary_lines(stats)
     t = study.timing or {}
@@ -240,8 +245,7 @@ def render_report(study, stats, figs, lab, per_run, extra_md: str = "") -> str:
              "\n## Per parameter\n", stats_table(stats)]
     if lab:
         lines += ["\n## Schedule and lab time\n", md_table(["quantity", "value"], [[k, v] for k, v in lab.items()]),
-                  ("\n`lab_time_seed_rates_s` uses the seed's Table 4.7 rates: 15 min warm-up and 60 s per position "
-                  "at 15 s acquisition (45 s to set and check the angles), plus the remount between mountings.\n")]
+                  "\n" + lab_note + "\n"]
     lines += ["\n## Schedule settings\n", "```json\n" + json.dumps(cfg["params"], indent=1) + "\n```\n",
               "\n## Figures\n"] + [f"![{k}]({v})\n" for k, v in figs.items()]
     return "\n".join(lines)

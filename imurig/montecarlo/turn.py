@@ -193,6 +193,10 @@ class TurnTableMC:
                 f"complete calibration ({nm} gyros)": lab["lab_time_seed_rates_s"],
                 "virtual rig time (ramps, settling, pulse waits, rounds, remounts)": lab["rig_time_s"]}
 
+    lab_time_note = ("`lab_time_seed_rates_s`: 15 min warm-up, then per gyro the whole-round acquisition plus "
+                     "95 s per measurement to set, settle and check (what the seed's 60 min per gyro leave after "
+                     "its schedule's acquisition, seed 4.8); `rig_time_s`: the virtual table's ramps, settling, "
+                     "pulse waits, rounds and remounts.")
     table_4_7_note = ("All rows in minutes. The seed (4.8): 16 measurements per gyro, about 60 min per gyro "
                       "inclusive assembly and checking; its schedule is 9 dial rates x 2 directions. The time "
                       "its acquisition leaves of that hour is spread over its 18 measurements "
