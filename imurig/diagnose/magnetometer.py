@@ -534,11 +534,12 @@ def _rig_run(anomaly_W_T):
 
 
 def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempco_T_per_K=None,
-                           air_warming_K: float = 0.0, air_tau_s: float = 600.0):
+                           air_warming_K: float = 0.0, air_tau_s: float = 600.0, delay_s: float = 0.0):
     """The magnetometer campaign (:class:`imurig.campaigns.magnetometer.MagnetometerCampaign`) with
     its fluxgate replaced by ``magnetometer`` (None: the campaign's drawn installation), a local
     field anomaly ``anomaly_W_T`` (ENU, T) in the lab, and a fluxgate offset tempco
-    ``tempco_T_per_K`` (3,) [T/K] while the lab air warms by ``air_warming_K`` (1 - exp(-t/tau)).
+    ``tempco_T_per_K`` (3,) [T/K] while the lab air warms by ``air_warming_K`` (1 - exp(-t/tau)),
+    and a delay ``delay_s`` of the sensor's output (e.g. its output filter): V(t) = V_ideal(t - tau).
     The metadata carry the IGRF field (what a lab writes down); the truth carries the anomaly."""
     from imurig.campaigns.magnetometer import MAG as MAGC
     from imurig.campaigns.magnetometer import MagnetometerCampaign
@@ -565,8 +566,17 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
         t = rig.time_s
         rig.truth_signals["T_air"] = 273.15 + lab.climate.temperature_C + air_warming_K * (1 - np.exp(-(t - t[0]) / air_tau_s))
         rig.truth_units["T_air"] = "K"
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(7,)))
     truth_extra = {}
+    B_true = {c: rig.truth_signals[f"B_C_{c}"].copy() for c in AXES}
+    if delay_s:
+        for c in AXES:
+            x = rig.truth_signals[f"B_C_{c}"]
+            for b in rig.blocks():  # the field the sensor puts out at t is the field at t - tau
+                x[b] = np.interp(rig.time_s[b] - delay_s, rig.time_s[b], x[b])
+        truth_extra["delay_s"] = float(delay_s)
+    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(7,)))
+    for c in AXES:
+        rec.truth_signals[f"B_C_{c}"] = B_true[c]
     if tempco_T_per_K is not None:
         T_mag = first_order_lag(rig.truth_signals["T_air"], rig.time_s, lab.thermal_lags.box_sensor_s) \
             if "T_air" in rig.truth_signals else lab.climate.imu_temperature_K(rig.time_s)
@@ -614,7 +624,7 @@ def _ideal(mag, hard=None, soft=None, rot=None):
 
 def case_recording(effect: str, seed: int, size: float) -> Recording:
     """A recording with ``effect`` at ``size`` concealed (units: hard_iron nT, soft_iron 1,
-    misalignment rad, local_field_anomaly nT, temperature_drift nT/K)."""
+    misalignment rad, local_field_anomaly nT, temperature_drift nT/K, time_delay s)."""
     if effect == "hard_iron":
         return magnetometer_recording(seed, lambda m: _ideal(m, hard=size))
     if effect == "soft_iron":
@@ -625,6 +635,8 @@ def case_recording(effect: str, seed: int, size: float) -> Recording:
         return magnetometer_recording(seed, anomaly_W_T=ANOMALY_DIRECTION_W * size * 1e-9)
     if effect == "temperature_drift":
         return magnetometer_recording(seed, tempco_T_per_K=TEMPCO_PATTERN * size * 1e-9, air_warming_K=AIR_WARMING_K)
+    if effect == "time_delay":
+        return magnetometer_recording(seed, _ideal, delay_s=size)
     if effect == "installation":
         return magnetometer_recording(seed)
     raise ConfigError(f"no magnetometer case '{effect}'")
@@ -662,6 +674,8 @@ def truth_param(effect: str, rec: Recording) -> float:
         return float(dB @ u1 * NT / (1 + dB @ Bhat / np.linalg.norm(B_W)))
     if effect == "temperature_drift":
         return float(_gain(rec)[0] * rec.truth["magnetometer_diagnosis"]["tempco_T_per_K"][0] * NT)
+    if effect == "time_delay":
+        return float(rec.truth["magnetometer_diagnosis"]["delay_s"])
     raise ConfigError(f"no magnetometer case '{effect}'")
 
 

@@ -305,6 +305,7 @@ CASES += [
     _mag_case("local_field_anomaly", 300.0, (0.1, 0.3, 1.0, 3.0, 10.0), "anomaly |dB| (nT)", "calibrated",
               notes="the anomaly's component along the IGRF field is absorbed by the gains (indistinguishable)"),
     _mag_case("temperature_drift", 2.0, (0.01, 0.03, 0.1, 0.3, 1.0), "offset tempco (nT/K), air +3 K", "calibrated"),
+    _mag_case("time_delay", 2e-3, (3e-6, 1e-5, 3e-5, 1e-4, 3e-4), "output delay (s)", "nominal"),
     _mag_case("installation", 1.0, (), "(the campaign's drawn hard and soft iron and misalignment)", "nominal",
               expected={("mag", "hard_iron"), ("mag", "soft_iron"), ("mag", "misalignment")}),
 ]
