@@ -29,7 +29,7 @@ def _check_case(effect, seed, size=None):
 
 
 @pytest.mark.parametrize("effect", ["hard_iron", "soft_iron", "misalignment", "local_field_anomaly",
-                                    "temperature_drift"])
+                                    "temperature_drift", "time_delay"])
 def test_concealed_effect_found_named_and_fitted(effect):
     d = _check_case(effect, seed=5)
     # what is left after the effect is at the noise model's level on every axis
