@@ -16,6 +16,11 @@ the hysteresis state of :func:`imurig.sensors.thermal.hysteresis_state`. T: the
 accelerometer's own temperature (K).
 i_noise: output current noise in the datasheet's three bands.
 
+Lever arm: the triad senses at r_C (``position_C_m``, m, case frame) from the case reference
+point where the rig gives f_C; rigid-body kinematics add (see :func:`lever_arm_specific_force`)
+
+    f_C(r) = f_C + dw/dt x r_C + w x (w x r_C)           [m/s^2, (n,3)],  w = w_C (rad/s)
+
 Datasheet units (mA/g, ug, ug/g^2, ppm/C, mrad) appear only in ``from_datasheet``.
 """
 from __future__ import annotations
@@ -53,11 +58,13 @@ class QFlexTriad:
     noise_bands: tuple = ((0.0, 10.0, 10e-9), (10.0, 500.0, 100e-9), (500.0, 10e3, 2e-6))
     reference_temperature_K: float = 298.15
     noise_enabled: bool = True
+    #: where the triad senses, relative to the case reference point (the rig's 'imu' site), in C (m)
+    position_C_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self):
         for name in ("bias_m_s2", "k1_A_per_m_s2", "k2_per_m_s2", "bias_tempco_m_s2_per_K",
                      "bias_tempco2_m_s2_per_K2", "bias_tempco3_m_s2_per_K3", "scale_tempco_per_K",
-                     "bias_hysteresis_m_s2", "scale_hysteresis", "load_resistor_ohm"):
+                     "bias_hysteresis_m_s2", "scale_hysteresis", "load_resistor_ohm", "position_C_m"):
             setattr(self, name, _vec(getattr(self, name)))
         self.misalignment_rad = np.asarray(self.misalignment_rad, float).reshape(3, 3).copy()
         np.fill_diagonal(self.misalignment_rad, 0.0)
@@ -162,6 +169,16 @@ class QFlexTriad:
         d["sensitivity_V_per_m_s2"] = (self.k1_A_per_m_s2 * self.load_resistor_ohm).tolist()
         d["model"] = "Honeywell Q-Flex QA700"
         return d
+
+
+def lever_arm_specific_force(w_C: np.ndarray, time_s: np.ndarray, r_C) -> np.ndarray:
+    """Specific force added at r_C (m, (3,) or (n,3), case frame C) by the case's rotation:
+    dw/dt x r_C + w_C x (w_C x r_C) [m/s^2, (n,3)]; w_C (n,3) rad/s, dw/dt by central
+    differences on ``time_s`` (n,) s."""
+    w = np.asarray(w_C, float)
+    r = np.broadcast_to(np.asarray(r_C, float), w.shape)
+    a = np.gradient(w, np.asarray(time_s, float), axis=0)
+    return np.cross(a, r) + np.cross(w, np.cross(w, r))
 
 
 @dataclass

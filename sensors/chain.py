@@ -111,6 +111,11 @@ class ImuLab:
         if wanted("acc", AXES):
             f_C = np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1)
             acc = self.accelerometers
+            if np.any(acc.position_C_m) and "w_C_x" in ts:  # the triad off the case reference point
+                from imurig.sensors.accelerometer import lever_arm_specific_force
+
+                f_C = f_C + lever_arm_specific_force(np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1), t,
+                                                     acc.position_C_m)
             v = acc.ideal_voltage(f_C + f_dist, T_acc, h_acc)
             d = np.gradient(v, t, axis=0)
             v += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers"),

@@ -21,8 +21,8 @@ of the winner's is reported as indistinguishable from it rather than silently dr
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -78,35 +78,57 @@ def _fit(X, y, names):
     return fit_ols(X, y, names)
 
 
-def _partial_F(ss0, X1, y):
-    m, p = X1.shape
-    if m - p <= 0:
-        return -np.inf, None
-    try:
-        coef, res, rank, _ = np.linalg.lstsq(X1, y, rcond=None)
-    except np.linalg.LinAlgError:
-        return -np.inf, None
-    if rank < p:
-        return -np.inf, None
-    r = y - X1 @ coef
-    ss1 = float(r @ r)
-    return ss1, coef
+class _Scanner:
+    """Partial F statistics of every candidate (and scan value) against one current design X.
+
+    With Q0 an orthonormal basis of X (m, p) and, per candidate and scan value, Qc an
+    orthonormal basis of C projected off X (m, k), the sum of squares a candidate removes from
+    a residual r (already orthogonal to X) is ||Qc^T r||^2, so one design's bases serve the
+    observed residual and every simulated one. A candidate whose columns are (numerically)
+    dependent on X or on each other gets -inf, as a rank-deficient fit would.
+    """
+
+    def __init__(self, X: np.ndarray, candidates):
+        X = np.asarray(X, float)
+        self.m, self.p = X.shape
+        self.Q0, _ = np.linalg.qr(X)
+        self.bases = []
+        for c in candidates:
+            per = []
+            for th in c.scan:
+                C = c.design(th)
+                Cp = C - self.Q0 @ (self.Q0.T @ C)
+                Qc, Rc = np.linalg.qr(Cp)
+                d = np.abs(np.diag(Rc))
+                ok = Cp.shape[1] <= self.m - self.p - 1 and np.all(d > 1e-9 * np.maximum(np.linalg.norm(C, axis=0), 1e-300))
+                per.append((th, Qc if ok else None))
+            self.bases.append(per)
+
+    def residual(self, y: np.ndarray) -> np.ndarray:
+        return y - self.Q0 @ (self.Q0.T @ y)
+
+    def best(self, i: int, r: np.ndarray, ss0: float):
+        """(F, theta) of candidate i for the residual r (orthogonal to X) with ss0 = r.r."""
+        best = (-np.inf, None)
+        for th, Qc in self.bases[i]:
+            if Qc is None:
+                continue
+            k = Qc.shape[1]
+            red = float(np.sum((Qc.T @ r) ** 2))
+            ss1 = ss0 - red
+            if not ss1 > 0:
+                continue
+            F = (red / k) / (ss1 / (self.m - self.p - k))
+            if F > best[0]:
+                best = (F, th)
+        return best
 
 
 def _scan_stats(y, X, ss0, cand: Candidate):
     """Best (F, theta) of one candidate over its scan."""
-    m, p = X.shape
-    best = (-np.inf, None)
-    for th in cand.scan:
-        C = cand.design(th)
-        ss1, _ = _partial_F(ss0, np.column_stack([X, C]), y)
-        if not np.isfinite(ss1) or ss1 <= 0:
-            continue
-        k = C.shape[1]
-        F = ((ss0 - ss1) / k) / (ss1 / (m - p - k))
-        if F > best[0]:
-            best = (F, th)
-    return best
+    sc = _Scanner(X, [cand])
+    r = sc.residual(np.asarray(y, float))
+    return sc.best(0, r, float(r @ r))
 
 
 def _cv_rms(X, y, folds: int) -> float:
@@ -157,7 +179,7 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
         import scipy.linalg
 
         L = np.linalg.cholesky(0.5 * (cov + cov.T))
-        wt = lambda A: scipy.linalg.solve_triangular(L, A, lower=True)  # noqa: E731
+        wt = lambda A: scipy.linalg.solve_triangular(L, A, lower=True)
         candidates = [Candidate(c.name, c.physics, c.param_names,
                                 (lambda th, f=c.columns: wt(np.asarray(f(th), float).reshape(L.shape[0], -1))),
                                 c.scan, c.scan_name) for c in candidates]
@@ -177,21 +199,23 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     noise = noise or (lambda r, m: r.standard_normal(m))
     for _ in range(max_effects):
         cur = _fit(X, y, names)
-        ss0 = cur.ss_res
-        stats = [(c, *_scan_stats(y, X, ss0, c)) for c in remaining]
+        scanner = _Scanner(X, remaining)
+        r0 = scanner.residual(y)
+        ss0 = float(r0 @ r0)
+        stats = [(c, *scanner.best(i, r0, ss0)) for i, c in enumerate(remaining)]
         stats = [s for s in stats if np.isfinite(s[1])]
         if not stats:
             break
         stats.sort(key=lambda s: -s[1])
         best_c, best_F, best_th = stats[0]
         # threshold: the max statistic over the whole remaining library, under the current model
+        # (the fitted part lies in X's span, so only the simulated noise's residual matters)
         sim_max = np.empty(n_sim)
-        fitted, sigma = cur.fitted_, cur.sigma_res
+        sigma = cur.sigma_res
         for i in range(n_sim):
-            ys = fitted + sigma * noise(rng, y.size)
-            rs = ys - X @ np.linalg.lstsq(X, ys, rcond=None)[0]
+            rs = scanner.residual(sigma * noise(rng, y.size))
             ss0s = float(rs @ rs)
-            sim_max[i] = max(_scan_stats(ys, X, ss0s, c)[0] for c in remaining)
+            sim_max[i] = max(scanner.best(j, rs, ss0s)[0] for j in range(len(remaining)))
         thr = float(np.quantile(sim_max, 1 - alpha))
         if best_F <= thr:
             break
@@ -224,8 +248,7 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
             for i, f in enumerate(findings):
                 others = [lookup[g.name].design(g.theta) for j, g in enumerate(findings) if j != i]
                 Xo = np.column_stack([X0, *others]) if others else X0
-                ro = y - Xo @ np.linalg.lstsq(Xo, y, rcond=None)[0]
-                F, th = _scan_stats(y, Xo, float(ro @ ro), lookup[f.name])
+                F, th = _scan_stats(y, Xo, None, lookup[f.name])
                 if np.isfinite(F):
                     f.theta, f.statistic = th, float(F)
         kept = []
@@ -233,11 +256,11 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
             others = [lookup[g.name].design(g.theta) for j, g in enumerate(findings) if j != i]
             Xo = np.column_stack([X0, *others]) if others else X0
             fit_o = _fit(Xo, y, [f"c{k}" for k in range(Xo.shape[1])])
+            sc_o = _Scanner(Xo, [lookup[f.name]])
             sims = np.empty(n_sim)
             for k in range(n_sim):
-                ys = fit_o.fitted_ + fit_o.sigma_res * noise(rng, y.size)
-                rs = ys - Xo @ np.linalg.lstsq(Xo, ys, rcond=None)[0]
-                sims[k] = _scan_stats(ys, Xo, float(rs @ rs), lookup[f.name])[0]
+                rs = sc_o.residual(fit_o.sigma_res * noise(rng, y.size))
+                sims[k] = sc_o.best(0, rs, float(rs @ rs))[0]
             f.threshold = float(np.quantile(sims, 1 - alpha))
             if f.statistic > f.threshold:
                 kept.append(f)
