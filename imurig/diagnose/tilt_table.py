@@ -466,3 +466,103 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
                                   "eps x r0 along the phi axis (r0 = the IMU's height above the axes)"},
         "lever_arm_r0_m": [float(v) for v in np.abs(tw["r0_C"]).max(axis=0)]})
     return out
+
+
+# ------------------------------------------------------------------ concealed-effect cases
+#: a protocol whose slews carry both axes (used by the dynamic cases): 3 x 4 positions per mounting
+DYNAMIC_PROTOCOL = {"theta_deg": (0, 45, 90), "phi_deg": (0, 90, 180, 270), "dwell_s": 3.0, "settle_s": 1.0,
+                    "slew_rate_deg_s": 30.0}
+#: the lever-arm pattern (times the size, m, case frame): the triad's centre off the case's
+LEVER_PATTERN = np.array([1.0, -0.75, 0.5])
+#: the DAQ's channel count is fixed by the scan list; the skew of acc_y (slot 2) is 2 / f_mux
+SKEW_SLOT_Y = 2
+
+
+def _dyn_record(seed: int, change=None, **camp_kw):
+    from imurig.diagnose.suite import _tilt_lab
+    from imurig.rigs.tilt_table import TiltTableProtocol
+
+    return _tilt_lab(seed, change or (lambda lab: lab), protocol=TiltTableProtocol(**DYNAMIC_PROTOCOL), **camp_kw)
+
+
+def case_recording(effect: str, seed: int, size: float) -> Recording:
+    """A recording with ``effect`` at ``size`` (see :data:`CASE_SIZES`), everything else as drawn.
+
+    - ``time_delay``: the DAQ's multiplexer skew with acc_y delayed by ``size`` s (f_mux = 2 / size,
+      crosstalk off so that only the skew changes with f_mux);
+    - ``lever_arm``: the triad senses at ``size`` x (1, -0.75, 0.5) m from the case's reference point;
+    - ``wrong_local_gravity``: the recording's site metadata (what the twin uses) states
+      g_true (1 + ``size``) while the rig ran at the true local gravity;
+    - ``temperature_drift``: the lab air drifts 3 K/h and the accelerometer biases have a linear
+      tempco of ``size`` x (1, -1, 1) m/s^2/K (no curvature, no scale tempco).
+    """
+    from dataclasses import replace
+
+    from imurig.sensors.chain import LabClimate
+
+    if effect == "time_delay":
+        rec = _dyn_record(seed, lambda lab: replace(lab, adc=replace(lab.adc, crosstalk_enabled=False,
+                                                                      mux_frequency_hz=SKEW_SLOT_Y / size)))
+    elif effect == "lever_arm":
+        rec = _dyn_record(seed, lambda lab: replace(lab, accelerometers=replace(
+            lab.accelerometers, position_C_m=size * LEVER_PATTERN)))
+    elif effect == "wrong_local_gravity":
+        rec = _dyn_record(seed)
+        rec.truth["site_gravity_m_s2"] = rec.meta["site"]["gravity_m_s2"]
+        rec.meta["site"] = dict(rec.meta["site"], gravity_m_s2=rec.meta["site"]["gravity_m_s2"] * (1 + size))
+    elif effect == "temperature_drift":
+        from imurig.diagnose.suite import _tilt_lab
+
+        def change(lab):
+            acc = replace(lab.accelerometers, bias_tempco_m_s2_per_K=size * np.array([1.0, -1.0, 1.0]),
+                          bias_tempco2_m_s2_per_K2=np.zeros(3), bias_tempco3_m_s2_per_K3=np.zeros(3),
+                          scale_tempco_per_K=np.zeros(3))
+            return replace(lab, accelerometers=acc, climate=LabClimate(drift_C_per_h=3.0))
+
+        rec = _tilt_lab(seed, change)
+    else:
+        raise ConfigError(f"no tilt-table case for '{effect}'")
+    return rec
+
+
+def null_case_recording(effect: str, seed: int) -> Recording:
+    """The same kind of record with the effect absent (the twin then lacks nothing)."""
+    if effect == "temperature_drift":
+        return case_recording(effect, seed, 0.0)
+    if effect == "time_delay":  # the seed's 20 kHz skew, which the null twin models
+        return _dyn_record(seed)
+    return _dyn_record(seed)
+
+
+def truth_param(effect: str, rec: Recording) -> float:
+    acc = rec.truth["sensors"]["accelerometers"]
+    if effect == "time_delay":
+        adc = rec.truth["chain"]["adc"]
+        return list(adc["scan_list"]).index("acc_y") / adc["mux_frequency_hz"]
+    if effect == "lever_arm":
+        return float(acc["position_C_m"][0])
+    if effect == "wrong_local_gravity":
+        return rec.meta["site"]["gravity_m_s2"] / rec.truth["site_gravity_m_s2"] - 1.0
+    if effect == "temperature_drift":
+        # inverse model: f = ... - kb dT / D_x, the column being the temp_acc_x volts (10 mV/K)
+        from imurig.diagnose.suite import _scale_D
+
+        return -acc["bias_tempco_m_s2_per_K"][0] / _scale_D(rec)[0] / 0.01
+    raise ConfigError(f"no truth for '{effect}'")
+
+
+def found_param(effect: str, d: dict):
+    """(estimate, std_error) of the case's parameter in a diagnosis, None if not found."""
+    if effect == "wrong_local_gravity":  # what the slews say of g, found or not
+        g = d.get("dynamic", {}).get("gravity_check")
+        return None if g is None else (g["eps"], g["eps_se"])
+    if effect == "temperature_drift":
+        src = d["axes"]["x"]["findings"]
+    else:
+        src = d.get("dynamic", {}).get("findings", [])
+    want = {"time_delay": ("time_delay", "y"), "lever_arm": ("lever_arm", "acc"),
+            "temperature_drift": ("temperature_drift", None)}[effect]
+    for f in src:
+        if f["effect"] == want[0] and (want[1] is None or f.get("channel") == want[1]):
+            return f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
+    return None
