@@ -18,6 +18,7 @@ The centred ``ss_t`` is used whether or not the model has a constant term.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -410,13 +411,15 @@ def fit_ols(
     )
 
 
-def fit_gls(X: np.ndarray, y: np.ndarray, names: Sequence[str], cov: np.ndarray) -> RegressionResult:
+def fit_gls(X: np.ndarray, y: np.ndarray, names: Sequence[str], cov: np.ndarray,
+            known_cov: bool = False) -> RegressionResult:
     """Generalised least squares for correlated errors with covariance ``cov`` (n, n).
 
     The problem is whitened with the Cholesky factor L of ``cov`` (cov = L L'), solved by
     :func:`fit_ols` on (L^-1 X, L^-1 y), so the coefficients are the efficient (BLUE)
     estimates and ``cov_ = s^2 (X' cov^-1 X)^-1`` with the data-based scale
-    s^2 = ms_res of the whitened fit (about 1 when ``cov`` is right).
+    s^2 = ms_res of the whitened fit (about 1 when ``cov`` is right); with ``known_cov``
+    ``cov`` is taken as the errors' absolute covariance and ``cov_ = (X' cov^-1 X)^-1``.
 
     The goodness-of-fit statistics (residuals_, fitted_, ss_res, ms_res, r2, R, sigma_res)
     describe the *unwhitened* residuals y - X b, so they compare with OLS fits; aic/bic and
@@ -434,6 +437,10 @@ def fit_gls(X: np.ndarray, y: np.ndarray, names: Sequence[str], cov: np.ndarray)
     Xw = scipy.linalg.solve_triangular(L, X, lower=True)
     yw = scipy.linalg.solve_triangular(L, y, lower=True)
     w = fit_ols(Xw, yw, names)
+    if known_cov:
+        cov_b = w.cov_ / w.ms_res
+        se = np.sqrt(np.diag(cov_b))
+        w = dataclasses.replace(w, cov_=cov_b, std_error_=se, t_value_=w.coef_ / se)
     fitted = X @ w.coef_
     resid = y - fitted
     ss_res = float(resid @ resid)

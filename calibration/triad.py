@@ -11,8 +11,10 @@ C.1.1) or on all samples. The physical parameters of the forward model
     u = G (I + M) q + G b + G k2 (I + M) q ** 2 ...     (q: true quantity in the case frame)
 
 follow from the linear part B and the constant c of the three inverse models:
-K = B^-1 = G (I + M), so scale G_i = K_ii, misalignment M_ij = K_ij / K_ii,
-bias b = -(I + M) c, nonlinearity k2_i = -beta_i(u_i^2) G_i^2 / [(I + M)^-1]_ii,
+K = B^-1 = G (I + M) / (1 + 2 k2 b), so scale G_i = K_ii (1 + 2 k2_i b_i), misalignment
+M_ij = K_ij / K_ii, bias b = -(I + M) c - k2 b^2, nonlinearity
+k2_i = -beta_i(u_i^2) K_ii^2 (1 + 2 k2_i b_i)^2 / [(I + M)^-1]_ii (first order in k2: the
+inverse of u = G (q + b + k2 q^2) is q = u/G (1 + 2 k2 b) - k2 u^2/G^2 - b - k2 b^2),
 with standard errors by the delta method from the joint covariance of the betas (which
 includes the reference's own uncertainty when a reference Jacobian is given).
 
@@ -103,6 +105,8 @@ class TriadCalibration:
 
     def __post_init__(self):
         self.loaded_ = None
+        self.projection_: dict = {}       # axis -> (p_a, n) matrix P_a with beta_a = P_a y_a
+        self.cross_cov_ = None            # cross-axis blocks of the betas' covariance (segment_cov)
 
     def _library(self, axis: str) -> TermLibrary:
         if isinstance(self.model, dict):
@@ -114,17 +118,31 @@ class TriadCalibration:
         return models[self.model](axis)
 
     def fit(self, rec: Recording, reference: np.ndarray, reference_jacobian: np.ndarray | None = None,
-            reference_sigma: np.ndarray | None = None, response_cov: np.ndarray | None = None
-            ) -> "TriadCalibration":
+            reference_sigma: np.ndarray | None = None, response_cov: np.ndarray | None = None,
+            segment_cov: np.ndarray | None = None) -> "TriadCalibration":
         """Fit the three inverse models.
 
         reference : (n_seg, 3) reference quantity per segment, in SI (e.g. m/s^2 or rad/s, in C).
         reference_jacobian : optional (n_seg, 3, q) d reference / d survey parameters, and
         reference_sigma (q,) their 1-sigma uncertainty; adds the reference's uncertainty
-        to the coefficient covariance (beta = X^+ f_ref is linear in f_ref).
+        to the coefficient covariance (beta = P f_ref is linear in f_ref).
         response_cov : optional (n_seg, n_seg) covariance of the per-segment errors (e.g. a
         gyro's correlated bias instability plus white noise); the fit is then generalised
         least squares (:func:`imurig.calibration.regression.fit_gls`), for fixed models only.
+        segment_cov : optional (n_seg, 3, 3) covariance of each segment's reference error across
+        the three axes, independent between segments (e.g. the tilt table's angle-setting
+        error, :func:`imurig.rigs.tilt_table.setting_error_covariance`). The reference error of
+        axis a then has the known covariance
+
+            K_a = diag(Sigma_k,aa) + J_a diag(sigma^2) J_a'      (setting + survey)  [(n, n)]
+
+        and axis a is fitted by generalised least squares with V_a = K_a + s_a^2 I, the white
+        part s_a^2 (noise, drift between segments) estimated by REML. The coefficients'
+        covariance is then absolute, (X' V_a^-1 X)^-1, with cross-axis blocks
+        P_a (diag(Sigma_k,ab) + J_a diag(sigma^2) J_b') P_b' (P_a the GLS projection).
+        Fixed models and per-segment statistics only. Without it, ordinary least squares
+        with the survey's covariance added (which counts the survey twice where it also
+        inflates the residual).
         """
         spec = self.SPEC
         s = rec.meta.get(spec.sensitivity_key)
@@ -136,7 +154,18 @@ class TriadCalibration:
         y_all = reference[seg]
         inputs = {n: u[:, j] for j, n in enumerate(spec.inputs)}
         linear = ("1",) + spec.inputs
-        self.results_, self.selection_ = {}, {}
+        survey = None
+        if reference_jacobian is not None and reference_sigma is not None:
+            survey = np.asarray(reference_jacobian, float)[seg] * np.asarray(reference_sigma, float)  # (n, 3, q)
+        if segment_cov is not None:
+            segment_cov = np.asarray(segment_cov, float)
+            if segment_cov.shape != (rec.n_segments, 3, 3) or not np.isfinite(segment_cov).all():
+                raise ValueError(f"segment_cov must be a finite (n_segments, 3, 3) = ({rec.n_segments}, 3, 3) "
+                                 f"array, got {segment_cov.shape}")
+            if self.model in ("stepwise", "backward") or self.statistic == "raw" or response_cov is not None:
+                raise ValueError("segment_cov needs a fixed model, per-segment statistics and no response_cov")
+            segment_cov = segment_cov[seg]
+        self.results_, self.selection_, self.projection_ = {}, {}, {}
         for j, a in enumerate(spec.axes):
             if self.model in ("stepwise", "backward"):
                 lib = polynomial(spec.inputs, self.stepwise_library_degree)
@@ -148,28 +177,40 @@ class TriadCalibration:
                                                criterion=self.stepwise_criterion)
                 self.selection_[a] = sel
                 self.results_[a] = sel.result
+                self.projection_[a] = np.linalg.pinv(TermLibrary.from_names(sel.result.names).design(inputs))
+                continue
+            lib = self._library(a)
+            X = lib.design(inputs)
+            if response_cov is not None:
+                V = response_cov
+            elif segment_cov is not None:
+                K = _reference_error_cov(segment_cov, survey, j, j)
+                V = K + white_variance_reml(X, y_all[:, j], K) * np.eye(len(K))
             else:
-                lib = self._library(a)
-                if response_cov is not None:
-                    self.results_[a] = fit_gls(lib.design(inputs), y_all[:, j], lib.names, response_cov)
-                else:
-                    self.results_[a] = fit_ols(lib.design(inputs), y_all[:, j], lib.names)
-        self.reference_cov_ = None
-        if reference_jacobian is not None and reference_sigma is not None:
-            self.reference_cov_ = self._reference_covariance(inputs, seg, np.asarray(reference_jacobian),
-                                                             np.asarray(reference_sigma))
+                self.results_[a] = fit_ols(X, y_all[:, j], lib.names)
+                self.projection_[a] = np.linalg.pinv(X)
+                continue
+            self.results_[a] = fit_gls(X, y_all[:, j], lib.names, V, known_cov=segment_cov is not None)
+            self.projection_[a] = _gls_projection(X, V)
+        self.cross_cov_ = self.reference_cov_ = None
+        if segment_cov is not None:
+            self.cross_cov_ = self._cross_axis_covariance(segment_cov, survey)
+        elif survey is not None:
+            S = np.concatenate([self.projection_[a] @ survey[:, j, :] for j, a in enumerate(spec.axes)])
+            self.reference_cov_ = S @ S.T
         return self
 
-    def _reference_covariance(self, inputs, seg, J, sigma) -> np.ndarray:
-        """Covariance of all betas (stacked x, y, z) caused by the reference's uncertainty."""
-        blocks = []
-        for j, a in enumerate(self.SPEC.axes):
-            lib = TermLibrary.from_names(self.results_[a].names)
-            X = lib.design(inputs)
-            pinv = np.linalg.pinv(X)
-            blocks.append(pinv @ (J[seg, j, :] * sigma))  # (p_a, q)
-        S = np.concatenate(blocks, axis=0)
-        return S @ S.T
+    def _cross_axis_covariance(self, segment_cov, survey) -> np.ndarray:
+        """Cross-axis blocks of the betas' covariance, P_a K_ab P_b' for a != b (K_ab the
+        reference errors' cross-covariance); the diagonal blocks are the per-axis fits'."""
+        P = [self.projection_[a] for a in self.SPEC.axes]
+        off = np.concatenate([[0], np.cumsum([p.shape[0] for p in P])])
+        out = np.zeros((off[-1], off[-1]))
+        for i in range(3):
+            for j in range(3):
+                if i != j:
+                    out[off[i]:off[i + 1], off[j]:off[j + 1]] = P[i] @ _reference_error_cov(segment_cov, survey, i, j) @ P[j].T
+        return out
 
     # ------------------------------------------------------------ results
     def coefficient_vector(self):
@@ -184,6 +225,8 @@ class TriadCalibration:
             i += p
         if self.reference_cov_ is not None:
             cov = cov + self.reference_cov_
+        if self.cross_cov_ is not None:
+            cov = cov + self.cross_cov_
         return names, beta, cov
 
     def physical_parameters(self) -> list[dict]:
@@ -205,13 +248,18 @@ class TriadCalibration:
             K = np.linalg.inv(B)
             G = np.diag(K).copy()
             M = K / G[:, None]
-            out = list(G * sens)
-            out += [M[i, j] for i in range(3) for j in range(3) if i != j]
-            out += list(-(M @ c0))
             Minv = np.linalg.inv(M)
-            for i, a in enumerate(axes):
-                key = (a, f"{inp[i]}^2")
-                out.append(-b[index[key]] * G[i] ** 2 / Minv[i, i] if key in index else np.nan)
+            bias = -(M @ c0)
+            k2 = np.array([-b[index[(a, f"{inp[i]}^2")]] * G[i] ** 2 / Minv[i, i]
+                           if (a, f"{inp[i]}^2") in index else np.nan for i, a in enumerate(axes)])
+            # the inverse of u = G (q + b + k2 q^2) has slope (1 + 2 k2 b) / G and constant -(b + k2 b^2)
+            # (first order in k2): without this the bias leaks 2 k2 b into the scale factor
+            corr = np.where(np.isfinite(k2), 1 + 2 * np.nan_to_num(k2) * bias, 1.0)
+            bias = bias - np.nan_to_num(k2) * bias ** 2
+            out = list(G * corr * sens)
+            out += [M[i, j] for i in range(3) for j in range(3) if i != j]
+            out += list(bias)
+            out += list(k2 * corr ** 2)
             return np.array(out)
 
         q = spec.quantity_unit
@@ -279,6 +327,48 @@ class TriadCalibration:
     def table(self) -> dict:
         """Seed-style table: coefficients per axis and sigma_res, MS_res, R, R_adj."""
         return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
+
+
+def _gls_projection(X: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """P = (X' C^-1 X)^-1 X' C^-1 (p, n) for C (n, n): the GLS estimate is beta = P y."""
+    CiX = np.linalg.solve(cov, X)
+    return np.linalg.solve(X.T @ CiX, CiX.T)
+
+
+def _reference_error_cov(segment_cov: np.ndarray, survey: np.ndarray | None, i: int, j: int) -> np.ndarray:
+    """Covariance (n, n) between the reference errors of axes i and j: the segments' own
+    (diagonal, segment_cov[:, i, j]) plus the survey's, J_i diag(sigma^2) J_j' (survey = J sigma)."""
+    K = np.diag(segment_cov[:, i, j])
+    return K if survey is None else K + survey[:, i, :] @ survey[:, j, :].T
+
+
+def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray) -> float:
+    """REML estimate of s^2 in y = X b + e, cov(e) = K + s^2 I, K (n, n) known.
+
+    Minimises  1/2 [log det V + log det(X' V^-1 X) + r' V^-1 r],  V = K + s^2 I, r the GLS
+    residual, over log s^2 (bounded scalar search between 1e-9 and 1 times 10 x the data's
+    OLS residual variance). One eigendecomposition K = U diag(lam) U' makes each evaluation
+    O(n p^2): V^-1 = U diag(1 / (lam + s^2)) U'.
+    """
+    import scipy.optimize
+
+    ols = np.linalg.lstsq(X, y, rcond=None)[0]
+    top = max(float(np.var(y - X @ ols)), 1e-300) * 10
+    lam, U = np.linalg.eigh(0.5 * (K + K.T))
+    lam = np.clip(lam, 0.0, None)
+    Xu, yu = U.T @ X, U.T @ y
+
+    def nll(log_s2):
+        v = np.exp(log_s2) + lam
+        Xw = Xu / v[:, None]
+        A = Xu.T @ Xw
+        b = np.linalg.solve(A, Xw.T @ yu)
+        r = yu - Xu @ b
+        return 0.5 * (np.sum(np.log(v)) + np.linalg.slogdet(A)[1] + np.sum(r * r / v))
+
+    lo, hi = np.log(top * 1e-9), np.log(top)
+    res = scipy.optimize.minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+    return float(np.exp(res.x))
 
 
 def delta_cov(h, x, cov) -> np.ndarray:

@@ -18,7 +18,7 @@ only through its inclinometer survey (:class:`TableSurvey`), which the reference
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -144,15 +144,22 @@ class TableSurvey:
     level_x_rad: float = 0.0
     phi_zero_rad: dict = field(default_factory=dict)
     accuracy_rad: float = 0.0
+    #: the table's stated angle-setting resolution (paper: "known with an accuracy of 0.25 arc
+    #: minute"); each set angle lands uniformly within +-res/2. 0: unknown (the reference is then
+    #: treated as exact apart from the survey, and the fit is ordinary least squares).
+    setting_resolution_rad: float = 0.0
 
     @classmethod
     def measure(cls, errors: TiltTableErrors, rng: np.random.Generator,
                 accuracy_rad: float = 2 * ARCSEC) -> "TableSurvey":
-        """Survey the table with an inclinometer reversal of ``accuracy_rad`` (1 sigma)."""
+        """Survey the table with an inclinometer reversal of ``accuracy_rad`` (1 sigma).
+
+        The setting resolution is the table's specification, which the simulation injects as is.
+        """
         e = lambda: float(rng.normal(0.0, accuracy_rad)) if accuracy_rad > 0 else 0.0  # noqa: E731
         return cls(theta_zero_rad=errors.theta_zero_rad + e(), level_x_rad=errors.level_x_rad + e(),
                    phi_zero_rad={k: v + e() for k, v in errors.phi_zero_rad.items()},
-                   accuracy_rad=accuracy_rad)
+                   accuracy_rad=accuracy_rad, setting_resolution_rad=errors.setting_resolution_rad)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -376,16 +383,45 @@ def reference_with_jacobian(segments: dict, g: float, survey: TableSurvey | dict
 
     def shifted(k, d):
         kw = dict(theta_zero_rad=survey.theta_zero_rad, level_x_rad=survey.level_x_rad,
-                  phi_zero_rad=dict(survey.phi_zero_rad), accuracy_rad=survey.accuracy_rad)
+                  phi_zero_rad=dict(survey.phi_zero_rad))
         if k == 0:
             kw["theta_zero_rad"] += d
         elif k == 1:
             kw["level_x_rad"] += d
         else:
             kw["phi_zero_rad"][mounts[k - 2]] += d
-        return reference_specific_force(segments, g, TableSurvey(**kw))
+        return reference_specific_force(segments, g, replace(survey, **kw))
 
     q = 2 + len(mounts)
     J = np.stack([(shifted(k, h) - shifted(k, -h)) / (2 * h) for k in range(q)], axis=-1)
     sigma = np.full(q, survey.accuracy_rad)
     return ref, J, sigma
+
+
+def setting_error_covariance(segments: dict, g: float, survey: TableSurvey | dict) -> np.ndarray:
+    """Covariance (n_seg, 3, 3) of each segment's reference error from the angle-setting resolution.
+
+    Each set angle lands uniformly within +-res/2 (variance res^2 / 12), independently for theta
+    and phi and from position to position, so the reference error of segment k is
+    J_k (d_theta, d_phi) with J_k = d f_C / d(theta, phi) (3, 2), and
+
+        Sigma_k = res^2 / 12 * J_k J_k'        [(m/s^2)^2]
+
+    It is heteroscedastic (zero for an axis along the theta axis' derivative null, e.g. f_z near
+    theta = 0) and correlated across the three axes. Zero when the survey gives no resolution.
+    """
+    if isinstance(survey, dict):
+        survey = TableSurvey(**survey)
+    n = len(segments["theta"])
+    res = survey.setting_resolution_rad
+    if res <= 0:
+        return np.zeros((n, 3, 3))
+    h = 1e-6
+    cols = []
+    for key in ("theta", "phi"):
+        up, down = dict(segments), dict(segments)
+        up[key] = np.asarray(segments[key], float) + h
+        down[key] = np.asarray(segments[key], float) - h
+        cols.append((reference_specific_force(up, g, survey) - reference_specific_force(down, g, survey)) / (2 * h))
+    J = np.stack(cols, axis=-1)  # (n, 3, 2)
+    return res ** 2 / 12.0 * np.einsum("kia,kja->kij", J, J)

@@ -187,6 +187,39 @@ def test_standard_errors_match_monte_carlo_scatter(weighted: bool):
     np.testing.assert_array_less(np.abs(coefs.mean(axis=0) - b) / true_sd, 4 / math.sqrt(reps))
 
 
+def test_gls_with_known_and_reml_white_variance_is_honest():
+    """Errors with a known part K (heteroscedastic diagonal + a low-rank survey-like term) and an
+    unknown white part s^2: REML recovers s^2, and the known-covariance GLS standard errors match
+    the estimates' scatter: sum of z^2 over the replicates inside its chi-square 99 % interval."""
+    from scipy.stats import chi2
+
+    from imurig.calibration.regression import fit_gls
+    from imurig.calibration.triad import white_variance_reml
+
+    rng = np.random.default_rng(7)
+    n, reps = 80, 200
+    x = np.linspace(0, np.pi, n)
+    X = np.column_stack([np.ones(n), np.cos(x), np.sin(x), np.cos(x) ** 2])
+    b = np.array([0.1, 1.0, -0.5, 2e-3])
+    D = 4e-8 * np.sin(2 * x) ** 2                    # zero where the "setting error" has no effect
+    J = np.column_stack([np.sin(x), np.cos(x)]) * 2e-4  # survey: two parameters, 1 sigma each
+    K = np.diag(D) + J @ J.T
+    s2 = 0.02 * D.mean()
+    L = np.linalg.cholesky(K + s2 * np.eye(n))
+    names = ["1", "c", "s", "c2"]
+    z = np.empty((reps, 4))
+    s2_hat = np.empty(reps)
+    for r in range(reps):
+        y = X @ b + L @ rng.standard_normal(n)
+        s2_hat[r] = white_variance_reml(X, y, K)
+        res = fit_gls(X, y, names, K + s2_hat[r] * np.eye(n), known_cov=True)
+        z[r] = (res.coef_ - b) / res.std_error_
+    assert abs(np.mean(s2_hat) / s2 - 1) < 0.1  # REML: unbiased to O(p/n); its own scatter is ~2 %
+    lo, hi = chi2.ppf([0.005, 0.995], reps)
+    for k in range(4):
+        assert lo < np.sum(z[:, k] ** 2) < hi, (names[k], np.sum(z[:, k] ** 2), lo, hi)
+
+
 # ---------------------------------------------------------------------------
 # rank deficiency and input validation
 

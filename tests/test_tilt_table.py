@@ -206,3 +206,53 @@ def test_multiplexer_too_slow_for_sample_rate_is_refused():
     camp = small_campaign(mux_frequency_hz=5e3)  # 10 channels at 5 kHz take 2 ms > 1 ms
     with pytest.raises(ConfigError, match="longer than one sample period"):
         camp.simulate()
+
+
+# ------------------------------------------------------------------ reference error model
+def test_setting_error_covariance_matches_closed_form():
+    """A perfect z_up table: f = g (-cos phi sin theta, sin phi sin theta, cos theta), so
+    Sigma_k = res^2/12 (J_theta J_theta' + J_phi J_phi') with the analytic derivatives."""
+    from imurig.rigs.tilt_table import setting_error_covariance
+
+    theta, phi = np.meshgrid(np.radians(np.arange(0, 181, 15.0)), np.radians(np.arange(0, 360, 30.0)))
+    theta, phi = theta.ravel(), phi.ravel()
+    segs = {"theta": theta, "phi": phi, "mount": np.array(["z_up"] * theta.size)}
+    res = 0.25 * math.pi / 180 / 60
+    S = setting_error_covariance(segs, G, TableSurvey(setting_resolution_rad=res))
+    Jt = G * np.stack([-np.cos(phi) * np.cos(theta), np.sin(phi) * np.cos(theta), -np.sin(theta)], axis=1)
+    Jp = G * np.stack([np.sin(phi) * np.sin(theta), np.cos(phi) * np.sin(theta), np.zeros_like(theta)], axis=1)
+    expected = res**2 / 12 * (Jt[:, :, None] * Jt[:, None, :] + Jp[:, :, None] * Jp[:, None, :])
+    np.testing.assert_allclose(S, expected, rtol=0, atol=1e-8 * np.max(expected))
+    assert not np.any(setting_error_covariance(segs, G, TableSurvey()))  # no resolution given: no term
+
+
+def test_noise_free_triad_recovers_forward_parameters():
+    """Exact data u = G (q + b + k2 q^2), q = (I + M) f: the physical parameters come back to
+    the truncation of the inverse model (second order in k2, k2 M cross terms), far below
+    2 k2 b, the scale-factor error of converting the linear coefficient without the bias."""
+    from imurig.calibration.accelerometer import AccelerometerCalibration
+    from imurig.recording import Recording
+
+    theta, phi = np.meshgrid(np.radians(np.arange(0, 181, 10.0)), np.radians(np.arange(0, 360, 20.0)))
+    f1 = specific_force_C(theta.ravel(), phi.ravel(), "z_up", G)
+    f = np.concatenate([f1, f1 * [1, -1, -1]])  # both mountings
+    s = np.array([0.1017, 0.0987, 0.1003])      # V/(m/s^2)
+    b = np.array([0.06, -0.05, 0.04])           # m/s^2
+    k2 = np.array([5e-6, -4e-6, 3e-6])          # 1/(m/s^2)
+    M = np.array([[0, 4e-4, -3e-4], [2e-4, 0, 5e-4], [-1e-4, 3e-4, 0]])
+    q = f + f @ M.T
+    v = s * (q + b + k2 * q**2)
+    n = f.shape[0]
+    rec = Recording(time_s=np.arange(n, dtype=float), channels={f"acc_{a}": v[:, i] for i, a in enumerate("xyz")},
+                    units={f"acc_{a}": "V" for a in "xyz"},
+                    segments={"start_s": np.arange(n) - 0.25, "stop_s": np.arange(n) + 0.25},
+                    meta={"acc_nominal_sensitivity_V_per_m_s2": [0.1, 0.1, 0.1]})
+    cal = AccelerometerCalibration(model="physical").fit(rec, f)
+    est = {p["name"]: p["estimate"] for p in cal.physical_parameters()}
+    cross = np.max(np.abs(M)) * np.max(np.abs(k2)) * G**2  # the k2_j M_ij u_j^2 terms the model leaves out
+    for i, a in enumerate("xyz"):
+        assert abs(est[f"sensitivity_{a}"] / s[i] - 1) < 0.02 * abs(2 * k2[i] * b[i]), a
+        assert abs(est[f"bias_{a}"] - b[i]) < cross, a
+        assert abs(est[f"nonlinearity_{a}"] / k2[i] - 1) < 2e-3, a
+    for i, j in [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)]:
+        assert abs(est[f"misalignment_{'xyz'[i]}{'xyz'[j]}"] - M[i, j]) < 1e-8

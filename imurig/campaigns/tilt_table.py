@@ -17,7 +17,7 @@ from imurig.calibration.regression import check_identifiable
 from imurig.errors import RecordingError, UnidentifiableTermsError
 from imurig.recording import Recording
 from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol,
-                                    reference_with_jacobian, specific_force_C)
+                                    reference_with_jacobian, setting_error_covariance, specific_force_C)
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
@@ -112,6 +112,11 @@ class TiltTableCampaign:
 # -------------------------------------------------------------------- analysis
 def tilt_table_reference(rec: Recording):
     """Reference specific force per segment from set-points and survey: (ref, J, sigma)."""
+    return reference_with_jacobian(*_reference_inputs(rec))
+
+
+def _reference_inputs(rec: Recording):
+    """(segments with 'mount', local gravity, survey) of a tilt-table recording."""
     for col in ("theta", "phi"):
         if col not in rec.segments:
             raise RecordingError(f"the recording's segments lack the set-point '{col}'; tilt-table recordings "
@@ -125,7 +130,7 @@ def tilt_table_reference(rec: Recording):
     g = Site.from_dict(rec.meta.get("site", {})).gravity_m_s2
     survey = rec.meta.get("table_survey") or {}
     survey = TableSurvey(**survey) if survey else TableSurvey()
-    return reference_with_jacobian(segs, g, survey)
+    return segs, g, survey
 
 
 def calibrate(rec: Recording, model: str = "physical", statistic: str = "median",
@@ -136,7 +141,8 @@ def calibrate(rec: Recording, model: str = "physical", statistic: str = "median"
     cal = AccelerometerCalibration(model=model, statistic=statistic)
     if statistic == "raw":
         return cal.fit(rec100, ref)
-    return cal.fit(rec100, ref, J, sigma)
+    setting = None if model in ("stepwise", "backward") else setting_error_covariance(*_reference_inputs(rec100))
+    return cal.fit(rec100, ref, J, sigma, segment_cov=setting)
 
 
 def compare_with_truth(cal: AccelerometerCalibration, truth: dict | None) -> list[dict]:
