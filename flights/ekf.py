@@ -36,7 +36,8 @@ Measurements (innovation = predicted − measured = H δx + noise):
   stored INS history at the tag gives the prediction and the error is carried forward by δv Δt;
 - GPS velocity of the antenna, v + C (ω_NB × l): H = [0, I, [(C(ω×l))×], 0, C[l×], 0];
 - magnetic heading from the magnetometer levelled with the INS roll and pitch, plus the
-  IGRF declination: H = ∂yaw/∂ψ = [C₂₀C₀₀/d, C₂₀C₁₀/d, −1]; d = C₀₀² + C₁₀²;
+  IGRF declination: H = [tan I cos D, tan I sin D, −1] from the levelled field
+  (:func:`mag_heading_jacobian`; the levelling with the INS's own tilt is part of it);
 - accelerometer temperature channels: H = [0 … I].
 
 Each update records its normalised innovation squared (NIS) and dof.
@@ -288,6 +289,21 @@ def mag_heading(B_B, roll, pitch, decl):
     return math.atan2(-by, bx) + decl
 
 
+def mag_heading_jacobian(C_NB, B_B) -> np.ndarray:
+    """∂z/∂ψ (3,) of the magnetic-heading innovation z = ŷaw − ψ_m, where ψ_m is the heading of the
+    field ``B_B`` (3,) levelled with the *estimated* roll and pitch (:func:`mag_heading`). With the
+    levelled field B_N = Ĉ_NB B_B (north, east, down components B_n, B_e, B_d, H² = B_n² + B_e²):
+
+        z = −ψ_d + (B_d / H²)(B_n ψ_n + B_e ψ_e) = −ψ_d + tan I (cos D ψ_n + sin D ψ_e)
+
+    (I dip, D declination): the compass is levelled with the same tilt error the INS carries, so a
+    tilt error about north shows as tan I (2.4 at 67 deg of dip) times itself in the heading.
+    The INS yaw's own dependence on ψ_n, ψ_e cancels exactly against the levelling's."""
+    B_N = np.asarray(C_NB, float) @ np.asarray(B_B, float)
+    h2 = B_N[0] ** 2 + B_N[1] ** 2
+    return np.array([B_N[2] * B_N[0] / h2, B_N[2] * B_N[1] / h2, -1.0])
+
+
 class LooseEKF:
     """The loosely coupled error-state filter. ``run`` processes a whole flight."""
 
@@ -384,6 +400,69 @@ class LooseEKF:
             s[c.gps_slice()] = np.sqrt(self._gps_gm_var)
         return np.diag(s ** 2)
 
+    def alignment_covariance(self, x0: ins.NavState, f_B, B_B, gps, *, window_s: float,
+                             sigma_mag_rad: float, sigma_level_f_m_s2: float | None = None) -> np.ndarray:
+        """P0 (n, n) of a static alignment, by propagating the alignment's own errors.
+
+        The alignment (:func:`imurig.flights.report.align`) levels with the mean specific force
+        ``f_B`` (3,) m/s² over ``window_s`` s, takes the heading of the mean field ``B_B`` (3,)
+        levelled with that roll and pitch, and position/velocity from the first valid fix (antenna
+        minus the lever arm). Sources, independent, with the filter's own priors: the sensor-error
+        states x_s (biases, scale factors, misalignments, temperatures, the receiver's Gauss-Markov
+        error), the white noise of the levelling mean (σ_f = ``sigma_level_f_m_s2``, default
+        VRW/√window), the compass's heading error e_m (σ ``sigma_mag_rad``), the fix's white error
+        e_r and velocity error e_v. The filter's specific-force error is δf_B = J_f x_s (J_f = −I on
+        δb_a, −diag(f) on δs_a, −e_i f_j on the misalignments, −diag(k_T) on δT_a), and levelling
+        makes the horizontal part of Ĉ f̂ vanish, [f_N×]ψ = −C δf_B on the north and east rows:
+
+            ψ_n = (C δf_B)_e / g,   ψ_e = −(C δf_B)_n / g          (tilt = −bias/g)
+            ψ_d = h_n ψ_n + h_e ψ_e − e_m                           (z_mag = 0 at the alignment)
+            δr = e_r − δb_gps − [(C l)×] ψ,   δv = e_v
+
+        with h the magnetic-heading Jacobian (:func:`mag_heading_jacobian`, h_n = tan I cos D).
+        P0 = A Σ Aᵀ: the tilt is fully correlated with the accelerometer errors, so the filter knows
+        that a static IMU cannot tell them apart (see docs/flights-navigation.md)."""
+        c = self.cfg
+        n = c.n_states
+        f_B = np.asarray(f_B, float)
+        g = float(np.linalg.norm(f_B))
+        C = E.C_from_q(x0.q_NB)
+        valid = np.asarray(gps.valid, bool)
+        i0 = int(np.flatnonzero(valid)[0])
+        s_pos2 = np.asarray(gps.sigma_pos_N[i0], float) ** 2
+        s_vel2 = np.asarray(gps.sigma_vel_N[i0], float) ** 2
+        if c.augment_gps:
+            s_w2 = np.minimum(np.asarray(c.gps_pos_sigma_white_N_m, float) ** 2, s_pos2)
+            self._gps_gm_var = np.maximum(s_pos2 - s_w2, 0.0)
+        else:
+            s_w2 = s_pos2
+        var = np.diag(self.initial_covariance()).copy()
+        if sigma_level_f_m_s2 is None:
+            sigma_level_f_m_s2 = self.noise.vrw / math.sqrt(window_s)
+        var[P] = s_w2
+        var[V] = s_vel2
+        var[A] = [(sigma_level_f_m_s2 / g) ** 2] * 2 + [sigma_mag_rad ** 2]
+        Jf = np.zeros((3, n))
+        Jf[:, BA] = -np.eye(3)
+        Jf[:, TA] = -np.diag(np.asarray(c.thermal_slope_m_s2_per_K, float) * np.ones(3))
+        if c.estimate_scale_factors:
+            Jf[:, SA] = -np.diag(f_B)
+        if c.estimate_misalignments:
+            MA, _ = c.mis_slices()
+            for p_, (i, j) in enumerate(MIS_PAIRS):
+                Jf[i, MA.start + p_] = -f_B[j]
+        Cf = C @ Jf
+        Amap = np.eye(n)
+        Amap[6] += Cf[1] / g
+        Amap[7] -= Cf[0] / g
+        h = mag_heading_jacobian(C, B_B)
+        Amap[8] = h[0] * Amap[6] + h[1] * Amap[7] - np.eye(n)[8]
+        Cl = C @ self.l_gps
+        Amap[P] -= ins._skew(Cl) @ Amap[A]
+        if c.augment_gps:
+            Amap[P, c.gps_slice()] -= np.eye(3)
+        return (Amap * var) @ Amap.T
+
     # ---------------------------------------------------------------------------- run
     def run(self, imu: ImuStream, gps, x0: ins.NavState, *, P0=None, progress=None) -> FilterResult:
         """Process the IMU stream from ``x0`` at ``imu.time_s[0]``, with GPS fixes ``gps``
@@ -433,6 +512,7 @@ class LooseEKF:
         # measurement schedules: epoch index at which each fix/sample is used
         ups = {k: {"time_s": [], "nis": [], "dof": [], "innovation": []} for k in ("gps_pos", "gps_vel", "mag", "temp")}
         gps_use = []
+        gps_used = False       # a fix has been used (the receiver's correlated error is then re-drawn after a gap)
         if gps is not None:
             tg = np.asarray(gps.time_s, float)
             ok = np.asarray(gps.valid, bool) & (tg >= inc.t_s[0]) & (tg + c.gps_latency_s <= inc.t_s[-1])
@@ -534,7 +614,7 @@ class LooseEKF:
                         # the correlated part is a state: re-started (receiver re-acquired) after a gap
                         self._gps_gm_var = np.maximum(s2 - s_w2, 0.0)
                         qc[G] = 2.0 * self._gps_gm_var / c.gps_pos_tau_s
-                        if i == 0 or not valid_g[i - 1]:
+                        if gps_used and not valid_g[i - 1]:
                             bgps = np.zeros(3)
                             Pm[G, :] = 0.0
                             Pm[:, G] = 0.0
@@ -549,6 +629,7 @@ class LooseEKF:
                         vg = np.asarray(gps.v_N[i], float)
                         R = R + c.gps_time_sigma_s ** 2 * np.outer(vg, vg)
                     update("gps_pos", tk, z, H, R)
+                    gps_used = True
                     if c.use_gps_velocity:
                         C = ins._dcm(x.q_NB)
                         w_ie, w_en, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
@@ -572,9 +653,8 @@ class LooseEKF:
                 decl = self.decl(x.lat_rad, x.lon_rad, x.h_m) if callable(self.decl) else self.decl
                 psi_m = mag_heading(np.asarray(imu.B_B[idx[k]], float), roll, pitch, decl)
                 z = np.array([E.wrap_pi(yaw - psi_m)])
-                d = C[0, 0] ** 2 + C[1, 0] ** 2
                 H = np.zeros((1, n))
-                H[0, A] = [C[2, 0] * C[0, 0] / d, C[2, 0] * C[1, 0] / d, -1.0]
+                H[0, A] = mag_heading_jacobian(C, imu.B_B[idx[k]])
                 update("mag", tk, z, H, np.array([[c.mag_heading_sigma_rad ** 2]]))
                 C = ins._dcm(x.q_NB)
             if temp_every and k % temp_every == 0:

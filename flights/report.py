@@ -225,6 +225,14 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
     sg = lab.gyros.nominal_sensitivity()
     f = Va / sa
     w = Vg / sg
+    sensor = lab.temp_sensors["temp_acc_x"]
+    Tk = np.stack([sensor.temperature_K(volts[f"temp_acc_{a}"]) for a in "xyz"], 1)
+    th = None if cals is None else cals.get("thermal")
+    if th is not None:
+        # back to the tilt table's conditions: u(T_ref, 0) = (u − ΔB(T, h)) / ρ(T, h)
+        dB, rho, sdB = thermal_terms(th, Tk, truth.rate_hz)
+        f = (f - dB) / rho
+        cals["thermal_sigma_m_s2"] = float(sdB.max())
     if cals is not None:
         f = cals["accelerometers"].predict(f)
         w = cals["gyros"].predict(w)
@@ -235,8 +243,6 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
         c, s_ = math.cos(mc["heading_offset_rad"]), math.sin(mc["heading_offset_rad"])
         # rotate about body z by the reference-heading offset (FRD: psi = atan2(-h_y, h_x))
         B = np.column_stack([c * B[:, 0] - s_ * B[:, 1], s_ * B[:, 0] + c * B[:, 1], B[:, 2]])
-    sensor = lab.temp_sensors["temp_acc_x"]
-    Tk = np.stack([sensor.temperature_K(volts[f"temp_acc_{a}"]) for a in "xyz"], 1)
     return ekf.ImuStream(truth.time_s, w, f, B, Tk, samples=ins.sample_semantics(truth))
 
 
@@ -264,16 +270,129 @@ def gps_error_model(gps) -> dict:
     return {"gps_pos_tau_s": float(rx["tau_gm_s"]), "gps_pos_sigma_white_N_m": tuple(rx["sigma_white_N_m"])}
 
 
+def thermal_calibration(seed: int) -> dict:
+    """Thermal-chamber calibration of the same IMU (:class:`imurig.campaigns.thermal.ThermalCampaign`,
+    default profile −50…+50 C, two cycles, six attitudes per step; ~5 s): the six-position bias
+    B(T, h) and scale S(T, h) of each accelerometer against its temperature channel T (K) and the
+    hysteresis state h (paper section 3.1; :mod:`imurig.calibration.thermal`)."""
+    from imurig.calibration.thermal import fit_thermal, step_table
+
+    from imurig.campaigns.thermal import ThermalCampaign
+
+    rec = ThermalCampaign(seed=seed).simulate()
+    return {"fit": fit_thermal(step_table(rec)), "width_K": float(rec.truth["sensors"]["accelerometers"]
+                                                                  .get("hysteresis_width_K", 4.0)),
+            "T_ref_K": 298.15}
+
+
+def thermal_terms(th: dict, T_K: np.ndarray, fs: float):
+    """Per accelerometer axis, the thermal change of the six-position bias and scale relative to the
+    tilt table's conditions (T_ref = 298.15 K, hysteresis state 0):
+
+        ΔB = B(T, h) − (S(T, h)/S(T_ref, 0)) B(T_ref, 0),   ρ = S(T, h)/S(T_ref, 0)      [(n, 3)]
+
+    h from the measured temperature by the play operator of the sensor's hysteresis width
+    (:func:`imurig.sensors.thermal.hysteresis_state`; at switch-on the mid-branch state h = 0, the
+    tilt table's). Returns (ΔB, ρ, σ_ΔB): σ_ΔB (n, 3) the fit's standard error of ΔB (delta method
+    on the coefficient covariance)."""
+    from imurig.calibration.thermal import _design
+    from imurig.sensors.thermal import hysteresis_state
+
+    fit = th["fit"]
+    T_K = np.asarray(T_K, float)
+    dB, rho, sdB = (np.empty_like(T_K) for _ in range(3))
+    for j, a in enumerate("xyz"):
+        h = hysteresis_state(T_K[:, j], th["width_K"], fs)
+        kb, ks = f"acc_bias_{a}", f"acc_scale_{a}"
+        S0 = float(fit.predict(ks, np.array([th["T_ref_K"]]), 0.0)[0])
+        rho[:, j] = fit.predict(ks, T_K[:, j], h) / S0
+        B0 = float(fit.predict(kb, np.array([th["T_ref_K"]]), 0.0)[0])
+        dB[:, j] = fit.predict(kb, T_K[:, j], h) - rho[:, j] * B0
+        r = fit.results[kb]
+        X = _design(T_K[:, j], fit.order[kb], h) - _design(np.array([th["T_ref_K"]]), fit.order[kb], np.zeros(1))
+        sdB[:, j] = np.sqrt(np.einsum("ni,ij,nj->n", X, r.cov_, X))
+    return dB, rho, sdB
+
+
+def datasheet_values(cls, name: str) -> float:
+    """A datasheet limit as the sensor class's ``from_datasheet`` states it (keyword default)."""
+    import inspect
+
+    return inspect.signature(cls.from_datasheet).parameters[name].default
+
+
+def mag_heading_sigma_datasheet(incl_rad: float, H_T: float) -> float:
+    """1σ heading error (rad) of the uncalibrated fluxgate from its datasheet limits
+    (:meth:`imurig.sensors.magnetometer.FluxgateTriad.from_datasheet`: hard iron, soft iron,
+    misalignment, sensitivity spread, each uniform within its limit), for level flight at
+    inclination I, averaged over heading. Field error δB = ΔA B + b (B = H[cos ψ, −sin ψ, tan I] in
+    the body, ΔA = soft iron − I + misalignment + sensitivity error); heading error = the horizontal
+    component of δB across the field / H (``H_T``, horizontal intensity). Linear in the parameters,
+    so its variance is exact."""
+    from imurig.sensors.magnetometer import FluxgateTriad as F
+
+    hi = datasheet_values(F, "hard_iron_max_nT") * 1e-9
+    soft = datasheet_values(F, "soft_iron_max")
+    mis = datasheet_values(F, "misalignment_max_mrad") * 1e-3
+    H = float(H_T)
+    var = []
+    for psi in np.linspace(0, 2 * np.pi, 72, endpoint=False):
+        B = H * np.array([np.cos(psi), -np.sin(psi), math.tan(incl_rad)])
+        perp = np.array([np.sin(psi), np.cos(psi), 0.0])      # horizontal, across the field
+        v = (perp @ perp) * (hi ** 2 / 3)                       # hard iron, per axis
+        for i in range(3):
+            for j in range(3):
+                # soft iron symmetric: diagonal U(±s) (σ² s²/3), off-diagonal mean of two U(±s) (σ² s²/6)
+                # plus the sensitivity spread ±2 % on the diagonal and the misalignment off it
+                s2 = soft ** 2 / 3 + 0.02 ** 2 / 3 if i == j else soft ** 2 / 6 + mis ** 2 / 3
+                v += (perp[i] * B[j]) ** 2 * s2
+        # the symmetric soft iron ties (i, j) and (j, i): add their covariance
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            v += 2 * perp[i] * B[j] * perp[j] * B[i] * soft ** 2 / 6
+        var.append(v)
+    return float(math.sqrt(np.mean(var)) / H)
+
+
+def datasheet_priors(truth) -> dict:
+    """Filter priors of the uncalibrated run, from the datasheet limits of the sensor models (each
+    error uniform within ±limit: σ = limit/√3): accelerometer bias (8000 µg) with the 2nd-order
+    nonlinearity at 1 g (48 µg/g²); scale factors (Q-Flex 1 %, FOG 2 %) and misalignments (2 mrad) as
+    states; gyro bias repeatability N(0, 0.003 deg/s) with the bias instability; magnetic heading
+    σ from the fluxgate's hard/soft iron (:func:`mag_heading_sigma_datasheet`)."""
+    from imurig.sensors.accelerometer import QFlexTriad as Q
+    from imurig.sensors.gyro import FOGTriad as G
+
+    from imurig.units import G_STANDARD
+
+    g = G_STANDARD
+    s_b = math.hypot(datasheet_values(Q, "bias_max_ug"), datasheet_values(Q, "nonlinearity_max_ug_per_g2")) * 1e-6 * g
+    import pyIGRF
+
+    _d, incl, H_nT, *_ = pyIGRF.igrf_value(math.degrees(truth.lat_rad[0]), math.degrees(truth.lon_rad[0]),
+                                           truth.h_m[0] / 1000.0, declination_model(truth).year)
+    return {"estimate_scale_factors": True, "estimate_misalignments": True,
+            "sigma0_acc_bias_m_s2": s_b / math.sqrt(3),
+            "sigma0_acc_scale": datasheet_values(Q, "scale_factor_spread") / math.sqrt(3),
+            "sigma0_gyro_scale": datasheet_values(G, "scale_spread") / math.sqrt(3),
+            "sigma0_acc_misalignment_rad": datasheet_values(Q, "misalignment_max_mrad") * 1e-3 / math.sqrt(3),
+            "sigma0_gyro_misalignment_rad": datasheet_values(G, "misalignment_max_mrad") * 1e-3 / math.sqrt(3),
+            "sigma0_gyro_bias_rad_s": math.hypot(datasheet_values(G, "bias_repeatability_dps"),
+                                                 datasheet_values(G, "bias_variation_dps")) * DEG,
+            "mag_heading_sigma_rad": mag_heading_sigma_datasheet(math.radians(incl), H_nT * 1e-9)}
+
+
 def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     """Filter priors of the calibrated run from the calibrations' reported standard errors:
-    σ0 of the accelerometer bias = the largest bias SE of the tilt-table fit; σ0 of the gyro bias =
-    √(SE² + σ_GM²) (turn-table SE plus the FOG's bias instability); magnetic heading σ = the
-    ellipsoid fit's RMS field residual / H (rad). Empty (datasheet priors) when ``cals`` is None."""
+    σ0 of the accelerometer bias = the largest bias SE of the tilt-table fit, with the thermal
+    correction's largest SE over the flight (``cals["thermal_sigma_m_s2"]``) in quadrature; σ0 of the
+    gyro bias = √(SE² + σ_GM²) (turn-table SE plus the FOG's bias instability); magnetic heading
+    σ = the ellipsoid fit's RMS field residual / H (rad). Empty (datasheet priors) when ``cals`` is None."""
     if cals is None:
         return {}
     out = {}
     se = lambda c, pre: max(d["std_error"] for d in c.physical_parameters() if d["name"].startswith(pre))
-    out["sigma0_acc_bias_m_s2"] = float(se(cals["accelerometers"], "bias_"))
+    out["sigma0_acc_bias_m_s2"] = float(math.hypot(se(cals["accelerometers"], "bias_"),
+                                                   cals.get("thermal_sigma_m_s2", 0.0)))
     out["sigma0_gyro_bias_rad_s"] = float(math.hypot(se(cals["gyros"], "bias_"), noise.gyro_bias_sigma))
     mc = cals.get("magnetometer")
     if mc is not None:
@@ -283,13 +402,19 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
 
 
 def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, cals: dict | None = None):
+    """The filter as ``imurig flight`` runs it: priors from the datasheet (``cals`` None: with the
+    scale-factor and misalignment states, which the nominal conversions leave at 1-2 % and 2 mrad) or
+    from the calibrations' standard errors; P0 from the alignment's own error propagation
+    (:meth:`ekf.LooseEKF.alignment_covariance`)."""
     noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
-    pri = {"mag_heading_sigma_rad": 2 * DEG} | calibrated_priors(cals, noise)
+    pri = datasheet_priors(truth) if cals is None else calibrated_priors(cals, noise)
     cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s, **pri,
                            gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))
-    decl = flight_declination(truth)
-    f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=declination_model(truth))
+    decl = declination_model(truth)
+    f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
     x0 = align(truth, stream, gps, decl)
+    f_m, B_m = alignment_means(truth, stream)
+    P0 = f.alignment_covariance(x0, f_m, B_m, gps, window_s=ALIGN_WINDOW_S, sigma_mag_rad=cfg.mag_heading_sigma_rad)
     last = [0]
 
     def cb(k):
@@ -297,17 +422,29 @@ def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, c
             pbar.update(k - last[0])
         last[0] = k
 
-    return f.run(stream, gps, x0, progress=cb)
+    return f.run(stream, gps, x0, P0=P0, progress=cb)
 
 
-def align(truth, stream, gps, decl, window_s=5.0) -> ins.NavState:
-    """Initial state: position/velocity from the first fix, roll/pitch by accelerometer levelling
-    over the first ``window_s`` s, heading from the magnetometer (+ declination)."""
+ALIGN_WINDOW_S = 5.0
+
+
+def alignment_means(truth, stream, window_s: float = ALIGN_WINDOW_S):
+    """Mean specific force (3,) m/s² and mean field (3,) T over the first ``window_s`` s."""
     n = max(1, int(window_s * truth.rate_hz))
-    fm = stream.f_B[:n].mean(0)
+    return np.asarray(stream.f_B[:n], float).mean(0), np.asarray(stream.B_B[:n], float).mean(0)
+
+
+def align(truth, stream, gps, decl, window_s=ALIGN_WINDOW_S) -> ins.NavState:
+    """Initial state: position/velocity from the first fix, roll/pitch by accelerometer levelling
+    over the first ``window_s`` s, heading from the magnetometer (+ declination ``decl``: rad, or a
+    callable D(lat, lon, h) evaluated at the first fix)."""
+    fm, Bm = alignment_means(truth, stream, window_s)
     roll = math.atan2(-fm[1], -fm[2])
     pitch = math.atan2(fm[0], math.hypot(fm[1], fm[2]))
-    yaw = ekf.mag_heading(stream.B_B[:n].mean(0), roll, pitch, decl)
+    if callable(decl):
+        i = int(np.flatnonzero(np.asarray(gps.valid, bool))[0])
+        decl = decl(float(gps.lat_rad[i]), float(gps.lon_rad[i]), float(gps.h_m[i]))
+    yaw = ekf.mag_heading(Bm, roll, pitch, decl)
     q = E.q_from_euler(roll, pitch, yaw)
     i = int(np.flatnonzero(np.asarray(gps.valid, bool))[0])
     Cl = E.C_from_q(q) @ np.asarray(truth.lever_gps_B, float)
@@ -374,6 +511,7 @@ def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     ekf.check_gps(gps, truth.rate_hz)
     cals = calibrations(opt.seed, opt.quick_calibration)
     cals["magnetometer"] = mag_calibration(lab, opt.seed)
+    cals["thermal"] = thermal_calibration(opt.seed)
     runs = {}
     n_epochs = int((truth.time_s[-1] - truth.time_s[0]) * opt.nav_rate_hz)
     t_filter = 0.0
