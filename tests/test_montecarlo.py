@@ -364,7 +364,7 @@ def test_bad_inputs_refused(tmp_path, capsys):
     with pytest.raises((ScheduleError, UnidentifiableTermsError)):
         run_study("tilt-table", 2, params={"theta_deg": [0]}, out=tmp_path / "z")
     with pytest.raises(ConfigError, match="unknown Monte-Carlo campaign"):
-        run_study("flight", 2)
+        run_study("moon-landing", 2)
     neg = tmp_path / "neg.toml"
     neg.write_text('["accelerometer.bias_m_s2"]\nmean = 0.0\nvariance = -1.0\n')
     assert main(["montecarlo", "tilt-table", "--runs", "2", "--distributions", str(neg), "--out",
