@@ -120,7 +120,14 @@ class FilterConfig:
 
     GPS times: ``gps.time_s`` is the fix's time of validity, used at the first epoch at or after
     ``time_s + gps_latency_s``. A residual error of the time of validity (σ ``gps_time_sigma_s``,
-    e.g. the IMU-clock quantisation of the tag) adds σ_t² v vᵀ to R of the position fix."""
+    e.g. the IMU-clock quantisation of the tag) adds σ_t² v vᵀ to R of the position fix.
+
+    ``mag_error_state``: the compass's systematic heading error e_m (hard/soft iron of an
+    uncalibrated fluxgate: a smooth function of the attitude, constant while the attitude holds) is
+    one more state, ψ_m = ψ + e_m + white, a Gauss-Markov process in the *rotation angle* of the body
+    rather than in time: over a step in which the body turns by Δθ (rad, relative to the NED frame)
+    φ = exp(−Δθ/θ_c), Q = σ_m²(1 − φ²), σ_m ``mag_error_sigma_rad``, θ_c ``mag_error_corr_rad``.
+    ``mag_heading_sigma_rad`` is then the white part only."""
 
     nav_rate_hz: float = 50.0
     estimate_scale_factors: bool = False
@@ -148,6 +155,9 @@ class FilterConfig:
     gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
     gps_pos_states: bool = True
     estimate_misalignments: bool = False
+    mag_error_state: bool = False
+    mag_error_sigma_rad: float = 0.0
+    mag_error_corr_rad: float = 1.0
     sigma0_acc_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
     sigma0_gyro_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
 
@@ -159,16 +169,21 @@ class FilterConfig:
     @property
     def n_states(self) -> int:
         return (18 + (6 if self.estimate_scale_factors else 0) + (12 if self.estimate_misalignments else 0)
-                + (3 if self.augment_gps else 0))
+                + (3 if self.augment_gps else 0) + (1 if self.mag_error_state else 0))
 
     def state_names(self) -> tuple:
         return (BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
-                + (MIS_STATES if self.estimate_misalignments else ()) + (GPS_STATES if self.augment_gps else ()))
+                + (MIS_STATES if self.estimate_misalignments else ()) + (GPS_STATES if self.augment_gps else ())
+                + (("dmag_heading",) if self.mag_error_state else ()))
 
     def mis_slices(self) -> tuple[slice, slice]:
         """Slices of the accelerometer and gyro misalignment states (6 each, :data:`MIS_PAIRS`)."""
         n0 = 24 if self.estimate_scale_factors else 18
         return slice(n0, n0 + 6), slice(n0 + 6, n0 + 12)
+
+    def mag_index(self) -> int:
+        """Index of the compass heading-error state (the last one, when ``mag_error_state``)."""
+        return self.n_states - 1
 
     def gps_slice(self) -> slice:
         n0 = (24 if self.estimate_scale_factors else 18) + (12 if self.estimate_misalignments else 0)
@@ -398,6 +413,8 @@ class LooseEKF:
             s[MG] = c.sigma0_gyro_misalignment_rad
         if c.augment_gps:
             s[c.gps_slice()] = np.sqrt(self._gps_gm_var)
+        if c.mag_error_state:
+            s[c.mag_index()] = c.mag_error_sigma_rad
         return np.diag(s ** 2)
 
     def alignment_covariance(self, x0: ins.NavState, f_B, B_B, gps, *, window_s: float,
@@ -457,6 +474,8 @@ class LooseEKF:
         Amap[7] -= Cf[0] / g
         h = mag_heading_jacobian(C, B_B)
         Amap[8] = h[0] * Amap[6] + h[1] * Amap[7] - np.eye(n)[8]
+        if c.mag_error_state:           # ψ_m = ψ + e_m: z = hᵀψ + δe_m = 0, δe_m = ê_m − e_m = −e_m
+            Amap[8, c.mag_index()] = 1.0
         Cl = C @ self.l_gps
         Amap[P] -= ins._skew(Cl) @ Amap[A]
         if c.augment_gps:
@@ -493,6 +512,7 @@ class LooseEKF:
             raise ConfigError(f"P0 has shape {Pm.shape}, the filter has {n} states ({', '.join(c.state_names())})")
         qc = self._Qc()
         bgps = np.zeros(3)          # estimate of the receiver's Gauss-Markov position error, NED m
+        emag = 0.0                  # estimate of the compass's systematic heading error, rad
         phi_gps = math.exp(-inc.T_s / c.gps_pos_tau_s) if G is not None else 1.0
         x = x0.copy()
         ba = np.zeros(3)
@@ -545,7 +565,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, Ta, sa, sg, x, bgps, Ma, Mg
+            nonlocal ba, bg, Ta, sa, sg, x, bgps, Ma, Mg, emag
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -567,6 +587,8 @@ class LooseEKF:
                 Mg[mis_i, mis_j] -= dx[MG]
             if G is not None:
                 bgps = bgps - dx[G]
+            if c.mag_error_state:
+                emag = emag - dx[c.mag_index()]
 
         def update(kind, tk, z, H, R):
             nonlocal Pm
@@ -655,6 +677,9 @@ class LooseEKF:
                 z = np.array([E.wrap_pi(yaw - psi_m)])
                 H = np.zeros((1, n))
                 H[0, A] = mag_heading_jacobian(C, imu.B_B[idx[k]])
+                if c.mag_error_state:
+                    z = z + emag
+                    H[0, c.mag_index()] = 1.0
                 update("mag", tk, z, H, np.array([[c.mag_heading_sigma_rad ** 2]]))
                 C = ins._dcm(x.q_NB)
             if temp_every and k % temp_every == 0:
@@ -684,6 +709,18 @@ class LooseEKF:
             FT = F * T
             Phi = I_n + FT + 0.5 * FT @ FT
             Qd = 0.5 * (Phi * qc) @ Phi.T * T + 0.5 * np.diag(qc) * T
+            if c.mag_error_state:
+                # Gauss-Markov in the body's rotation angle relative to NED over the step
+                w_ie_, w_en_, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
+                dang = float(np.linalg.norm(dth - C.T @ (w_ie_ + w_en_) * T))
+                phm = math.exp(-dang / c.mag_error_corr_rad)
+                im = c.mag_index()
+                Phi[im, :] = 0.0
+                Phi[im, im] = phm
+                Qd[im, :] = 0.0
+                Qd[:, im] = 0.0
+                Qd[im, im] = c.mag_error_sigma_rad ** 2 * (1.0 - phm ** 2)
+                emag *= phm
             Pm = Phi @ Pm @ Phi.T + Qd
             if progress is not None and k % 500 == 0:
                 progress(k)

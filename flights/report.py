@@ -321,46 +321,60 @@ def datasheet_values(cls, name: str) -> float:
     return inspect.signature(cls.from_datasheet).parameters[name].default
 
 
-def mag_heading_sigma_datasheet(incl_rad: float, H_T: float) -> float:
-    """1σ heading error (rad) of the uncalibrated fluxgate from its datasheet limits
-    (:meth:`imurig.sensors.magnetometer.FluxgateTriad.from_datasheet`: hard iron, soft iron,
-    misalignment, sensitivity spread, each uniform within its limit), for level flight at
-    inclination I, averaged over heading. Field error δB = ΔA B + b (B = H[cos ψ, −sin ψ, tan I] in
-    the body, ΔA = soft iron − I + misalignment + sensitivity error); heading error = the horizontal
-    component of δB across the field / H (``H_T``, horizontal intensity). Linear in the parameters,
-    so its variance is exact."""
+def mag_heading_error_model_datasheet(incl_rad: float, H_T: float, n_heading: int = 72) -> tuple[float, float]:
+    """(σ_m, θ_c): 1σ heading error (rad) of the uncalibrated fluxgate from its datasheet limits
+    (:meth:`imurig.sensors.magnetometer.FluxgateTriad.from_datasheet`: hard iron, soft iron
+    (symmetric), misalignment, sensitivity spread, each uniform within its limit: σ = limit/√3), in
+    level flight at inclination I, averaged over heading; and its correlation angle θ_c (rad): the
+    heading change over which the heading-averaged autocorrelation falls to 1/e.
+
+    Field error δB = ΔA B + b with B = H[cos ψ, −sin ψ, tan I] (body, level, heading ψ),
+    ΔA = soft iron − I + misalignment + sensitivity error; heading error e(ψ) = u(ψ)ᵀ δB / H,
+    u = [sin ψ, cos ψ, 0] across the field. e is linear in the parameters θ, e(ψ) = g(ψ)ᵀ θ, so
+    Cov(e(ψ₁), e(ψ₂)) = g(ψ₁)ᵀ Σ_θ g(ψ₂) exactly."""
     from imurig.sensors.magnetometer import FluxgateTriad as F
 
     hi = datasheet_values(F, "hard_iron_max_nT") * 1e-9
     soft = datasheet_values(F, "soft_iron_max")
     mis = datasheet_values(F, "misalignment_max_mrad") * 1e-3
     H = float(H_T)
-    var = []
-    for psi in np.linspace(0, 2 * np.pi, 72, endpoint=False):
-        B = H * np.array([np.cos(psi), -np.sin(psi), math.tan(incl_rad)])
-        perp = np.array([np.sin(psi), np.cos(psi), 0.0])      # horizontal, across the field
-        v = (perp @ perp) * (hi ** 2 / 3)                       # hard iron, per axis
-        for i in range(3):
-            for j in range(3):
-                # soft iron symmetric: diagonal U(±s) (σ² s²/3), off-diagonal mean of two U(±s) (σ² s²/6)
-                # plus the sensitivity spread ±2 % on the diagonal and the misalignment off it
-                s2 = soft ** 2 / 3 + 0.02 ** 2 / 3 if i == j else soft ** 2 / 6 + mis ** 2 / 3
-                v += (perp[i] * B[j]) ** 2 * s2
-        # the symmetric soft iron ties (i, j) and (j, i): add their covariance
-        for i, j in ((0, 1), (0, 2), (1, 2)):
-            v += 2 * perp[i] * B[j] * perp[j] * B[i] * soft ** 2 / 6
-        var.append(v)
-    return float(math.sqrt(np.mean(var)) / H)
+    psi = np.linspace(0, 2 * np.pi, n_heading, endpoint=False)
+    B = H * np.stack([np.cos(psi), -np.sin(psi), np.full_like(psi, math.tan(incl_rad))], 1)
+    u = np.stack([np.sin(psi), np.cos(psi), np.zeros_like(psi)], 1)
+    cols, var = [], []
+    for i in range(3):                       # hard iron
+        cols.append(u[:, i])
+        var.append(hi ** 2 / 3)
+    for i in range(3):                       # diagonal: soft iron U(±s), sensitivity ±2 %
+        cols.append(u[:, i] * B[:, i])
+        var.append(soft ** 2 / 3 + 0.02 ** 2 / 3)
+    for i, j in ((0, 1), (0, 2), (1, 2)):    # symmetric soft iron off-diagonal: mean of two U(±s)
+        cols.append(u[:, i] * B[:, j] + u[:, j] * B[:, i])
+        var.append(soft ** 2 / 6)
+    for i in range(3):                       # misalignment, off-diagonal
+        for j in range(3):
+            if i != j:
+                cols.append(u[:, i] * B[:, j])
+                var.append(mis ** 2 / 3)
+    Gm = np.stack(cols, 1) / H                # (n_heading, n_par)
+    cov = (Gm * np.asarray(var)) @ Gm.T       # (n_heading, n_heading)
+    sig2 = float(np.mean(np.diag(cov)))
+    lags = np.array([np.mean(np.diag(np.roll(cov, -k, axis=1))) for k in range(n_heading // 2)]) / sig2
+    k = int(np.argmax(lags < math.exp(-1)))
+    theta_c = float(psi[k - 1] + (psi[k] - psi[k - 1]) * (lags[k - 1] - math.exp(-1)) / (lags[k - 1] - lags[k]))
+    return math.sqrt(sig2), theta_c
 
 
 def datasheet_priors(truth) -> dict:
     """Filter priors of the uncalibrated run, from the datasheet limits of the sensor models (each
     error uniform within ±limit: σ = limit/√3): accelerometer bias (8000 µg) with the 2nd-order
     nonlinearity at 1 g (48 µg/g²); scale factors (Q-Flex 1 %, FOG 2 %) and misalignments (2 mrad) as
-    states; gyro bias repeatability N(0, 0.003 deg/s) with the bias instability; magnetic heading
-    σ from the fluxgate's hard/soft iron (:func:`mag_heading_sigma_datasheet`)."""
+    states; gyro bias repeatability N(0, 0.003 deg/s) with the bias instability; the compass's
+    systematic heading error (hard/soft iron) as a state with σ_m and correlation angle θ_c from the
+    fluxgate's datasheet (:func:`mag_heading_error_model_datasheet`), white part = fluxgate noise / H."""
     from imurig.sensors.accelerometer import QFlexTriad as Q
     from imurig.sensors.gyro import FOGTriad as G
+    from imurig.sensors.magnetometer import FluxgateTriad as F
 
     from imurig.units import G_STANDARD
 
@@ -370,6 +384,7 @@ def datasheet_priors(truth) -> dict:
 
     _d, incl, H_nT, *_ = pyIGRF.igrf_value(math.degrees(truth.lat_rad[0]), math.degrees(truth.lon_rad[0]),
                                            truth.h_m[0] / 1000.0, declination_model(truth).year)
+    s_m, th_c = mag_heading_error_model_datasheet(math.radians(incl), H_nT * 1e-9)
     return {"estimate_scale_factors": True, "estimate_misalignments": True,
             "sigma0_acc_bias_m_s2": s_b / math.sqrt(3),
             "sigma0_acc_scale": datasheet_values(Q, "scale_factor_spread") / math.sqrt(3),
@@ -378,7 +393,8 @@ def datasheet_priors(truth) -> dict:
             "sigma0_gyro_misalignment_rad": datasheet_values(G, "misalignment_max_mrad") * 1e-3 / math.sqrt(3),
             "sigma0_gyro_bias_rad_s": math.hypot(datasheet_values(G, "bias_repeatability_dps"),
                                                  datasheet_values(G, "bias_variation_dps")) * DEG,
-            "mag_heading_sigma_rad": mag_heading_sigma_datasheet(math.radians(incl), H_nT * 1e-9)}
+            "mag_error_state": True, "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c,
+            "mag_heading_sigma_rad": datasheet_values(F, "noise_nT_rms") * 1e-9 / (H_nT * 1e-9)}
 
 
 def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:

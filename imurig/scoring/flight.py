@@ -236,8 +236,9 @@ def assert_nav_meets(score: dict, max_rms_norm: dict | None = None, *, consisten
 # ------------------------------------------------------------------------------------ baseline
 class ProjectEKF:
     """The project's loosely coupled 18-state EKF (:class:`imurig.flights.ekf.LooseEKF`), set up
-    as ``imurig flight`` sets it up (25 Hz, magnetic heading σ 2 deg, GPS latency and Gauss-Markov
-    R inflation, accelerometer-levelling + compass alignment over the first 5 s), behind the
+    as ``imurig flight`` sets it up (25 Hz, magnetic heading σ 2 deg, IGRF declination along the route,
+    GPS latency and Gauss-Markov error states, accelerometer-levelling + compass alignment over the
+    first 5 s), behind the
     :class:`NavFilter` interface: it uses only the streams and their meta.
 
     ``use_gps=False`` gives the same filter without GPS (dead reckoning + compass), a deliberately
@@ -280,8 +281,15 @@ class ProjectEKF:
                                gps_time_sigma_s=m["gps_time_sigma_s"], **extra)
         noise = ekf.ImuNoise(**m["imu_noise"])
         lever = np.asarray(m["lever_gps_B_m"], float)
-        f = ekf.LooseEKF(cfg, noise, lever_gps_B=lever, declination=m["declination_rad"])
-        x0 = R.align(SimpleNamespace(rate_hz=m["imu_rate_hz"], lever_gps_B=lever), imu, gps, m["declination_rad"])
+        # IGRF declination along the route at the flight's date (a constant one is 0.13 deg off on average
+        # over the default route); the stream's constant ``declination_rad`` only without a start time
+        decl = m["declination_rad"]
+        if m.get("start_time"):
+            from imurig.site import decimal_year, parse_time
+
+            decl = ekf.IgrfDeclination(decimal_year(parse_time(m["start_time"])))
+        f = ekf.LooseEKF(cfg, noise, lever_gps_B=lever, declination=decl)
+        x0 = R.align(SimpleNamespace(rate_hz=m["imu_rate_hz"], lever_gps_B=lever), imu, gps, decl)
         res = f.run(imu, gps if self.use_gps else None, x0)
         r, v, q = to_fixed_frame(origin, res.lat_rad, res.lon_rad, res.h_m, v_N=res.v_N, q_NB=res.q_NB)
         Cn = C_N0N(res.lat_rad, res.lon_rad, lat0, lon0)
