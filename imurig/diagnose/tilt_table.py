@@ -115,6 +115,10 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         if rec.sample_rate_hz < 200 or not {"theta", "phi"} <= set(rec.channels):
             out["dynamic"] = {"tested": False, "why": "the slews need per-sample theta/phi set-point channels at "
                                                       ">= 200 Hz"}
+        elif rec.n > MAX_DYNAMIC_SAMPLES:
+            out["dynamic"] = {"tested": False, "why": f"{rec.n} samples: this version replays the whole record five "
+                                                      f"times in MuJoCo and keeps it in memory; records up to "
+                                                      f"{MAX_DYNAMIC_SAMPLES} samples (cut the record into runs)"}
         else:
             out["dynamic"] = diagnose_tilt_dynamics(rec, cal, rng, alpha=alpha, n_sim=n_sim,
                                                     skew_in_twin=skew_in_twin)
@@ -176,6 +180,8 @@ def _scatter(rec100: Recording, ch: str, mid: np.ndarray) -> dict:
 
 
 # ------------------------------------------------------------------ slews: the dynamic twin
+#: the dynamic twin's memory (five replays in RAM) limits the record length it takes
+MAX_DYNAMIC_SAMPLES = 1_500_000
 #: effects of the slews between positions (the dynamic twin of :func:`diagnose_tilt_dynamics`)
 DYNAMIC_EFFECTS = ("time_delay", "lever_arm", "wrong_local_gravity")
 
