@@ -38,3 +38,65 @@ def test_refusals(tmp_path):
     with pytest.raises(OutputExistsError):
         run(tmp_path / "x", FlightOptions(flight="static"))
     assert main(["flight", "--flight", "static", "--gps-rate", "500", "--out", str(tmp_path / "y")]) != 0
+
+
+SEEDS = (2005, 7, 1, 2)
+
+
+@pytest.fixture(scope="module")
+def real_chain_runs():
+    """The default flight through the project's sensor chain for 4 IMUs (seeds), each flown
+    uncalibrated (datasheet priors, scale/misalignment and compass-error states) and calibrated
+    (tilt/turn-table, thermal-chamber and magnetometer-rig calibrations of that IMU)."""
+    import numpy as np
+    from imurig.flights import report as R
+    from imurig.flights.plan import simulate_flight
+
+    tr = simulate_flight(progress_bar=False)
+    out = {}
+    for s in SEEDS:
+        opt = FlightOptions(seed=s)
+        lab = R.flight_lab(s)
+        volts = R.measure_volts(tr, lab, s)
+        gps = R.gps_fixes(tr, opt, s)
+        cals = R.calibrations(s, True)
+        cals["magnetometer"] = R.mag_calibration(lab, s)
+        cals["thermal"] = R.thermal_calibration(s)
+        for name, c in (("uncalibrated", None), ("calibrated", cals)):
+            res = R.run_filter(tr, R.imu_stream(tr, volts, lab, c), gps, opt, lab, None, c)
+            e = R.errors(res, tr)
+            m = res.time_s >= res.time_s[0] + 60.0
+            out[(s, name)] = (res, np.asarray(e["nees"])[m][::25], R.summarise(e, res))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 6): mean NEES 14.7-18.5 per run on the default flight "
+                   "(9 expected; position, velocity and attitude each 1.2-1.8x their dof), see "
+                   "docs/flights-navigation.md")
+@pytest.mark.parametrize("name", ["uncalibrated", "calibrated"])
+def test_consistent_on_the_real_sensor_chain(real_chain_runs, name):
+    """Over the 4 IMUs the epoch-wise mean NEES (9 dof) after 60 s stays inside the 99 % χ²(9N)/N band
+    at ≥ 90 % of the epochs, and the summed NIS of the GPS position and velocity updates inside
+    their 99.9 % χ² intervals."""
+    import numpy as np
+    from scipy.stats import chi2
+
+    nees = np.mean([real_chain_runs[(s, name)][1] for s in SEEDS], axis=0)
+    lo, hi = chi2.ppf([0.005, 0.995], 9 * len(SEEDS)) / len(SEEDS)
+    for kind in ("gps_pos", "gps_vel"):
+        s = sum(real_chain_runs[(k, name)][0].updates[kind]["nis"].sum() for k in SEEDS)
+        dof = sum(real_chain_runs[(k, name)][0].updates[kind]["dof"].sum() for k in SEEDS)
+        a, b = chi2.ppf([0.0005, 0.9995], dof)
+        assert a < s < b, (kind, s / dof)
+    assert np.mean((nees >= lo) & (nees <= hi)) >= 0.9, (nees.mean(), lo, hi)
+
+
+@pytest.mark.slow
+def test_calibrated_beats_uncalibrated_across_seeds_on_the_default_flight(real_chain_runs):
+    """Default flight, 4 IMUs: the calibrated run's roll, pitch and heading RMS errors are each
+    below the uncalibrated run's for every seed (measured margins 2-50x, docs/flights-navigation.md)."""
+    for s in SEEDS:
+        u, c = real_chain_runs[(s, "uncalibrated")][2], real_chain_runs[(s, "calibrated")][2]
+        for k in ("roll_rms_deg", "pitch_rms_deg", "heading_rms_deg"):
+            assert c[k] < u[k], (s, k, c[k], u[k])
