@@ -165,7 +165,7 @@ def main(argv=None):
                     "that the group's name holds")
     ap.add_argument("--list", action="store_true", help="list the null groups and cases, then stop")
     ap.add_argument("--power", action="store_true", help="only detection and power curves (no null study)")
-    ap.add_argument("--effects", default="", help="comma-separated effect names (default: all)")
+    ap.add_argument("--effects", default="", help="comma-separated effect names or rig:effect (default: all)")
     ap.add_argument("--out", default="", help="write the results as JSON to this file")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -185,10 +185,11 @@ def main(argv=None):
             out["null"] = fdr_study(seeds, groups)
         effects = [w for w in a.effects.split(",") if w]
         for case in CASES:
-            if effects and case.effect not in effects:
+            key = f"{case.rig}:{case.effect}"  # effect names repeat across rigs (time_delay, temperature_drift)
+            if effects and case.effect not in effects and key not in effects:
                 continue
-            out["effects"][case.effect] = effect_study(case, seeds, power=not a.quick)
-            print(case.effect, json.dumps(out["effects"][case.effect]), flush=True)
+            out["effects"][key] = effect_study(case, seeds, power=not a.quick)
+            print(key, json.dumps(out["effects"][key]), flush=True)
     out["wall_s"] = round(time.perf_counter() - t0, 1)
     out["peak_rss_mb"] = round(peak_rss_mb(), 1)
     print(f"wall {out['wall_s']} s, peak memory {out['peak_rss_mb']} MB")
