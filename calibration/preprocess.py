@@ -89,6 +89,26 @@ def segment_statistic(rec: Recording, names, statistic: str = "median", source: 
     return out
 
 
+def segment_statistic_variance(rec: Recording, names, statistic: str = "median", batches: int = 10) -> np.ndarray:
+    """Variance (n_seg, len(names)) of each segment's statistic from its own samples, by batch means.
+
+    Each window is cut into ``batches`` consecutive batches; the statistic of the whole window
+    has variance ~ var(batch statistics) / batches (exact for the mean of noise that decorrelates
+    within a batch; for the median both scale as 1/N). Noise slower than a batch is not seen.
+    """
+    data = np.stack([rec.channels[n] for n in names], axis=1)
+    fn = {"median": np.median, "mean": np.mean}.get(statistic)
+    if fn is None:
+        raise ValueError(f"statistic must be median or mean; got {statistic!r}")
+    out = np.full((rec.n_segments, len(names)), np.nan)
+    for i, sl in enumerate(rec.segment_slices()):
+        n = (sl.stop - sl.start) // batches
+        if n >= 2:
+            x = data[sl.start:sl.start + n * batches].reshape(batches, n, -1)
+            out[i] = np.var(fn(x, axis=1), axis=0, ddof=1) / batches
+    return out
+
+
 def segment_samples(rec: Recording, names) -> tuple[np.ndarray, np.ndarray]:
     """All samples inside segments: (values (m, len(names)), segment index (m,))."""
     sl = rec.segment_slices()

@@ -28,7 +28,7 @@ from typing import Callable, ClassVar
 
 import numpy as np
 
-from imurig.calibration.preprocess import segment_samples, segment_statistic
+from imurig.calibration.preprocess import segment_samples, segment_statistic, segment_statistic_variance
 from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import TermLibrary, polynomial
@@ -136,8 +136,11 @@ class TriadCalibration:
 
             K_a = diag(Sigma_k,aa) + J_a diag(sigma^2) J_a'      (setting + survey)  [(n, n)]
 
-        and axis a is fitted by generalised least squares with V_a = K_a + s_a^2 I, the white
-        part s_a^2 (noise, drift between segments) estimated by REML. The coefficients'
+        and axis a is fitted by generalised least squares with V_a = K_a + (w_a + s_a^2) I:
+        w_a the noise of a segment's statistic from the samples inside the windows (batch means,
+        pooled over segments), s_a^2 >= 0 any further white part (drift between segments, model
+        misfit) estimated by REML. (REML alone is too noisy where K_a dominates: an s^2 drawn low
+        puts too much weight on the few segments the setting error does not reach.) The coefficients'
         covariance is then absolute, (X' V_a^-1 X)^-1, with cross-axis blocks
         P_a (diag(Sigma_k,ab) + J_a diag(sigma^2) J_b') P_b' (P_a the GLS projection).
         Fixed models and per-segment statistics only. Without it, ordinary least squares
@@ -165,6 +168,9 @@ class TriadCalibration:
             if self.model in ("stepwise", "backward") or self.statistic == "raw" or response_cov is not None:
                 raise ValueError("segment_cov needs a fixed model, per-segment statistics and no response_cov")
             segment_cov = segment_cov[seg]
+            sens = np.broadcast_to(np.asarray(rec.meta[spec.sensitivity_key], float), (3,))
+            within = np.nanmean(segment_statistic_variance(rec, spec.channels, self.statistic), axis=0) / sens**2
+            within = np.nan_to_num(within)
         self.results_, self.selection_, self.projection_ = {}, {}, {}
         for j, a in enumerate(spec.axes):
             if self.model in ("stepwise", "backward"):
@@ -184,7 +190,7 @@ class TriadCalibration:
             if response_cov is not None:
                 V = response_cov
             elif segment_cov is not None:
-                K = _reference_error_cov(segment_cov, survey, j, j)
+                K = _reference_error_cov(segment_cov, survey, j, j) + within[j] * np.eye(len(y_all))
                 V = K + white_variance_reml(X, y_all[:, j], K) * np.eye(len(K))
             else:
                 self.results_[a] = fit_ols(X, y_all[:, j], lib.names)
@@ -346,7 +352,7 @@ def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray) -> float:
     """REML estimate of s^2 in y = X b + e, cov(e) = K + s^2 I, K (n, n) known.
 
     Minimises  1/2 [log det V + log det(X' V^-1 X) + r' V^-1 r],  V = K + s^2 I, r the GLS
-    residual, over log s^2 (bounded scalar search between 1e-9 and 1 times 10 x the data's
+    residual, over log s^2 (bounded scalar search between 1e-12 and 1 times 10 x the data's
     OLS residual variance). One eigendecomposition K = U diag(lam) U' makes each evaluation
     O(n p^2): V^-1 = U diag(1 / (lam + s^2)) U'.
     """
@@ -366,7 +372,7 @@ def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray) -> float:
         r = yu - Xu @ b
         return 0.5 * (np.sum(np.log(v)) + np.linalg.slogdet(A)[1] + np.sum(r * r / v))
 
-    lo, hi = np.log(top * 1e-9), np.log(top)
+    lo, hi = np.log(top * 1e-12), np.log(top)
     res = scipy.optimize.minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
     return float(np.exp(res.x))
 

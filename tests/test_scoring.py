@@ -179,7 +179,9 @@ def test_standard_error_bounds_catch_inflated_and_shrunk_errors(tilt):
 
 # --------------------------------------------------------------------- export, no truth
 #: lab settings and datasheet figures that the truth repeats and the metadata rightly publishes
-PUBLIC = {"nominal_scale_V_per_rad_s", "arw_rad_s_per_sqrt_hz", "bias_instability_rad_s", "bias_instability_tau_s"}
+# datasheet figures the lab knows and the recording's metadata carries on purpose
+PUBLIC = {"nominal_scale_V_per_rad_s", "arw_rad_s_per_sqrt_hz", "bias_instability_rad_s", "bias_instability_tau_s",
+          "setting_resolution_rad"}
 
 
 def _truth_numbers(bench_campaign) -> list[float]:
