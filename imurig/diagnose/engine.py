@@ -280,3 +280,31 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1,
                    "white": bool(abs(lag1) < 2.5 / np.sqrt(max(r.size, 1)))}
     return Diagnosis(names0, findings, before, after, unexplained)
+
+
+def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | None = None,
+                         cov: np.ndarray | None = None) -> Callable[[np.random.Generator, int], np.ndarray]:
+    """A ``noise`` generator for :func:`select_effects` that keeps each row's own residual size.
+
+    The nominal fit's residuals, in the space whitened by ``weights`` / ``cov`` exactly as
+    :func:`select_effects` whitens, are leverage-corrected, u_i = r_i / sqrt(1 - h_i), scaled to
+    unit RMS, and multiplied by independent random signs (Rademacher wild bootstrap): draw =
+    u * s, s_i = +-1. A max-statistic threshold simulated from it stays at its level when the
+    noise model misses how the variance changes from row to row (the weights or covariance are
+    estimated from few rows, a display resolution changes mid-series), at some cost in power
+    where an effect inflates the residual. It does not keep correlation between rows.
+    """
+    import scipy.linalg
+
+    y_, X_ = np.asarray(y, float), np.asarray(X, float)
+    if cov is not None:
+        L = np.linalg.cholesky(0.5 * (cov + cov.T))
+        y_, X_ = scipy.linalg.solve_triangular(L, y_, lower=True), scipy.linalg.solve_triangular(L, X_, lower=True)
+    if weights is not None:
+        sw = np.sqrt(np.asarray(weights, float))
+        y_, X_ = y_ * sw, X_ * sw[:, None]
+    Q, _ = np.linalg.qr(X_)
+    r = y_ - Q @ (Q.T @ y_)
+    u = r / np.sqrt(np.clip(1.0 - np.sum(Q**2, axis=1), 1e-6, None))
+    u = u / np.sqrt(np.mean(u**2))
+    return lambda rng, m: u * rng.choice(np.array([-1.0, 1.0]), m)
