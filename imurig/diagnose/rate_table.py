@@ -10,9 +10,17 @@ with it in two observables, and each mismatch is explained by effects of the lib
    - The shortfall left against that factor, d_i = k_i / f - 1, goes to the engine with a
      constant shortfall as the nominal model. The library holds rate-dependent *table slip*
      (d = s1 rate^-alpha, alpha scanned) and a linear rate term.
-2. Round-time resolution: the grid of the stopwatch times gives their resolution q. The
-   rate error it implies, Omega q / (sqrt(12) T), is compared with the scatter left at high
-   rates.
+2. Round-time resolution (``timer_quantisation``): the twin takes the round times as exact.
+   A timer of resolution q adds to each round time T_i an error of variance sigma_T^2
+   (q^2/12 for one rounded reading, q^2/6 for a difference of two quantised edges), so the
+   relative rate mismatch d_i = T_true/T_i - 1 gets variance sigma_T^2 / T_i^2, which grows
+   with rate^2. The residuals e_i of d after the shortfall model are tested for that
+   variance term (:func:`timer_quantisation_test`): a likelihood ratio of
+   var(e_i) = (1 - h_i)(a + sigma_T^2 / T_i^2) against sigma_T = 0, its threshold simulated
+   under the homoscedastic noise model with the scan over sigma_T^2/a included
+   (max-statistic), plus BIC and blocked cross-validation of the held-out log-likelihood.
+   The fitted sigma_T (s) comes with its Fisher-information standard error. The grid of the
+   printed times (their display resolution) is reported beside it as evidence.
 3. Gyro voltage: V_i against the stopwatch rate, with a linear nominal model. The library
    holds an *instrument range change* at an unknown row (gain and offset step from row k
    on, k scanned), *scale-factor nonlinearity* (rate^2) and a *drift* in row order. A range
@@ -22,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.diagnose.engine import Candidate, select_effects
+from imurig.diagnose.engine import Candidate, select_effects, wild_bootstrap_noise
 from imurig.errors import RecordingError
 from imurig.recording import Recording
 
@@ -32,11 +40,13 @@ GYROS = ("p", "q", "r")
 
 
 def reading_resolution(x: np.ndarray, candidates=(1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)) -> float:
-    """The coarsest decimal step that every value of ``x`` is a multiple of (display resolution)."""
+    """The coarsest decimal step that every value of ``x`` is a multiple of (display resolution).
+    A value is on the grid q when |x/q - round(x/q)| < 1e-6 + 1e-12 |x/q| (float rounding of x only:
+    a round time of 720.123456 s is on the 1 us grid, not on the 10 us one)."""
     x = np.asarray(x, float)
     best = candidates[0]
     for q in candidates:
-        if np.all(np.abs(x / q - np.round(x / q)) < 1e-6 * np.maximum(1.0, np.abs(x / q))):
+        if np.all(np.abs(x / q - np.round(x / q)) < 1e-6 + 1e-12 * np.abs(x / q)):
             best = q
     return best
 
@@ -187,14 +197,119 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
                     indep = np.maximum(parts[a_]["var"] - scales[a_] ** 2 * shared, parts[a_]["floor"])
                     blk = np.diag(scales[a_] ** 2 * shared + indep)
                 C[a_ * n:(a_ + 1) * n, b_ * n:(b_ + 1) * n] = blk
+        # C is estimated from a few rows and the display resolution changes mid-series: the
+        # threshold is simulated with each row's own residual size (wild bootstrap), which held the
+        # null false discoveries at the nominal rate (benchmarks/bench_diagnose.py --fdr)
         dj = select_effects(Y, X0, [f"{c}_{g}" for g in chans for c in ("bias", "scale")], lib_j, rng,
-                            alpha=alpha, n_sim=n_sim, cov=C)
+                            alpha=alpha, n_sim=n_sim, cov=C, noise=wild_bootstrap_noise(Y, X0, cov=C))
         joint = dj.to_dict()
         for fnd in dj.findings:
             if fnd.name == "instrument_range_change":
                 joint["range_change_row"] = int(rows[int(fnd.theta)])
         out["voltmeter"] = joint
+    # --- 2 (cont.). the timer's round-time error, tested last (so the draws above do not depend on it)
+    lookup = {c.name: c for c in lib}
+    X_after = np.column_stack([np.ones(d.size)] + [lookup[f.name].design(f.theta) for f in diag.findings])
+    test = timer_quantisation_test(diag.after.residuals_, X_after, T[timed], rng, alpha=alpha, n_sim=max(n_sim, 1000))
+    out["timer_resolution"]["test"] = test
+    if test["accepted"]:
+        out["timer_resolution"]["finding"] = {
+            "effect": "timer_quantisation",
+            "physics": "the round times carry a timer error (resolution of the stopwatch or of the pulse timing) "
+                       "that the twin, timing rounds exactly, leaves out: rate scatter growing with the rate",
+            "statistic": test["statistic"], "threshold": test["threshold"],
+            "parameters": [{"name": "sigma_T_s", "estimate": test["sigma_T_s"], "std_error": test["sigma_T_se_s"]},
+                           {"name": "resolution_s_if_rounded", "estimate": test["resolution_s"],
+                            "std_error": test["resolution_se_s"]}],
+            "variance_share": test["variance_share"], "indistinguishable_from": None}
     return out
+
+
+def timer_quantisation_test(e: np.ndarray, X: np.ndarray, T_s: np.ndarray, rng: np.random.Generator,
+                            alpha: float = 0.01, n_sim: int = 1000, folds: int = 4) -> dict:
+    """Is there a round-time error in the rate residuals? (see the module doc, item 2)
+
+    ``e`` (n,): residuals of the relative rate mismatch d (1) after the mean model ``X`` (n, p);
+    ``T_s`` (n,): the measured round times (s). Noise models, Gaussian, with h_i the leverage of
+    row i in X and z_i = 1 / T_i^2 (1/s^2)::
+
+        H0: var(e_i) = (1 - h_i) a                         (table setting error, relative)
+        H1: var(e_i) = (1 - h_i) (a + sigma_T^2 z_i)       (plus the timer's round-time error)
+
+    The statistic is the likelihood ratio LR = 2 (nll0 - min over rho of nll1), rho = sigma_T^2 / a
+    scanned on a log grid (a profiled out). Its threshold is the (1 - alpha) quantile of the same
+    statistic, scan included, on ``n_sim`` residuals simulated under H0 (LR does not depend on a).
+    Accepted when LR beats it, BIC is lower (LR > log n) and blocked cross-validation
+    (``folds``) gives a higher held-out log-likelihood. sigma_T (s) and the resolution
+    q = sqrt(12) sigma_T of a rounded reading come with standard errors from the expected
+    Fisher information of (a, sigma_T^2) (delta method for the square root).
+    """
+    from scipy.optimize import minimize_scalar
+
+    e = np.asarray(e, float)
+    T_s = np.asarray(T_s, float)
+    n = e.size
+    Q, _ = np.linalg.qr(np.asarray(X, float))
+    lev = np.clip(1.0 - np.sum(Q**2, axis=1), 1e-6, None)      # 1 - h_i
+    z = 1.0 / T_s**2
+    rhos = np.concatenate([[0.0], np.logspace(-3, 4, 141) / z.max()])
+
+    def nll(E2, rh, rows=slice(None)):
+        """(s, g) profiled negative log-likelihoods and ML a of squared residuals E2 (s, n)."""
+        W = lev[rows][None, :] * (1.0 + rh[:, None] * z[rows][None, :])
+        m = W.shape[1]
+        a = E2[:, rows] @ (1.0 / W).T / m
+        return 0.5 * m * (np.log(a) + 1.0) + 0.5 * np.sum(np.log(W), axis=1)[None, :], a
+
+    def lr(E2):
+        L, _ = nll(E2, rhos)
+        return 2.0 * (L[:, 0] - L.min(axis=1))
+
+    E2 = (e**2)[None, :]
+    stat = float(lr(E2)[0])
+    N = rng.standard_normal((n_sim, n))
+    Es = N - (N @ Q) @ Q.T
+    thr = float(np.quantile(lr(Es**2), 1 - alpha))
+    # the estimate: refine the best grid point
+    L, A = nll(E2, rhos)
+    j = int(np.argmin(L[0]))
+    rho = rhos[j]
+    if j > 0:
+        lo, hi = np.log(rhos[max(j - 1, 1)]), np.log(rhos[min(j + 1, rhos.size - 1)])
+        res = minimize_scalar(lambda lr_: float(nll(E2, np.array([np.exp(lr_)]))[0][0, 0]), bounds=(lo, hi),
+                              method="bounded")
+        rho = float(np.exp(res.x))
+    a = float(nll(E2, np.array([rho]))[1][0, 0])
+    s2 = rho * a                                                  # sigma_T^2, s^2
+    v = lev * (a + s2 * z)
+    G = np.column_stack([lev, lev * z])
+    info = 0.5 * (G / v[:, None] ** 2).T @ G
+    se_s2 = float(np.sqrt(np.linalg.inv(info)[1, 1]))
+    sig = float(np.sqrt(s2))
+    se_sig = se_s2 / (2 * sig) if sig > 0 else float(np.sqrt(se_s2))
+    # blocked cross-validation of the held-out log-likelihood (rows dealt round-robin in blocks)
+    L_blk = max(1, n // (4 * folds))
+    fold = (np.arange(n) // L_blk) % folds
+    cv0 = cv1 = 0.0
+    for f in range(folds):
+        tr, te = fold != f, fold == f
+        Ltr, Atr = nll(E2, rhos, tr)
+        k = int(np.argmin(Ltr[0]))
+        for rh, a_, acc in ((0.0, Atr[0, 0], 0), (rhos[k], Atr[0, k], 1)):
+            vt = lev[te] * a_ * (1.0 + rh * z[te])
+            ll = float(-0.5 * np.sum(np.log(2 * np.pi * vt) + e[te] ** 2 / vt))
+            if acc:
+                cv1 += ll
+            else:
+                cv0 += ll
+    accepted = bool(stat > thr and stat > np.log(n) and cv1 > cv0)
+    share = float(np.sum(lev * s2 * z) / np.sum(lev * (a + s2 * z)))
+    return {"statistic": stat, "threshold": thr, "alpha": alpha, "bic_improvement": stat - float(np.log(n)),
+            "cv_loglik_without": cv0, "cv_loglik_with": cv1, "accepted": accepted,
+            "sigma_T_s": sig, "sigma_T_se_s": float(se_sig), "sigma_T2_s2": s2, "sigma_T2_se_s2": se_s2,
+            "resolution_s": float(np.sqrt(12) * sig), "resolution_se_s": float(np.sqrt(12) * se_sig),
+            "setting_sigma": float(np.sqrt(a)), "variance_share": share,
+            "rate_sigma_rel_at_max_rate": float(sig * np.sqrt(z.max()))}
 
 
 def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:

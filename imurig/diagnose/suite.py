@@ -284,6 +284,35 @@ CASES = [
 ]
 
 
+# a table set by its rate readout (setting error 3e-4 relative, 1 sigma) with a constant 1.2 % slip, so
+# the round times do not sit on the timer's grid; on the seed's default 3e-3 setting error a 0.01 s
+# stopwatch is 0.2 sigma at 100 deg/s and cannot be told from the table's scatter in 24 rows
+TIMER_TABLE = dict(mains_hz=60.0, slip_const=0.012, slip_coeff=0.0, dial_setting_error=3e-4)
+
+
+def _timer(seed, q):
+    """SIMONA rows timed by a stopwatch of resolution ``q`` (s): T = q round(T_true / q)."""
+    from imurig.rigs.turn_table import TurnTableErrors
+
+    rec = _simona(seed, table=TurnTableErrors(**TIMER_TABLE), stopwatch_resolution_s=q, printed_round_decimals=None)
+    rec.truth["timer"] = {"resolution_s": q, "sigma_T_s": q / math.sqrt(12)}
+    return rec
+
+
+def _timer_param(d):
+    f = d["timer_resolution"].get("finding")
+    return None if f is None else (f["parameters"][0]["estimate"], f["parameters"][0]["std_error"])
+
+
+CASES += [
+    Case("timer_quantisation", "rate_table_rows", {("rate", "timer_quantisation")}, _timer, 0.01,
+         sizes=(0.002, 0.003, 0.005, 0.007, 0.01), size_unit="stopwatch resolution q (s); table setting error 3e-4",
+         truth_param=lambda rec: rec.truth["timer"]["sigma_T_s"], found_param=_timer_param,
+         null=lambda seed: _timer(seed, 1e-6),
+         notes="the twin times rounds exactly; parameter = the round-time error sigma_T = q / sqrt(12) (s)"),
+]
+
+
 def _mg():
     from imurig.diagnose import magnetometer
 
@@ -365,6 +394,8 @@ def found_effects(d: dict) -> set:
         if d.get("rate_factor"):
             out.add(("rate", "mains_rate_factor"))
         out |= {("rate", f["effect"]) for f in d["shortfall"]["diagnosis"]["findings"]}
+        if d.get("timer_resolution", {}).get("finding"):
+            out.add(("rate", "timer_quantisation"))
         if "voltmeter" in d:  # the joint analysis of the gyros read by one voltmeter
             out |= {("voltmeter", f["effect"]) for f in d["voltmeter"]["findings"]}
         else:
