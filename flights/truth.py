@@ -24,10 +24,12 @@ external magnetic fields (IGRF main field only, bilinear in time along the route
 < 0.1 nT between 10-s nodes).
 
 Sample semantics (zero-order hold): MuJoCo's semi-implicit Euler step holds the linear
-acceleration and the body rate constant over each IMU interval, so f_B[k] and w_IB_B[k] are
-the values HELD over [t_k, t_k+1) (what an integrating IMU reports as Δv/Δt and Δθ/Δt),
-while positions, velocities and attitudes are exact at t_k:
-v_{k+1} = v_k + Δt dv_N/dt_k,  q_{k+1} = q_k ⊗ exp(Δt w_NB_B,k). :func:`mechanise` with
+acceleration (in the navigation frame) and the body rate constant over each IMU interval, while
+positions, velocities and attitudes are exact at t_k:
+v_{k+1} = v_k + Δt dv_N/dt_k,  q_{k+1} = q_k ⊗ exp(Δt w_NB_B,k). w_IB_B[k] is the rate held over
+[t_k, t_k+1) and f_B[k] the body-frame MEAN of the specific force over it, what an integrating IMU
+reports as Δθ/Δt and Δv/Δt: f_B[k] = W(φ) C_BN,k f_N,k with φ = Δt w_NB_B,k (the body turns
+under the held f_N; :func:`held_body_mean`, W = I − ½[φ×] + O(φ²)). :func:`mechanise` with
 ``scheme="euler"`` reproduces the truth to rounding error (4e-7 m after the 15-min default
 flight); a scheme that reads the samples as instantaneous values of smooth signals
 (``scheme="trapezoid"``) is off by half a sample and drifts by its O(Δt) error.
@@ -196,6 +198,10 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
     # zero-order hold: MuJoCo's step k rotates the body with the rate it has at the END of the step
     # (semi-implicit Euler), w_k + dt wdot_k; that is the rate held over [t_k, t_k+1)
     w_hold = kin.w_NB_B + kin.wdot_NB_B / kin.rate_hz if zoh else kin.w_NB_B
+    if zoh:
+        # the step holds f_N while the body turns by φ = w_hold dt: an integrating accelerometer
+        # reports the body-frame mean of the specific force over the interval
+        f_B = held_body_mean(w_hold * dt, f_B)
     w_IB_B = w_hold + np.einsum("nji,nj->ni", C_NB, w_ie + w_en)
     lever_mag_B = np.asarray(lever_mag_B, float)
     mlat, mlon, mh = offset_position(lat, lon, h, C_NB @ lever_mag_B)
@@ -214,6 +220,29 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
                        phases=tuple(phases), vehicle=vehicle, meta=m)
 
 
+def held_body_mean(phi_B: np.ndarray, f0_B: np.ndarray) -> np.ndarray:
+    """Mean body-frame specific force (N, 3) m/s² over a sample interval in which the navigation-frame
+    specific force is held (f0_B = C_BN,k f_N,k at the start) and the body turns at a constant rate
+    by φ_B (N, 3) rad relative to the navigation frame: C_BN(τ) = exp(−[φ×] τ/Δt) C_BN,k, so
+
+        f̄_B = W(φ) f0_B,   W(φ) = ∫₀¹ exp(−[φ×] s) ds = I − (1 − cos a)/a² [φ×] + (a − sin a)/a³ [φ×]²,
+
+    a = |φ| (series for a < 1e-4). This is what an integrating IMU reports as Δv/Δt: its second-order
+    pre-integration (:func:`imurig.flights.ins.preintegrate`, ``"held"``) applies ½ Δθ×Δv for the
+    rotation inside the interval. Using f0_B itself instead leaves ½ [w×] f Δt per sample
+    (0.03 m/s² at 0.3 rad/s and 2 g, 100 Hz), which on the default flight was the largest error of
+    the navigation filter fed with a perfect IMU (docs/flights-navigation.md)."""
+    phi = np.asarray(phi_B, float)
+    f0 = np.asarray(f0_B, float)
+    a = np.linalg.norm(phi, axis=-1)
+    small = a < 1e-4
+    a_ = np.where(small, 1.0, a)
+    c1 = np.where(small, 0.5 - a ** 2 / 24.0, (1.0 - np.cos(a_)) / a_ ** 2)
+    c2 = np.where(small, 1.0 / 6.0 - a ** 2 / 120.0, (a_ - np.sin(a_)) / a_ ** 3)
+    pf = np.cross(phi, f0)
+    return f0 - c1[..., None] * pf + c2[..., None] * np.cross(phi, pf)
+
+
 def mechanise(truth: FlightTruth, f_B: np.ndarray | None = None, w_IB_B: np.ndarray | None = None,
               scheme: str = "euler"):
     """Strapdown NED mechanisation from the truth's initial state, driven by f_B and w_IB_B
@@ -225,7 +254,8 @@ def mechanise(truth: FlightTruth, f_B: np.ndarray | None = None, w_IB_B: np.ndar
 
     ``scheme="euler"``: forward rectangles with the samples held over their interval,
     v_{k+1} = v_k + Δt v̇_k, q_{k+1} = q_k ⊗ exp(Δt w_NB_B,k): what the truth obeys to
-    rounding (and what an INS fed with Δv = f Δt, Δθ = w Δt increments does).
+    rounding; for held samples (``truth.meta["imu_samples"] == "held"``) v̇_k uses
+    C_NB W(φ)⁻¹ f_B[k], the held navigation-frame specific force (:func:`held_body_mean`).
     ``"trapezoid"``: a generic second-order scheme (trapezoidal velocity, mid-point attitude),
     which treats the samples as instantaneous values of smooth signals: a half-sample
     interpretation offset, hence O(Δt) bounded velocity and attitude errors.
@@ -236,6 +266,7 @@ def mechanise(truth: FlightTruth, f_B: np.ndarray | None = None, w_IB_B: np.ndar
     f_B = truth.f_B if f_B is None else f_B
     w_IB_B = truth.w_IB_B if w_IB_B is None else w_IB_B
     n, dt = truth.n, 1.0 / truth.rate_hz
+    held = (getattr(truth, "meta", None) or {}).get("imu_samples") == "held"
     lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
     v = np.empty((n, 3))
     q = np.empty((n, 4))
@@ -260,6 +291,12 @@ def mechanise(truth: FlightTruth, f_B: np.ndarray | None = None, w_IB_B: np.ndar
     for k in range(n - 1):
         a0, C0, wn0 = vdot(k, lat[k], h[k], v[k], q[k])
         if scheme == "euler":
+            if held:
+                # the sample is the body-frame mean over a step that holds f_N (:func:`held_body_mean`)
+                phi = dt * (w_IB_B[k] - C0.T @ wn0)
+                W = held_body_mean(np.tile(phi, (3, 1)), np.eye(3)).T      # columns W e_j
+                f0 = np.linalg.solve(W, f_B[k])
+                a0 = a0 + C0 @ (f0 - f_B[k])
             v1 = v[k] + dt * a0
             la1, lo1, h1 = pos_step(k, v1)
             q1 = earth.q_normalize(earth.q_mult(q[k], earth.q_from_rotvec(dt * (w_IB_B[k] - C0.T @ wn0))))
