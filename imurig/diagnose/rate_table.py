@@ -105,7 +105,9 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
     q = reading_resolution(T[timed])
     diag = select_effects(d, np.ones((d.size, 1)), ["shortfall"], lib, rng, alpha=alpha, n_sim=n_sim)
     out["shortfall"] = {"mean_shortfall": float(-np.mean(d)), "diagnosis": diag.to_dict(),
-                        "note": "d = measured rate / (factor x dial) - 1; negative = slower than set"}
+                        "note": "d = measured rate / (factor x dial) - 1; negative = slower than set",
+                        "residuals": {"rate_dps": r_dps.tolist(), "before": diag.before.residuals_.tolist(),
+                                      "after": diag.after.residuals_.tolist()}}
     # --- 2. timer resolution ------------------------------------------------------
     res_rate = np.degrees(rate) * (q / np.sqrt(12)) / T[timed]
     resid = diag.after.residuals_ * np.degrees(rate)  # rate residual, deg/s
@@ -150,6 +152,8 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
         w = _variance_weights(V, X0, r_dps, ref_sigma_dps=res_rate)
         dg = select_effects(V, X0, ["bias", "scale"], lib_v, rng, alpha=alpha, n_sim=n_sim, weights=w)
         entry = dg.to_dict()
+        entry["residuals"] = {"row": rows.tolist(), "rate_dps": r_dps.tolist(), "before_V": (dg.before.residuals_ / np.sqrt(w)).tolist(),
+                              "after_V": (dg.after.residuals_ / np.sqrt(w)).tolist()}  # engine fits whitened
         for fnd in dg.findings:
             if fnd.name == "instrument_range_change":
                 kk = int(fnd.theta)
@@ -271,7 +275,7 @@ def timer_quantisation_test(e: np.ndarray, X: np.ndarray, T_s: np.ndarray, rng: 
     Es = N - (N @ Q) @ Q.T
     thr = float(np.quantile(lr(Es**2), 1 - alpha))
     # the estimate: refine the best grid point
-    L, A = nll(E2, rhos)
+    L, _ = nll(E2, rhos)
     j = int(np.argmin(L[0]))
     rho = rhos[j]
     if j > 0:

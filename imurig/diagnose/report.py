@@ -138,7 +138,8 @@ def _figure(out, rec: Recording, d: dict) -> str:
     if d.get("kind") == "turn_table":
         return _figure_tilt(out, d, key="gyros", prefix="gyro_", unit="rad/s")
     if d.get("kind") == "thermal":
-        return _figure_tilt(out, d, key="channels", prefix="", unit="SI")
+        _figure_tilt(out, d, key="channels", prefix="", unit="SI")
+        return _figure_thermal_residuals(out, d)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -147,7 +148,8 @@ def _figure(out, rec: Recording, d: dict) -> str:
     rows = np.array(d["rows"])
     dial = np.degrees(np.abs(rec.channels["rate_dial"][rows]))
     rate = np.degrees(2 * np.pi / rec.channels["measured_round"][rows])
-    fig, axs = plt.subplots(2, 2, figsize=(10, 7))
+    fig, axs = plt.subplots(3, 2, figsize=(10, 10.5))
+    _rate_residual_panels(axs[2], d)
     axs[0, 0].plot(dial, (rate / dial - 1) * 100, "o", label="recording vs twin (rate = dial)")
     if d.get("rate_factor"):
         f = d["rate_factor"]["factor"]
@@ -184,6 +186,74 @@ def _figure(out, rec: Recording, d: dict) -> str:
     plt.close(fig)
     _ = sh
     return "fig_diagnosis.png"
+
+
+def _rate_residual_panels(axs, d: dict) -> None:
+    """Rate rows: residuals before and after the effects against the revealing variable, the rate.
+    Left: relative rate mismatch d (nominal: constant shortfall) with the timer test's noise bands
+    (+-2 sigma: table setting only, and setting plus the fitted round-time error sigma_T / T).
+    Right: gyro p voltage against the stopwatch rate (nominal: linear)."""
+    rs = d["shortfall"].get("residuals")
+    if rs:
+        r = np.array(rs["rate_dps"])
+        axs[0].plot(r, np.array(rs["before"]) * 100, "o", mfc="none", label="before (constant shortfall)")
+        axs[0].plot(r, np.array(rs["after"]) * 100, ".", label="after (effects found)")
+        te = d["timer_resolution"].get("test")
+        if te:
+            rr = np.geomspace(r.min(), r.max(), 100)
+            T = 360.0 / rr
+            s0 = te["setting_sigma"]
+            s1 = np.sqrt(s0**2 + te["sigma_T2_s2"] / T**2)
+            axs[0].plot(rr, 2 * s0 * 100 * np.ones_like(rr), "k:", lw=0.8, label="±2σ table setting")
+            axs[0].plot(rr, -2 * s0 * 100 * np.ones_like(rr), "k:", lw=0.8)
+            lab = (f"±2σ with timer σ_T = {te['sigma_T_s'] * 1e3:.1f} ms (LR {te['statistic']:.1f} vs "
+                   f"{te['threshold']:.1f})")
+            axs[0].plot(rr, 2 * s1 * 100, "r--", lw=0.8, label=lab)
+            axs[0].plot(rr, -2 * s1 * 100, "r--", lw=0.8)
+        axs[0].set(xscale="log", xlabel="measured rate, °/s", ylabel="rate residual, %",
+                   title="Rate residual before/after vs rate")
+        axs[0].legend(fontsize=6)
+        axs[0].grid(alpha=0.3)
+    g = d.get("gyros", {}).get("p", {}).get("residuals")
+    if g:
+        axs[1].plot(g["rate_dps"], np.array(g["before_V"]) * 1e3, "o", mfc="none", label="before (bias + scale)")
+        axs[1].plot(g["rate_dps"], np.array(g["after_V"]) * 1e3, ".", label="after (gyro p's own effects)")
+        axs[1].set(xscale="log", xlabel="measured rate, °/s", ylabel="residual, mV",
+                   title="Gyro p voltage residual before/after vs rate")
+        axs[1].legend(fontsize=7)
+        axs[1].grid(alpha=0.3)
+
+
+def _figure_thermal_residuals(out, d: dict) -> str:
+    """Thermal: each channel's step-bias residual before and after against the temperature, heating
+    steps filled and cooling steps open (the hysteresis gap shows as two branches)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    chans = [c for c, e in d["channels"].items() if "residuals" in e]
+    fig, axs = plt.subplots(2, 3, figsize=(11, 6), squeeze=False)
+    for ax, ch in zip(axs.ravel(), chans):
+        rs = d["channels"][ch]["residuals"]
+        T = np.array(rs["temperature_K"]) - 273.15
+        up = np.array(rs["heating"], bool)
+        for arr, mk, lab in ((np.array(rs["before"]), "o", "before"), (np.array(rs["after"]), "s", "after")):
+            ax.plot(T[up], arr[up], mk, ms=4, label=f"{lab}, heating")
+            ax.plot(T[~up], arr[~up], mk, ms=4, mfc="none", label=f"{lab}, cooling")
+        names = ", ".join(f["effect"] for f in d["channels"][ch]["findings"]) or "nothing found"
+        ax.set(xlabel="sensor temperature, °C", ylabel=f"residual, {rs['unit']}", title=f"{ch}: {names}")
+        ax.title.set_fontsize(8)
+        ax.grid(alpha=0.3)
+    for ax in axs.ravel()[len(chans):]:
+        ax.axis("off")
+    if chans:
+        axs.ravel()[0].legend(fontsize=6)
+    fig.suptitle("Step-bias residuals before/after vs temperature (twin: polynomial, no hysteresis)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out.file("fig_residuals.png"), dpi=110)
+    plt.close(fig)
+    return "fig_residuals.png"
 
 
 def _figure_tilt(out, d: dict, key: str = "axes", prefix: str = "acc_", unit: str = "m/s²") -> str:
@@ -257,7 +327,8 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
               "\nAn effect is accepted only when its statistic beats the max-statistic threshold simulated "
               "under the noise model over the whole library and all scanned parameters, it improves blocked "
               "cross-validation and lowers BIC; accepted effects are re-checked given each other.\n",
-              f"\n![diagnosis]({fig})\n"]
+              f"\n![diagnosis]({fig})\n" + ("\n![fit before and after](fig_diagnosis.png)\n"
+                                             if fig != "fig_diagnosis.png" else "")]
         out.write_text("report.md", "\n".join(md))
         out.write_json("diagnosis.json", clean_json(d))
     return d

@@ -287,7 +287,7 @@ CASES = [
 # a table set by its rate readout (setting error 3e-4 relative, 1 sigma) with a constant 1.2 % slip, so
 # the round times do not sit on the timer's grid; on the seed's default 3e-3 setting error a 0.01 s
 # stopwatch is 0.2 sigma at 100 deg/s and cannot be told from the table's scatter in 24 rows
-TIMER_TABLE = dict(mains_hz=60.0, slip_const=0.012, slip_coeff=0.0, dial_setting_error=3e-4)
+TIMER_TABLE = {"mains_hz": 60.0, "slip_const": 0.012, "slip_coeff": 0.0, "dial_setting_error": 3e-4}
 
 
 def _timer(seed, q):
