@@ -54,13 +54,13 @@ METRICS = {"roll_rms_deg": "deg", "pitch_rms_deg": "deg", "heading_rms_deg": "de
            "horizontal_position_rms_m": "m", "vertical_position_rms_m": "m", "velocity_rms_m_s": "m/s"}
 
 #: residual 1-sigma after calibration. Accelerometers: the RMS errors of the 200-run tilt-table
-#: study (docs/montecarlo.md); gyros: the RMS errors of the 200-run turn-table study (quick
+#: study with the weighted joint fit (seed 2005; README); gyros: the RMS errors of the 200-run turn-table study (quick
 #: protocol); magnetometer: assumed (heading alignment 0.1 deg, hard iron 20 nT), not measured.
 CALIBRATED = {
-    "acc_bias": {"bias_m_s2": [1.30e-5, 1.38e-5, 2.14e-5]},
-    "acc_scale_misalignment": {"scale_rel": [6.1e-6, 6.0e-6, 5.9e-6],
-                               "misalignment_rad": [[0, 6.5e-6, 1.4e-6], [6.4e-6, 0, 1.4e-6], [2.3e-6, 2.3e-6, 0]]},
-    "acc_nonlinearity": {"k2_per_m_s2": [2.5e-7, 2.7e-7, 2.7e-7]},
+    "acc_bias": {"bias_m_s2": [2.84e-6, 2.95e-6, 4.10e-6]},
+    "acc_scale_misalignment": {"scale_rel": [2.9e-7, 3.1e-7, 1.8e-7],
+                               "misalignment_rad": [[0, 6.3e-6, 4.0e-7], [6.3e-6, 0, 3.9e-7], [5.7e-7, 5.2e-7, 0]]},
+    "acc_nonlinearity": {"k2_per_m_s2": [5.3e-8, 5.1e-8, 5.5e-8]},
     "gyro_bias": {"bias_rad_s": [6.18e-6, 6.90e-6, 7.07e-6]},
     "gyro_scale_misalignment": {"scale_rel": [9.2e-6, 8.8e-6, 9.4e-6],
                                 "misalignment_rad": [[0, 8.0e-6, 8.9e-6], [8.6e-6, 0, 7.7e-6], [8.0e-6, 8.1e-6, 0]]},
