@@ -308,3 +308,18 @@ def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | Non
     u = r / np.sqrt(np.clip(1.0 - np.sum(Q**2, axis=1), 1e-6, None))
     u = u / np.sqrt(np.mean(u**2))
     return lambda rng, m: u * rng.choice(np.array([-1.0, 1.0]), m)
+
+
+def ar1_covariance(y: np.ndarray, X: np.ndarray, max_phi: float = 0.9) -> np.ndarray:
+    """A relative AR(1) covariance C_ij = phi^|i - j| for :func:`select_effects(cov=...)`, with phi
+    the lag-1 correlation of the nominal fit's residuals (rows in time order), clipped to
+    [0, ``max_phi``]. For series whose errors are correlated from one row to the next (the biases
+    of successive temperature steps share the thermal lag): the statistics and the simulated
+    threshold are then computed on whitened residuals. An effect that is slow in row order raises
+    phi too, which costs power but not the level.
+    """
+    y_, X_ = np.asarray(y, float), np.asarray(X, float)
+    r = y_ - X_ @ np.linalg.lstsq(X_, y_, rcond=None)[0]
+    phi = float(np.clip(np.sum(r[1:] * r[:-1]) / max(float(r @ r), 1e-300), 0.0, max_phi))
+    k = np.arange(y_.size)
+    return phi ** np.abs(np.subtract.outer(k, k)).astype(float)
