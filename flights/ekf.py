@@ -57,6 +57,8 @@ BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e",
                "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
 SCALE_STATES = ("dsa_x", "dsa_y", "dsa_z", "dsg_p", "dsg_q", "dsg_r")
 GPS_STATES = ("dgps_n", "dgps_e", "dgps_d")
+K2_STATES = ("dk2a_x", "dk2a_y", "dk2a_z")
+THERMAL_STATES = tuple(f"{p}_{a}" for p in ("dkTa", "dsTa", "dHba", "dHsa") for a in "xyz")
 MIS_PAIRS = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))   # (i, j): input j sensed by axis i
 MIS_STATES = tuple(f"dma_{i}{j}" for i, j in MIS_PAIRS) + tuple(f"dmg_{i}{j}" for i, j in MIS_PAIRS)
 P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
@@ -82,23 +84,51 @@ class ImuNoise:
     scale_rw: float = 1e-7
 
     @classmethod
-    def from_sensors(cls, accelerometers, gyros, sample_rate_hz: float, **kw) -> ImuNoise:
-        """Densities from the sensor models: the accelerometer's current-noise bands
-        (rms over [lo, hi] → density rms/√(hi−lo); bands above the Nyquist frequency alias in
-        as white noise of density rms/√(fs/2)) divided by the current scale factor K1; the gyro's
-        ARW and bias instability as given."""
-        nyq = sample_rate_hz / 2
-        inband, aliased = 0.0, 0.0
+    def from_sensors(cls, accelerometers, gyros, sample_rate_hz: float, *, adc=None, averaged: bool | None = None,
+                     **kw) -> ImuNoise:
+        """Densities (N such that a white error of per-sample σ at f_s has N = σ/√f_s, the velocity
+        or angle random walk) from the sensor models and the acquisition.
+
+        Accelerometer current noise (:meth:`QFlexTriad.noise_current`): a band [0, B] of rms r has
+        the two-sided PSD r²/(2B) at DC, the random-walk density; bands away from DC add nothing to
+        the walk. Bands above f_s/2 alias in as white noise of per-sample rms r (N² = r²/f_s) when
+        sampled directly, and average out with averaged logging (``averaged``, default
+        ``adc.averaging > 1``). The ADC (``adc``, :class:`imurig.sensors.adc.DAQ6036E`) adds to
+        every logged sample σ_V² = (q²/12 + (e q)²)/n_avg (dithered mean of n_avg conversions;
+        q²/12 + (e q)² without averaging) + σ_cm² (common-mode noise unless differential), divided
+        by each sensor's sensitivity (accelerometer k1 R_load V/(m/s²), gyro V/(rad/s); the
+        smallest of the three axes). Divided by the current scale factor K1; the gyro's ARW and
+        bias instability as given."""
+        fs = float(sample_rate_hz)
+        nyq = fs / 2
+        if averaged is None:
+            averaged = adc is not None and int(getattr(adc, "averaging", 1)) > 1
+        dens2 = 0.0
         for lo, hi, rms in accelerometers.noise_bands:
             if rms <= 0:
                 continue
             if lo >= nyq:
-                aliased += rms ** 2 / nyq
-            else:
-                inband = max(inband, rms ** 2 / (min(hi, nyq) - lo))
-        dens2 = inband + aliased
-        vrw = math.sqrt(dens2) / float(np.min(accelerometers.k1_A_per_m_s2))
-        return cls(vrw=vrw, arw=gyros.arw_rad_s_per_sqrt_hz, gyro_bias_sigma=gyros.bias_instability_rad_s,
+                if not averaged:
+                    dens2 += rms ** 2 / fs
+            elif lo <= 0:
+                # band-limited to [0, min(hi, f_s/2)]; sampled directly the whole rms folds into it
+                b = min(hi, nyq) if not averaged else hi
+                dens2 += rms ** 2 / (2 * b)
+        k1 = float(np.min(accelerometers.k1_A_per_m_s2))
+        vrw2 = dens2 / k1 ** 2
+        arw2 = float(gyros.arw_rad_s_per_sqrt_hz) ** 2
+        if adc is not None:
+            q = float(adc.lsb_V)
+            e = float(adc.input_noise_lsb_rms) * q
+            n_avg = max(1, int(getattr(adc, "averaging", 1)))
+            var_v = (q ** 2 / 12 + e ** 2) / n_avg
+            if getattr(adc, "grounding", "DIFF") != "DIFF":
+                var_v += float(adc.common_mode_noise_V_rms) ** 2
+            s_acc = float(np.min(np.asarray(accelerometers.nominal_sensitivity_V_per_m_s2())))
+            s_gyro = float(np.min(np.abs(np.asarray(gyros.scale_V_per_rad_s, float))))
+            vrw2 += var_v / s_acc ** 2 / fs
+            arw2 += var_v / s_gyro ** 2 / fs
+        return cls(vrw=math.sqrt(vrw2), arw=math.sqrt(arw2), gyro_bias_sigma=gyros.bias_instability_rad_s,
                    gyro_bias_tau_s=gyros.bias_instability_tau_s, **kw)
 
 
@@ -159,6 +189,11 @@ class FilterConfig:
     mag_error_sigma_rad: float = 0.0
     mag_error_corr_rad: float = 1.0
     sigma0_acc_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
+    estimate_nonlinearity: bool = False
+    sigma0_acc_nonlinearity_s2_m: float = 48e-6 / 9.80665 / math.sqrt(3.0)
+    estimate_thermal_terms: bool = False
+    sigma0_acc_thermal: tuple = (0.0, 0.0, 0.0, 0.0)
+    hysteresis_width_K: float = 4.0
     sigma0_gyro_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
 
     @property
@@ -169,11 +204,15 @@ class FilterConfig:
     @property
     def n_states(self) -> int:
         return (18 + (6 if self.estimate_scale_factors else 0) + (12 if self.estimate_misalignments else 0)
-                + (3 if self.augment_gps else 0) + (1 if self.mag_error_state else 0))
+                + (3 if self.estimate_nonlinearity else 0) + (12 if self.estimate_thermal_terms else 0)
+                + (3 if self.augment_gps else 0)
+                + (1 if self.mag_error_state else 0))
 
     def state_names(self) -> tuple:
         return (BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
-                + (MIS_STATES if self.estimate_misalignments else ()) + (GPS_STATES if self.augment_gps else ())
+                + (MIS_STATES if self.estimate_misalignments else ()) + (K2_STATES if self.estimate_nonlinearity else ())
+                + (THERMAL_STATES if self.estimate_thermal_terms else ())
+                + (GPS_STATES if self.augment_gps else ())
                 + (("dmag_heading",) if self.mag_error_state else ()))
 
     def mis_slices(self) -> tuple[slice, slice]:
@@ -185,8 +224,29 @@ class FilterConfig:
         """Index of the compass heading-error state (the last one, when ``mag_error_state``)."""
         return self.n_states - 1
 
-    def gps_slice(self) -> slice:
+    def k2_slice(self) -> slice:
+        """Slice of the accelerometers' second-order nonlinearity states δk2 (s²/m), when
+        ``estimate_nonlinearity``: the filter applies f̂ = f − b̂ − k̂2 ⊙ f² (per axis)."""
         n0 = (24 if self.estimate_scale_factors else 18) + (12 if self.estimate_misalignments else 0)
+        return slice(n0, n0 + 3)
+
+    def thermal_slice(self) -> slice:
+        """Slice of the accelerometers' thermal-term states (12, when ``estimate_thermal_terms``):
+        per axis i the bias tempco k_T (m/s²/K), scale tempco s_T (1/K), bias hysteresis H_b (m/s²)
+        and scale hysteresis H_s (-), acting relative to the alignment (T₀, h₀) on the measured
+        temperature T_i and hysteresis state h_i (play operator of width ``hysteresis_width_K``):
+
+            f̂_i = f_i − k̂_T,i ΔT_i − ŝ_T,i f_i ΔT_i − Ĥ_b,i Δh_i − Ĥ_s,i f_i Δh_i,
+            ΔT = T − T₀, Δh = h − h₀  (what the terms did at T₀ is in the bias and scale states).
+
+        Prior σ ``sigma0_acc_thermal`` = (σ_kT, σ_sT, σ_Hb, σ_Hs)."""
+        n0 = ((24 if self.estimate_scale_factors else 18) + (12 if self.estimate_misalignments else 0)
+              + (3 if self.estimate_nonlinearity else 0))
+        return slice(n0, n0 + 12)
+
+    def gps_slice(self) -> slice:
+        n0 = ((24 if self.estimate_scale_factors else 18) + (12 if self.estimate_misalignments else 0)
+              + (3 if self.estimate_nonlinearity else 0) + (12 if self.estimate_thermal_terms else 0))
         return slice(n0, n0 + 3)
 
 
@@ -335,7 +395,7 @@ class LooseEKF:
         self._gps_gm_var = np.zeros(3)   # σ_GM² per NED axis of the receiver's correlated error (set by run)
 
     # ---------------------------------------------------------------------------- model
-    def _F(self, x: ins.NavState, f_B, w_B, C):
+    def _F(self, x: ins.NavState, f_B, w_B, C, thermal=None):
         n = self.cfg.n_states
         F = np.zeros((n, n))
         lat, h, v = x.lat_rad, x.h_m, x.v_N
@@ -373,6 +433,13 @@ class LooseEKF:
             for p_, (i, j) in enumerate(MIS_PAIRS):
                 F[V, MA.start + p_] = -C[:, i] * f_B[j]
                 F[A, MG.start + p_] = C[:, i] * w_B[j]
+        if self.cfg.estimate_nonlinearity:
+            F[V, self.cfg.k2_slice()] = -C * f_B ** 2
+        if self.cfg.estimate_thermal_terms and thermal is not None:
+            dT, dh = thermal
+            TH = self.cfg.thermal_slice()
+            for p_, reg in enumerate((dT, f_B * dT, dh, f_B * dh)):
+                F[V, TH.start + 3 * p_: TH.start + 3 * p_ + 3] = -C * reg
         if self.cfg.augment_gps:
             G = self.cfg.gps_slice()
             F[G, G] = -np.eye(3) / self.cfg.gps_pos_tau_s
@@ -391,6 +458,10 @@ class LooseEKF:
         if self.cfg.estimate_misalignments:
             MA, MG = self.cfg.mis_slices()
             q[MA] = q[MG] = nz.scale_rw ** 2
+        if self.cfg.estimate_nonlinearity:
+            q[self.cfg.k2_slice()] = 0.0
+        if self.cfg.estimate_thermal_terms:
+            q[self.cfg.thermal_slice()] = 0.0
         if self.cfg.augment_gps:
             q[self.cfg.gps_slice()] = 2.0 * self._gps_gm_var / self.cfg.gps_pos_tau_s
         return q
@@ -411,6 +482,10 @@ class LooseEKF:
             MA, MG = c.mis_slices()
             s[MA] = c.sigma0_acc_misalignment_rad
             s[MG] = c.sigma0_gyro_misalignment_rad
+        if c.estimate_nonlinearity:
+            s[c.k2_slice()] = c.sigma0_acc_nonlinearity_s2_m
+        if c.estimate_thermal_terms:
+            s[c.thermal_slice()] = np.repeat(np.asarray(c.sigma0_acc_thermal, float), 3)
         if c.augment_gps:
             s[c.gps_slice()] = np.sqrt(self._gps_gm_var)
         if c.mag_error_state:
@@ -468,6 +543,8 @@ class LooseEKF:
             MA, _ = c.mis_slices()
             for p_, (i, j) in enumerate(MIS_PAIRS):
                 Jf[i, MA.start + p_] = -f_B[j]
+        if c.estimate_nonlinearity:
+            Jf[:, c.k2_slice()] = -np.diag(f_B ** 2)
         Cf = C @ Jf
         Amap = np.eye(n)
         Amap[6] += Cf[1] / g
@@ -498,6 +575,9 @@ class LooseEKF:
         idx = np.arange(M + 1) * K
         w_mean = np.asarray(imu.w_IB_B)[idx]        # rates at the epochs (for F and lever arms)
         f_mean = np.asarray(imu.f_B)[idx]
+        f2_mean = None
+        if c.estimate_nonlinearity:                  # mean of f² over each step's K samples (held)
+            f2_mean = np.square(np.asarray(imu.f_B, float)[: M * K]).reshape(M, K, 3).mean(axis=1)
         n = c.n_states
         G = c.gps_slice() if c.augment_gps else None
         s_w2 = np.asarray(c.gps_pos_sigma_white_N_m, float) ** 2
@@ -521,6 +601,23 @@ class LooseEKF:
         sg = np.zeros(3)
         Ma = np.zeros((3, 3))      # misalignment estimates (zero diagonal): f = (I − diag(s) − M) f_in
         Mg = np.zeros((3, 3))
+        k2 = np.zeros(3)           # accelerometer nonlinearity estimate, s²/m
+        K2 = c.k2_slice()
+        TH = c.thermal_slice()
+        th = np.zeros(12)          # thermal-term estimates (k_T, s_T, H_b, H_s per axis)
+        dT_ep = dh_ep = None
+        if c.estimate_thermal_terms:
+            if imu.T_acc_K is None:
+                raise ConfigError("estimate_thermal_terms needs the accelerometer temperature channels (T_acc_K)")
+            from imurig.sensors.thermal import hysteresis_state
+
+            Tacc = np.asarray(imu.T_acc_K, float)
+            hacc = np.stack([hysteresis_state(Tacc[:, j], c.hysteresis_width_K, fs) for j in range(3)], 1)
+            # step means over each navigation interval, relative to the first step (the alignment)
+            dT_ep = Tacc[: M * K].reshape(M, K, 3).mean(axis=1)
+            dh_ep = hacc[: M * K].reshape(M, K, 3).mean(axis=1)
+            dT_ep = dT_ep - dT_ep[0]
+            dh_ep = dh_ep - dh_ep[0]
         MA, MG = c.mis_slices()
         mis_i = tuple(i for i, _ in MIS_PAIRS)
         mis_j = tuple(j for _, j in MIS_PAIRS)
@@ -565,7 +662,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, Ta, sa, sg, x, bgps, Ma, Mg, emag
+            nonlocal ba, bg, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -585,6 +682,10 @@ class LooseEKF:
                 Mg = Mg.copy()
                 Ma[mis_i, mis_j] -= dx[MA]
                 Mg[mis_i, mis_j] -= dx[MG]
+            if c.estimate_nonlinearity:
+                k2 = k2 - dx[K2]
+            if c.estimate_thermal_terms:
+                th = th - dx[TH]
             if G is not None:
                 bgps = bgps - dx[G]
             if c.mag_error_state:
@@ -700,10 +801,18 @@ class LooseEKF:
             dth = (inc.dtheta_B[k] - bg * T) * (1.0 - sg)
             f_corr = ba + kT * (Ta - c.reference_temperature_K)
             dv = (inc.dv_B[k] - f_corr * T) * (1.0 - sa)
+            if c.estimate_nonlinearity:
+                dv = dv - k2 * f2_mean[k] * T
+            thermal = None
+            if c.estimate_thermal_terms:
+                f_st = inc.dv_B[k] / T
+                thermal = (dT_ep[k], dh_ep[k])
+                dv = dv - (th[0:3] * dT_ep[k] + th[3:6] * f_st * dT_ep[k] + th[6:9] * dh_ep[k]
+                           + th[9:12] * f_st * dh_ep[k]) * T
             if c.estimate_misalignments:
                 dth = dth - Mg @ dth
                 dv = dv - Ma @ dv
-            F = self._F(x, (fB - f_corr) * (1 - sa), (wB - bg) * (1 - sg), C)
+            F = self._F(x, (fB - f_corr) * (1 - sa), (wB - bg) * (1 - sg), C, thermal)
             x = ins.nav_step(x, dth, dv, T)
             bgps = bgps * phi_gps
             FT = F * T
@@ -729,7 +838,8 @@ class LooseEKF:
         return FilterResult(inc.t_s, out_lat, out_lon, out_h, out_v, out_q, out_ba, out_bg, out_T, out_sa, out_sg,
                             out_Pd, out_Pn, c.state_names(), ups,
                             meta={"nav_rate_hz": 1.0 / T, "imu_rate_hz": fs, "samples_per_step": K,
-                                  "misalignment_acc_rad": Ma.tolist(), "misalignment_gyro_rad": Mg.tolist()})
+                                  "misalignment_acc_rad": Ma.tolist(), "misalignment_gyro_rad": Mg.tolist(),
+                                  "nonlinearity_acc_s2_m": k2.tolist(), "thermal_terms_acc": th.tolist()})
 
 
 def nees_nav(res: FilterResult, truth, idx) -> np.ndarray:

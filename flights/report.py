@@ -379,13 +379,22 @@ def datasheet_priors(truth) -> dict:
     from imurig.units import G_STANDARD
 
     g = G_STANDARD
-    s_b = math.hypot(datasheet_values(Q, "bias_max_ug"), datasheet_values(Q, "nonlinearity_max_ug_per_g2")) * 1e-6 * g
+    s_b = datasheet_values(Q, "bias_max_ug") * 1e-6 * g
     import pyIGRF
 
     _d, incl, H_nT, *_ = pyIGRF.igrf_value(math.degrees(truth.lat_rad[0]), math.degrees(truth.lon_rad[0]),
                                            truth.h_m[0] / 1000.0, declination_model(truth).year)
     s_m, th_c = mag_heading_error_model_datasheet(math.radians(incl), H_nT * 1e-9)
-    return {"estimate_scale_factors": True, "estimate_misalignments": True,
+    return {"estimate_scale_factors": True, "estimate_misalignments": True, "estimate_nonlinearity": True,
+            "sigma0_acc_nonlinearity_s2_m": datasheet_values(Q, "nonlinearity_max_ug_per_g2") * 1e-6 / g / math.sqrt(3),
+            # temperature terms: tempcos uniform within ±limit (σ = limit/√3); hysteresis magnitudes
+            # U(0.2, 1) x limit with either sign taken as unknown: σ = rms = limit √((0.04+0.2+1)/3)
+            "estimate_thermal_terms": True,
+            "sigma0_acc_thermal": (datasheet_values(Q, "bias_tempco_max_ug_per_C") * 1e-6 * g / math.sqrt(3),
+                                   datasheet_values(Q, "scale_tempco_max_ppm_per_C") * 1e-6 / math.sqrt(3),
+                                   datasheet_values(Q, "bias_hysteresis_max_ug") * 1e-6 * g * math.sqrt(1.24 / 3),
+                                   datasheet_values(Q, "scale_hysteresis_max_ppm") * 1e-6 * math.sqrt(1.24 / 3)),
+            "hysteresis_width_K": float(Q.__dataclass_fields__["hysteresis_width_K"].default),
             "sigma0_acc_bias_m_s2": s_b / math.sqrt(3),
             "sigma0_acc_scale": datasheet_values(Q, "scale_factor_spread") / math.sqrt(3),
             "sigma0_gyro_scale": datasheet_values(G, "scale_spread") / math.sqrt(3),
@@ -410,6 +419,9 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     out["sigma0_acc_bias_m_s2"] = float(math.hypot(se(cals["accelerometers"], "bias_"),
                                                    cals.get("thermal_sigma_m_s2", 0.0)))
     out["sigma0_gyro_bias_rad_s"] = float(math.hypot(se(cals["gyros"], "bias_"), noise.gyro_bias_sigma))
+    # the tilt table (±1 g) leaves the second-order term uncertain, and the flight pulls up to 2-3 g
+    out["estimate_nonlinearity"] = True
+    out["sigma0_acc_nonlinearity_s2_m"] = float(se(cals["accelerometers"], "nonlinearity_"))
     mc = cals.get("magnetometer")
     if mc is not None:
         e3 = mc["ellipsoid"]
@@ -417,12 +429,21 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     return out
 
 
+def imu_noise(lab: ImuLab, rate_hz: float) -> ekf.ImuNoise:
+    """The filter's white-noise model of the flight's IMU samples: the sensor models' noise as the
+    flight's acquisition (:func:`imurig.flights.imu.flight_lab`: averaged 1 kHz conversions) logs it,
+    plus that acquisition's ADC noise (:meth:`ekf.ImuNoise.from_sensors`)."""
+    from imurig.flights.imu import flight_lab as acquisition
+
+    return ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, rate_hz, adc=acquisition(lab, rate_hz).adc)
+
+
 def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, cals: dict | None = None):
     """The filter as ``imurig flight`` runs it: priors from the datasheet (``cals`` None: with the
     scale-factor and misalignment states, which the nominal conversions leave at 1-2 % and 2 mrad) or
     from the calibrations' standard errors; P0 from the alignment's own error propagation
     (:meth:`ekf.LooseEKF.alignment_covariance`)."""
-    noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
+    noise = imu_noise(lab, truth.rate_hz)
     pri = datasheet_priors(truth) if cals is None else calibrated_priors(cals, noise)
     cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s, **pri,
                            gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))

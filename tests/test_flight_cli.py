@@ -71,10 +71,13 @@ def real_chain_runs():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 6): mean NEES 14.7-18.5 per run on the default flight "
-                   "(9 expected; position, velocity and attitude each 1.2-1.8x their dof), see "
-                   "docs/flights-navigation.md")
-@pytest.mark.parametrize("name", ["uncalibrated", "calibrated"])
+@pytest.mark.parametrize("name", [
+    pytest.param("uncalibrated", marks=pytest.mark.xfail(
+        strict=True, reason="open (issue 6): uncalibrated mean NEES 43 over the 4 IMUs (61, 16, 81, 15; 9 "
+        "expected), 5 % of epochs in band, GPS position NIS 1.35/dof: the accelerometers' temperature "
+        "terms (warm-up drift up to 6e-3 m/s²) are not in the filter; with them switched off in the chain "
+        "18, 14, 9.1, 11.9. See docs/flights-navigation.md")),
+    "calibrated"])
 def test_consistent_on_the_real_sensor_chain(real_chain_runs, name):
     """Over the 4 IMUs the epoch-wise mean NEES (9 dof) after 60 s stays inside the 99 % χ²(9N)/N band
     at ≥ 90 % of the epochs, and the summed NIS of the GPS position and velocity updates inside
