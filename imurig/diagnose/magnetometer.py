@@ -107,15 +107,28 @@ def _manoeuvres(meta: dict) -> list:
     return out
 
 
+def _twin_key(site: dict, start_time: str, rate: float, manoeuvres: list) -> str:
+    return json.dumps({"site": Site.from_dict(site).to_dict(), "start_time": start_time, "rate": float(rate),
+                       "manoeuvres": manoeuvres}, sort_keys=True, default=list)
+
+
+@functools.lru_cache(maxsize=2)
+def _twin_rig(key: str) -> Recording:
+    """The gimbal run of the manoeuvres in ``key`` in the IGRF field (the twin's rig; cached)."""
+    from imurig.rigs.mag_rig import MagRig
+
+    d = json.loads(key)
+    return MagRig(site=Site.from_dict(d["site"]), record_rate_hz=d["rate"]).simulate(
+        _manoeuvres(d), d["start_time"], np.random.default_rng(0))
+
+
 @functools.lru_cache(maxsize=4)
 def _twin_cached(key: str):
-    from imurig.rigs.mag_rig import MagRig
     from imurig.site import parse_time
 
     d = json.loads(key)
     site = Site.from_dict(d["site"])
-    rig = MagRig(site=site, record_rate_hz=d["rate"]).simulate(_manoeuvres(d), d["start_time"],
-                                                               np.random.default_rng(0))
+    rig = _twin_rig(key)
     B = np.column_stack([rig.truth_signals[f"B_C_{a}"] for a in AXES])
     f = np.column_stack([rig.truth_signals[f"f_C_{a}"] for a in AXES])
     B_W = site.magnetic_field_W(parse_time(d["start_time"]))
@@ -153,9 +166,8 @@ def build_twin(rec: Recording) -> Twin:
         if k not in meta:
             raise RecordingError(f"the recording's metadata lacks '{k}': the twin is built from the site, the "
                                  "start time and the manoeuvres (imurig.rigs.mag_rig) of the recording")
-    key = json.dumps({"site": Site.from_dict(meta["site"]).to_dict(), "start_time": meta["start_time"],
-                      "rate": float(meta.get("sample_rate_hz", rec.sample_rate_hz)),
-                      "manoeuvres": meta["manoeuvres"]}, sort_keys=True, default=list)
+    key = _twin_key(meta["site"], meta["start_time"], meta.get("sample_rate_hz", rec.sample_rate_hz),
+                    meta["manoeuvres"])
     t, B, R, B_W = _twin_cached(key)
     if t.size != rec.n or np.max(np.abs(t - rec.time_s)) > 0.25 / rec.sample_rate_hz:
         raise RecordingError(f"the recording's time base ({rec.n} samples) does not match its manoeuvres' "
@@ -528,9 +540,17 @@ def _rig_run(anomaly_W_T):
     from imurig.rigs.mag_rig import MagRig
 
     camp = MagnetometerCampaign()
-    site = camp.site if anomaly_W_T is None else AnomalousSite(**camp.site.to_dict(), anomaly_W_T=anomaly_W_T)
-    return MagRig(site=site).simulate([camp.circle, camp.tumble, camp.swing, camp.validation], camp.start_time,
-                                      np.random.default_rng(0))
+    plan = [camp.circle, camp.tumble, camp.swing, camp.validation]
+    if anomaly_W_T is None:  # the IGRF field: the same gimbal run as the twin's
+        from dataclasses import asdict
+
+        from imurig.site import parse_time
+
+        rig = MagRig(site=camp.site)
+        return _twin_rig(_twin_key(camp.site.to_dict(), parse_time(camp.start_time).isoformat(), rig.record_rate_hz,
+                                   [dict(asdict(m), kind=type(m).__name__) for m in plan]))
+    site = AnomalousSite(**camp.site.to_dict(), anomaly_W_T=anomaly_W_T)
+    return MagRig(site=site).simulate(plan, camp.start_time, np.random.default_rng(0))
 
 
 def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempco_T_per_K=None,
