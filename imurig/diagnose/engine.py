@@ -283,7 +283,8 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
 
 
 def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | None = None,
-                         cov: np.ndarray | None = None) -> Callable[[np.random.Generator, int], np.ndarray]:
+                         cov: np.ndarray | None = None,
+                         clusters: np.ndarray | None = None) -> Callable[[np.random.Generator, int], np.ndarray]:
     """A ``noise`` generator for :func:`select_effects` that keeps each row's own residual size.
 
     The nominal fit's residuals, in the space whitened by ``weights`` / ``cov`` exactly as
@@ -292,7 +293,10 @@ def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | Non
     u * s, s_i = +-1. A max-statistic threshold simulated from it stays at its level when the
     noise model misses how the variance changes from row to row (the weights or covariance are
     estimated from few rows, a display resolution changes mid-series), at some cost in power
-    where an effect inflates the residual. It does not keep correlation between rows.
+    where an effect inflates the residual. It does not keep correlation between rows, except
+    within ``clusters`` (m,) labels: rows of one cluster (e.g. the readings of one table row by
+    several gyros, which share the reference error) get one sign, applied to the residuals before
+    the whitening, so that a correlation the covariance model misses is kept too.
     """
     import scipy.linalg
 
@@ -305,6 +309,20 @@ def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | Non
         y_, X_ = y_ * sw, X_ * sw[:, None]
     Q, _ = np.linalg.qr(X_)
     r = y_ - Q @ (Q.T @ y_)
+    if clusters is not None:
+        r0 = np.asarray(y, float) - np.asarray(X, float) @ np.linalg.lstsq(np.asarray(X, float), np.asarray(y, float),
+                                                                           rcond=None)[0]
+        _, inv = np.unique(np.asarray(clusters), return_inverse=True)
+        scale = np.sqrt(np.mean(r**2))
+
+        def draw(rng, m):
+            e = r0 * rng.choice(np.array([-1.0, 1.0]), inv.max() + 1)[inv]
+            if cov is not None:
+                e = scipy.linalg.solve_triangular(L, e, lower=True)
+            if weights is not None:
+                e = e * sw
+            return e / scale
+        return draw
     u = r / np.sqrt(np.clip(1.0 - np.sum(Q**2, axis=1), 1e-6, None))
     u = u / np.sqrt(np.mean(u**2))
     return lambda rng, m: u * rng.choice(np.array([-1.0, 1.0]), m)
