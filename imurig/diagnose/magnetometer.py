@@ -325,7 +325,8 @@ def diagnose_magnetometer(rec: Recording, rng: np.random.Generator, alpha: float
     # the candidates depend on the calibration (gains): re-linearise about the fit with the
     # effects found until the gains settle (Gauss-Newton on the nonlinear installation model)
     for _ in range(4):
-        d = select_effects(y, X0, names0, library(A_fit), rng, alpha=alpha, n_sim=n_sim)
+        lib_used = library(A_fit)
+        d = select_effects(y, X0, names0, lib_used, rng, alpha=alpha, n_sim=n_sim)
         if not d.findings:
             break
         A_new = (np.diag([d.after.coef(f"g_{a}") for a in AXES]) if twin_model == "nominal" else
@@ -344,6 +345,9 @@ def diagnose_magnetometer(rec: Recording, rng: np.random.Generator, alpha: float
            "noise": {"sample_sigma_nT": sig_s.tolist(), "block_sigma_predicted_nT": sig_b.tolist(),
                      "model": "white (second differences of the samples)"},
            "magnetometer": d.to_dict(), "indistinguishable": _aliases(names, d, Tb, tb)}
+    from imurig.diagnose.report import effect_steps
+
+    out["magnetometer"]["fit_steps"] = effect_steps(y, X0, names0, lib_used, d)["steps"]
     out["per_axis"] = {a: {"sigma_before_nT": float(np.std(r0[:, j])), "sigma_after_nT": float(np.std(r1[:, j])),
                            "sigma_predicted_nT": float(sig_b[j])} for j, a in enumerate(AXES)}
     out["locate"] = {mn: {a: {"rms_before_nT": float(np.sqrt(np.mean(r0[man_of_block == mn, j] ** 2))),

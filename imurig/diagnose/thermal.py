@@ -50,9 +50,17 @@ def diagnose_thermal(rec: Recording, rng: np.random.Generator, alpha: float = 0.
         # successive steps share the thermal lag: their errors are correlated (the null study gave 16
         # false findings in 360 channel tests at alpha 0.01 with white errors); test on AR(1)-whitened
         # residuals, phi from the nominal fit (benchmarks/bench_diagnose.py --fdr)
-        d = select_effects(y, X0, term_names(order, False), lib, rng, alpha=alpha, n_sim=n_sim,
-                           cov=ar1_covariance(y, X0))
-        out["channels"][name] = {**d.to_dict(), "residuals": {  # for the report's before/after plots
+        cov = ar1_covariance(y, X0)
+        d = select_effects(y, X0, term_names(order, False), lib, rng, alpha=alpha, n_sim=n_sim, cov=cov)
+        # for the report: the fit step by step (AR(1)-whitened, the engine's space) and the step-bias
+        # residuals before/after in the channel's own unit (y - X b: the engine's residuals are whitened)
+        from imurig.diagnose.report import effect_steps
+
+        st = effect_steps(y, X0, term_names(order, False), lib, d, cov=cov)
+        out["channels"][name] = {**d.to_dict(), "fit_steps": st["steps"], "residuals": {
             "temperature_K": np.asarray(T, float).tolist(), "heating": (s > 0).tolist(), "mid_time_h": mid_h.tolist(),
-            "before": d.before.residuals_.tolist(), "after": d.after.residuals_.tolist(), "unit": unit}}
+            "before": st["resid_before"].tolist(), "after": st["resid_after"].tolist(), "unit": unit,
+            "recording": np.asarray(y, float).tolist(), "twin": (y - st["resid_before"]).tolist(),
+            "corrected_twin": (y - st["resid_after"]).tolist(),
+            "convention": "residual = recording (six-position step bias) - twin (temperature polynomial)"}}
     return out

@@ -78,6 +78,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         X0, names0 = _with_survey_nuisance(X0, list(res.names), J[:, j, :])
         lib = []
         ch = f"acc_{a}"
+        prev = None
         if ch in scan:
             prev = scan[scan.index(ch) - 1] if scan.index(ch) > 0 else scan[-1]
             if prev in rec100.channels:
@@ -105,6 +106,8 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
         entry = d.to_dict()
         entry["scatter"] = _scatter(rec100, ch, mid)
+        entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
+                                         reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry
     out["indistinguishable"] = [{
         "effects": ["wrong_local_gravity", "scale_factors"],
@@ -123,6 +126,41 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
             out["dynamic"] = diagnose_tilt_dynamics(rec, cal, rng, alpha=alpha, n_sim=n_sim,
                                                     skew_in_twin=skew_in_twin)
     return out
+
+
+#: what each position-mean effect's column is (the revealing variable of the report's plots): label, unit
+_REVEAL = {"adc_crosstalk": ("median of the previously scanned channel '{prev}'", "V"),
+           "temperature_drift": ("sensor temperature reading − mean (10 mV/K)", "V"),
+           "axis_misalignment": ("indicated specific force of the other axis, {col}", "m/s²"),
+           "scale_nonlinearity": ("own indicated specific force squared", "(m/s²)²"),
+           "cross_coupling": ("product of the other two axes' indicated specific forces", "(m/s²)²")}
+
+
+def _position_residuals(y, X0, names0, lib, d, a: str, hours_elapsed, reading, prev) -> dict:
+    """The position means' fit step by step and the residuals before/after (m/s^2) with the
+    revealing variable of each accepted effect (its column), for the report.
+
+    Observable: y = the twin's reference specific force per position (m/s^2); the recording
+    through the nominal calibration is y - r_before, the corrected twin y - r_before + r_after
+    (so that twin - recording = r_before and corrected twin - recording = r_after)."""
+    from imurig.diagnose.report import effect_steps
+
+    st = effect_steps(y, X0, names0, lib, d)
+    variables = []
+    for f in d.findings:
+        C = st["columns"][f.name]
+        pnames = next(c.param_names for c in lib if c.name == f.name)
+        for k in range(C.shape[1]):
+            label, unit = _REVEAL.get(f.name, (f.name, "–"))
+            col = f"u_{pnames[k][-1]}" if f.name == "axis_misalignment" else ""
+            variables.append({"effect": f.name, "parameter": pnames[k], "label": label.format(prev=prev, col=col),
+                              "unit": unit, "values": C[:, k].tolist(),
+                              "coef": st["coef"].get(f"{f.name}:{pnames[k]}")})
+    return {"fit_steps": st["steps"], "residuals": {
+        "unit": "m/s^2", "reference": np.asarray(y, float).tolist(), "before": st["resid_before"].tolist(),
+        "after": st["resid_after"].tolist(), "elapsed_h": np.asarray(hours_elapsed, float).tolist(),
+        "reading_m_s2": np.asarray(reading, float).tolist(), "variables": variables,
+        "convention": "residual = twin's reference - recording through the calibration (position medians)"}}
 
 
 def _with_survey_nuisance(X0: np.ndarray, names: list, Jj: np.ndarray, rtol: float = 1e-6):
@@ -443,13 +481,61 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
                          "the scale factors, so the slews' g-free kinematic accelerations read eps too large "
                          "(eps = g_twin / g_true - 1); identical to a lever arm eps x r0 along the phi axis",
                          ("eps",), lambda _, c=lib_cols["wrong_local_gravity"]: c))
+    # the multiplexer's crosstalk acts sample by sample: in the slews the previously scanned channel
+    # (a magnetometer turning in the Earth's field, a neighbour accelerometer) moves, and a twin without it
+    # leaves that signal in the residual, where it must not be forced onto a delay or a lever arm
+    xt_raw = {}
+    for a, ax in enumerate(AXES):
+        ch = f"acc_{ax}"
+        if ch in scan and len(scan) > 1:
+            prev = scan[scan.index(ch) - 1]
+            if prev in rec.channels:
+                z = np.zeros((nb, 3))
+                z[:, a] = _block_mean(np.asarray(rec.channels[prev], float), idx, nb)
+                xt_raw[f"adc_crosstalk_{ax}"] = stacked(z)
+                col = lib_cols[f"adc_crosstalk_{ax}"] = proj(whiten(stacked(z)) * scale)
+                lib.append(Candidate(f"adc_crosstalk_{ax}", f"ADC multiplexer crosstalk: the previously scanned "
+                                     f"channel '{prev}' leaks into '{ch}' sample by sample (it moves during the "
+                                     "slews)", ("c_m_s2_per_V",), lambda _, c=col: c))
     X0 = proj(whiten(consts) * scale)
     d = select_effects(yp, X0, ["bias_x", "bias_y", "bias_z"], lib, rng, alpha=alpha, n_sim=n_sim)
     out = d.to_dict()
+    # the report: the fit step by step (whitened space) and the residuals in m/s^2 before and after,
+    # from the full GLS fit (nuisance, constants and the accepted effects; by Frisch-Waugh-Lovell its
+    # effect coefficients are the engine's)
+    from imurig.diagnose.report import effect_steps
+
+    out["fit_steps"] = effect_steps(yp, X0, ["bias_x", "bias_y", "bias_z"], lib, d)["steps"]
+    raw = {f"time_delay_{ax}": axis_only(cand_cols["delay"], a) for a, ax in enumerate(AXES)}
+    raw["lever_arm"] = np.column_stack([stacked(c) for c in cand_cols["lever"]])
+    raw["wrong_local_gravity"] = stacked(cand_cols["gravity"])
+    raw.update(xt_raw)
+    A0 = np.column_stack([N, consts])
+    A1 = np.column_stack([A0] + [raw[f.name] for f in d.findings])
+    resid = []
+    for A in (A0, A1):
+        coef = np.linalg.lstsq(whiten(A) * scale, whiten(y)[:, 0] * scale[:, 0], rcond=None)[0]
+        resid.append((y - A @ coef).reshape(3, nb).T)
+    F_meas = _block_mean(f_meas, idx, nb)
+    contrib = {}
+    for f in d.findings:
+        C = np.asarray(raw[f.name], float).reshape(3 * nb, -1)
+        c = np.array([v[0] for v in f.params.values()])
+        contrib[f.name] = (C @ c).reshape(3, nb).T.tolist()
+    out["residuals"] = {
+        "unit": "m/s^2", "time_s": _block_mean(t, idx, nb).tolist(), "moving": moving.tolist(),
+        "run": run_of_block.tolist(), "recording": F_meas.tolist(), "twin": (F_meas - resid[0]).tolist(),
+        "corrected_twin": (F_meas - resid[1]).tolist(), "before": resid[0].tolist(), "after": resid[1].tolist(),
+        "df_twin_dt_m_s3": cand_cols["delay"].tolist(),
+        "angular_acceleration_rad_s2": _block_mean(alpha_w, idx, nb).tolist(),
+        "angular_rate_rad_s": _block_mean(w_tw, idx, nb).tolist(), "effect_contribution_m_s2": contrib,
+        "convention": "residual = recording - twin (20 Hz block means of the calibrated samples); the twin "
+                      "includes the fitted per-window angle offsets and per-axis constants (before), and the "
+                      "accepted effects (corrected twin)"}
     for fd in out["findings"]:
-        if fd["effect"].startswith("time_delay_"):
+        if fd["effect"].startswith(("time_delay_", "adc_crosstalk_")):
             fd["channel"] = fd["effect"][-1]
-            fd["effect"] = "time_delay"
+            fd["effect"] = fd["effect"][:-2]
         else:
             fd["channel"] = "acc"
         if fd["effect"] == "wrong_local_gravity":

@@ -28,8 +28,18 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage, stats
 
-from imurig.calibration.gyro import (AXES, AXIS_OF_MOUNT, INPUTS, MODELS, SPEC, reference_rates, round_windows,
-                                     segment_covariance, timer_difference_sigma, timer_pulses)
+from imurig.calibration.gyro import (
+    AXES,
+    AXIS_OF_MOUNT,
+    INPUTS,
+    MODELS,
+    SPEC,
+    reference_rates,
+    round_windows,
+    segment_covariance,
+    timer_difference_sigma,
+    timer_pulses,
+)
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import Candidate, select_effects
 from imurig.errors import RecordingError
@@ -110,6 +120,18 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                                                   "axis: a bias Omega found here equals a g-sensitivity G = Omega / g; "
                                                   "a horizontal specific force (the arm) would separate them"}
         entry["truth_hint"] = {"Omega_vertical_rad_s": float(omega_v)}
+        # the report: the fit step by step (GLS-whitened) and the round-mean residuals in rad/s
+        # (residual = the twin's reference - the recording through the calibration)
+        from imurig.diagnose.report import effect_steps
+
+        st = effect_steps(ref[:, j], X0, list(lib_names.names), lib, d, cov=cov)
+        entry["fit_steps"] = st["steps"]
+        entry["residuals"] = {"unit": "rad/s", "reference": ref[:, j].tolist(), "before": st["resid_before"].tolist(),
+                              "after": st["resid_after"].tolist(), "table_rate_rad_s": np.asarray(rate, float).tolist(),
+                              "on_axis": e[:, j].tolist(), "specific_force_m_s2": f[:, j].tolist(),
+                              "mount": mounts, "time_s": (0.5 * (rw.segments["start_s"] + rw.segments["stop_s"])).tolist(),
+                              "convention": "residual = the twin's reference rate - the recording through the "
+                                            "gyro calibration (whole-round means per step)"}
         entry["scatter"] = _slip_rings(rec, rw, timer, f"gyro_{a}", alpha / 3)
         out["gyros"][a] = entry
     return out
