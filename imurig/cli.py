@@ -294,8 +294,9 @@ def _run_diagnose(a):
         from imurig.recording import load
 
         rec = load(a.recording).validate()
+    # the twin: the recording's own meta["diagnose_twin"] (if any), overridden by the flags given
     d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
-            earth_rate=not a.twin_without_earth_rate)
+            earth_rate=False if a.twin_without_earth_rate else None)
     from imurig.diagnose.report import _findings_rows
 
     for r in _findings_rows(d):
@@ -388,9 +389,12 @@ def build_parser() -> argparse.ArgumentParser:
     dg.add_argument("--out", default="imurig-out/diagnosis")
     dg.add_argument("--overwrite", action="store_true")
     dg.add_argument("--seed", type=int, default=0, help="seed of the threshold simulations")
-    dg.add_argument("--twin-model", default="physical", choices=["physical", "own_axis", "linear"],
-                    help="the tilt-table twin's accelerometer model; terms it lacks (misalignment, "
-                         "nonlinearity) join the candidate effects")
+    dg.add_argument("--twin-model", default=None, choices=["physical", "own_axis", "linear", "nominal", "calibrated"],
+                    help="the twin's model: tilt table physical (default) / own_axis / linear (terms it lacks, "
+                         "misalignment or nonlinearity, join the candidate effects); magnetometer nominal (default: "
+                         "per-axis gains) / calibrated (full linear calibration); a choice that does not fit the "
+                         "recording's rig is refused. Default: the recording's meta['diagnose_twin'], else the rig's "
+                         "default")
     dg.add_argument("--twin-without-earth-rate", action="store_true",
                     help="turn table: a twin whose reference leaves the Earth's rate out (as many labs do)")
     dg.set_defaults(func=_run_diagnose)

@@ -498,6 +498,7 @@ def _rrd(path, d: dict):
 
 def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "nominal") -> dict:
     """Diagnose ``rec`` and write report.md, diagnosis.json, fig_diagnosis.png, diagnosis.rrd."""
+    from imurig.diagnose.report import fit_tables
     from imurig.report import OutputFolder, clean_json, md_table
 
     d = {"kind": "magnetometer", **diagnose_magnetometer(rec, np.random.default_rng(seed), twin_model=twin_model)}
@@ -519,6 +520,7 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
                         for a, v in d["per_axis"].items()]),
               (f"\nJoint: R²adj {e['fit_before']['r2_adj']:.6f} → {e['fit_after']['r2_adj']:.6f}, BIC "
                f"{e['fit_before']['bic']:.1f} → {e['fit_after']['bic']:.1f}.\n"),
+              *fit_tables(d),
               "\n## Where: residual RMS per manoeuvre (nT, before → after)\n",
               md_table(["manoeuvre"] + [f"mag_{a}" for a in AXES],
                        [[mn] + [f"{v[a]['rms_before_nT']:.3g} → {v[a]['rms_after_nT']:.3g}" for a in AXES]
