@@ -57,6 +57,7 @@ BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e",
                "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
 SCALE_STATES = ("dsa_x", "dsa_y", "dsa_z", "dsg_p", "dsg_q", "dsg_r")
 GPS_STATES = ("dgps_n", "dgps_e", "dgps_d")
+GYRO_GM_STATES = ("dbgm_p", "dbgm_q", "dbgm_r")
 K2_STATES = ("dk2a_x", "dk2a_y", "dk2a_z")
 THERMAL_STATES = tuple(f"{p}_{a}" for p in ("dkTa", "dsTa", "dHba", "dHsa") for a in "xyz")
 MIS_PAIRS = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))   # (i, j): input j sensed by axis i
@@ -184,6 +185,7 @@ class FilterConfig:
     gps_time_sigma_s: float = 0.0
     gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
     gps_pos_states: bool = True
+    gyro_bias_gm_states: bool = False
     estimate_misalignments: bool = False
     mag_error_state: bool = False
     mag_error_sigma_rad: float = 0.0
@@ -197,6 +199,10 @@ class FilterConfig:
     sigma0_gyro_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
 
     @property
+    def n_gyro_gm(self) -> int:
+        return 3 if self.gyro_bias_gm_states else 0
+
+    @property
     def augment_gps(self) -> bool:
         """Whether the receiver's Gauss-Markov position error is carried as 3 extra states."""
         return bool(self.gps_pos_states and self.gps_pos_tau_s is not None)
@@ -205,14 +211,14 @@ class FilterConfig:
     def n_states(self) -> int:
         return (18 + (6 if self.estimate_scale_factors else 0) + (12 if self.estimate_misalignments else 0)
                 + (3 if self.estimate_nonlinearity else 0) + (12 if self.estimate_thermal_terms else 0)
-                + (3 if self.augment_gps else 0)
+                + (3 if self.augment_gps else 0) + self.n_gyro_gm
                 + (1 if self.mag_error_state else 0))
 
     def state_names(self) -> tuple:
         return (BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
                 + (MIS_STATES if self.estimate_misalignments else ()) + (K2_STATES if self.estimate_nonlinearity else ())
                 + (THERMAL_STATES if self.estimate_thermal_terms else ())
-                + (GPS_STATES if self.augment_gps else ())
+                + (GPS_STATES if self.augment_gps else ()) + (GYRO_GM_STATES if self.gyro_bias_gm_states else ())
                 + (("dmag_heading",) if self.mag_error_state else ()))
 
     def mis_slices(self) -> tuple[slice, slice]:
@@ -248,6 +254,16 @@ class FilterConfig:
         n0 = ((24 if self.estimate_scale_factors else 18) + (12 if self.estimate_misalignments else 0)
               + (3 if self.estimate_nonlinearity else 0) + (12 if self.estimate_thermal_terms else 0))
         return slice(n0, n0 + 3)
+
+    def gyro_gm_slice(self) -> slice:
+        """Slice of the gyros' bias-instability states (3, when ``gyro_bias_gm_states``): the
+        Gauss-Markov part b_gm of the gyro bias, b_g = b_0 + b_gm, ḃ_gm = −b_gm/τ + w
+        (σ ``ImuNoise.gyro_bias_sigma``, τ ``gyro_bias_tau_s``). The δb_g states are then the
+        turn-on bias b_0 alone, a random constant (prior ``sigma0_gyro_bias_rad_s``, no process
+        noise). Without these states the whole bias is one Gauss-Markov state, which lets the
+        filter believe that a turn-on bias error decays by itself with τ."""
+        n0 = self.gps_slice().start + (3 if self.augment_gps else 0)
+        return slice(n0, n0 + self.n_gyro_gm)
 
 
 @dataclass
@@ -424,7 +440,12 @@ class LooseEKF:
         F[A, P] = dwin_dr
         F[A, V] = dwen_dv
         F[A, BG] = C
-        F[BG, BG] = -np.eye(3) / self.noise.gyro_bias_tau_s
+        if self.cfg.gyro_bias_gm_states:
+            GM = self.cfg.gyro_gm_slice()
+            F[A, GM] = C
+            F[GM, GM] = -np.eye(3) / self.noise.gyro_bias_tau_s
+        else:
+            F[BG, BG] = -np.eye(3) / self.noise.gyro_bias_tau_s
         if self.cfg.estimate_scale_factors:
             F[V, SA] = -C * f_B
             F[A, SG] = C * w_B
@@ -451,7 +472,10 @@ class LooseEKF:
         q[V] = nz.vrw ** 2
         q[A] = nz.arw ** 2
         q[BA] = nz.acc_bias_rw ** 2
-        q[BG] = 2 * nz.gyro_bias_sigma ** 2 / nz.gyro_bias_tau_s
+        if self.cfg.gyro_bias_gm_states:
+            q[self.cfg.gyro_gm_slice()] = 2 * nz.gyro_bias_sigma ** 2 / nz.gyro_bias_tau_s
+        else:
+            q[BG] = 2 * nz.gyro_bias_sigma ** 2 / nz.gyro_bias_tau_s
         q[TA] = nz.temp_rw ** 2
         if self.cfg.estimate_scale_factors:
             q[SA] = q[SG] = nz.scale_rw ** 2
@@ -488,6 +512,8 @@ class LooseEKF:
             s[c.thermal_slice()] = np.repeat(np.asarray(c.sigma0_acc_thermal, float), 3)
         if c.augment_gps:
             s[c.gps_slice()] = np.sqrt(self._gps_gm_var)
+        if c.gyro_bias_gm_states:
+            s[c.gyro_gm_slice()] = self.noise.gyro_bias_sigma
         if c.mag_error_state:
             s[c.mag_index()] = c.mag_error_sigma_rad
         return np.diag(s ** 2)
@@ -596,7 +622,10 @@ class LooseEKF:
         phi_gps = math.exp(-inc.T_s / c.gps_pos_tau_s) if G is not None else 1.0
         x = x0.copy()
         ba = np.zeros(3)
-        bg = np.zeros(3)
+        bg = np.zeros(3)           # gyro bias estimate (turn-on + Gauss-Markov parts), rad/s
+        bgm = np.zeros(3)          # its Gauss-Markov part, when c.gyro_bias_gm_states
+        GM = c.gyro_gm_slice() if c.gyro_bias_gm_states else None
+        phi_bgm = math.exp(-inc.T_s / self.noise.gyro_bias_tau_s)
         sa = np.zeros(3)
         sg = np.zeros(3)
         Ma = np.zeros((3, 3))      # misalignment estimates (zero diagonal): f = (I − diag(s) − M) f_in
@@ -662,7 +691,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th
+            nonlocal ba, bg, bgm, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -673,6 +702,9 @@ class LooseEKF:
             x = ins.NavState(lat, lon, h, v, q)
             ba = ba - dx[BA]
             bg = bg - dx[BG]
+            if GM is not None:
+                bg = bg - dx[GM]
+                bgm = bgm - dx[GM]
             Ta = Ta - dx[TA]
             if c.estimate_scale_factors:
                 sa = sa - dx[SA]
@@ -763,6 +795,8 @@ class LooseEKF:
                         H[:, V] = np.eye(3)
                         H[:, A] = ins._skew(lv)
                         H[:, BG] = C @ ins._skew(self.l_gps)
+                        if GM is not None:
+                            H[:, GM] = H[:, BG]
                         R = np.diag((c.gps_sigma_scale * np.asarray(gps.sigma_vel_N[i], float)) ** 2)
                         if c.gps_time_sigma_s > 0:
                             # time-of-validity error δt: the fix's velocity is off by a_N δt
@@ -815,6 +849,9 @@ class LooseEKF:
             F = self._F(x, (fB - f_corr) * (1 - sa), (wB - bg) * (1 - sg), C, thermal)
             x = ins.nav_step(x, dth, dv, T)
             bgps = bgps * phi_gps
+            if GM is not None:          # the expected Gauss-Markov part decays with τ
+                bg = bg - bgm * (1.0 - phi_bgm)
+                bgm = bgm * phi_bgm
             FT = F * T
             Phi = I_n + FT + 0.5 * FT @ FT
             Qd = 0.5 * (Phi * qc) @ Phi.T * T + 0.5 * np.diag(qc) * T

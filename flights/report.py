@@ -369,7 +369,8 @@ def datasheet_priors(truth) -> dict:
     """Filter priors of the uncalibrated run, from the datasheet limits of the sensor models (each
     error uniform within ±limit: σ = limit/√3): accelerometer bias (8000 µg) with the 2nd-order
     nonlinearity at 1 g (48 µg/g²); scale factors (Q-Flex 1 %, FOG 2 %) and misalignments (2 mrad) as
-    states; gyro bias repeatability N(0, 0.003 deg/s) with the bias instability; the compass's
+    states; gyro turn-on bias N(0, 0.003 deg/s) as a random constant and the bias instability as its
+    own Gauss-Markov states (``gyro_bias_gm_states``); the compass's
     systematic heading error (hard/soft iron) as a state with σ_m and correlation angle θ_c from the
     fluxgate's datasheet (:func:`mag_heading_error_model_datasheet`), white part = fluxgate noise / H."""
     from imurig.sensors.accelerometer import QFlexTriad as Q
@@ -400,8 +401,10 @@ def datasheet_priors(truth) -> dict:
             "sigma0_gyro_scale": datasheet_values(G, "scale_spread") / math.sqrt(3),
             "sigma0_acc_misalignment_rad": datasheet_values(Q, "misalignment_max_mrad") * 1e-3 / math.sqrt(3),
             "sigma0_gyro_misalignment_rad": datasheet_values(G, "misalignment_max_mrad") * 1e-3 / math.sqrt(3),
-            "sigma0_gyro_bias_rad_s": math.hypot(datasheet_values(G, "bias_repeatability_dps"),
-                                                 datasheet_values(G, "bias_variation_dps")) * DEG,
+            # turn-on bias N(0, repeatability): a random constant; the bias variation (instability) is
+            # the Gauss-Markov part, carried as its own states (σ, τ of the sensor model)
+            "sigma0_gyro_bias_rad_s": datasheet_values(G, "bias_repeatability_dps") * DEG,
+            "gyro_bias_gm_states": True,
             "mag_error_state": True, "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c,
             "mag_heading_sigma_rad": datasheet_values(F, "noise_nT_rms") * 1e-9 / (H_nT * 1e-9)}
 
@@ -410,7 +413,9 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     """Filter priors of the calibrated run from the calibrations' reported standard errors:
     σ0 of the accelerometer bias = the largest bias SE of the tilt-table fit, with the thermal
     correction's largest SE over the flight (``cals["thermal_sigma_m_s2"]``) in quadrature; σ0 of the
-    gyro bias = √(SE² + σ_GM²) (turn-table SE plus the FOG's bias instability); magnetic heading
+    gyro turn-on bias (a random constant) = √(SE² + σ_GM²) (turn-table SE plus the instability's
+    mean over the calibration session, at most σ_GM), the flight's instability as Gauss-Markov
+    states; magnetic heading
     σ = the ellipsoid fit's RMS field residual / H (rad). Empty (datasheet priors) when ``cals`` is None."""
     if cals is None:
         return {}
@@ -418,7 +423,11 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     se = lambda c, pre: max(d["std_error"] for d in c.physical_parameters() if d["name"].startswith(pre))
     out["sigma0_acc_bias_m_s2"] = float(math.hypot(se(cals["accelerometers"], "bias_"),
                                                    cals.get("thermal_sigma_m_s2", 0.0)))
+    # the turn-table bias is b_0 + the mean of the bias instability over the calibration session
+    # (variance ≤ σ_GM²), ± its SE: a random constant in flight; the flight's own instability is
+    # the Gauss-Markov part (its own states)
     out["sigma0_gyro_bias_rad_s"] = float(math.hypot(se(cals["gyros"], "bias_"), noise.gyro_bias_sigma))
+    out["gyro_bias_gm_states"] = True
     # the tilt table (±1 g) leaves the second-order term uncertain, and the flight pulls up to 2-3 g
     out["estimate_nonlinearity"] = True
     out["sigma0_acc_nonlinearity_s2_m"] = float(se(cals["accelerometers"], "nonlinearity_"))
