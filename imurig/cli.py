@@ -8,6 +8,7 @@
     imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
     imurig apply CAL.json REC --out OUT   apply a calibration to a new recording
     imurig diagnose REC                   where recording and twin differ; names the physics left out
+    imurig concealed list|write|all       the concealed-effect suite as recordings, to diagnose
     imurig convert IN OUT                 HDF5 <-> lab CSV
     imurig info REC                       what a recording holds
 """
@@ -364,6 +365,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     from imurig.flights.cli import add_flight_parser
     add_flight_parser(sub)
+
+    from imurig.diagnose.cases import add_concealed_parser
+    add_concealed_parser(sub)
 
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
