@@ -71,13 +71,7 @@ def real_chain_runs():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [
-    pytest.param("uncalibrated", marks=pytest.mark.xfail(
-        strict=True, reason="open (issue 6): uncalibrated mean NEES 13.4 over the 4 IMUs (17.6, 14.3, 9.0, 12.5; "
-        "9 expected), 69 % of epochs in band (90 % required): tilt over-confident (tilt NEES 9.4 against 2 dof, "
-        "tied to the uncalibrated gyros, not yet explained) and the compass state too cautious (NIS 0.056/dof). "
-        "See docs/flights-navigation.md")),
-    "calibrated"])
+@pytest.mark.parametrize("name", ["uncalibrated", "calibrated"])
 def test_consistent_on_the_real_sensor_chain(real_chain_runs, name):
     """Over the 4 IMUs the epoch-wise mean NEES (9 dof) after 60 s stays inside the 99 % χ²(9N)/N band
     at ≥ 90 % of the epochs, and the summed NIS of the GPS position and velocity updates inside
