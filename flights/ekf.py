@@ -876,7 +876,8 @@ class LooseEKF:
                             out_Pd, out_Pn, c.state_names(), ups,
                             meta={"nav_rate_hz": 1.0 / T, "imu_rate_hz": fs, "samples_per_step": K,
                                   "misalignment_acc_rad": Ma.tolist(), "misalignment_gyro_rad": Mg.tolist(),
-                                  "nonlinearity_acc_s2_m": k2.tolist(), "thermal_terms_acc": th.tolist()})
+                                  "nonlinearity_acc_s2_m": k2.tolist(), "thermal_terms_acc": th.tolist(),
+                                  "gyro_bias_gm_rad_s": bgm.tolist()})
 
 
 def nees_nav(res: FilterResult, truth, idx) -> np.ndarray:
