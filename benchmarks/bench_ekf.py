@@ -54,10 +54,10 @@ def main(argv=None) -> dict:
     t_mech = time.perf_counter() - t0
     extra = {}
     if a.uncalibrated_states:
-        extra = dict(estimate_scale_factors=True, estimate_misalignments=True, estimate_nonlinearity=True,
-                     estimate_thermal_terms=True, sigma0_acc_thermal=(1e-4, 1e-4, 1e-3, 1e-3),
-                     gyro_bias_gm_states=True, mag_error_state=True, mag_error_sigma_rad=0.08,
-                     gps_pos_tau_s=100.0, gps_pos_sigma_white_N_m=(0.1, 0.1, 0.2))
+        extra = {"estimate_scale_factors": True, "estimate_misalignments": True, "estimate_nonlinearity": True,
+                     "estimate_thermal_terms": True, "sigma0_acc_thermal": (1e-4, 1e-4, 1e-3, 1e-3),
+                     "gyro_bias_gm_states": True, "mag_error_state": True, "mag_error_sigma_rad": 0.08,
+                     "gps_pos_tau_s": 100.0, "gps_pos_sigma_white_N_m": (0.1, 0.1, 0.2)}
     cfg = ekf.FilterConfig(nav_rate_hz=a.nav_rate, mag_heading_sigma_rad=np.radians(0.5), **extra)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=tr.lever_gps_B)
     t0 = time.perf_counter()
