@@ -62,6 +62,7 @@ K2_STATES = ("dk2a_x", "dk2a_y", "dk2a_z")
 THERMAL_STATES = tuple(f"{p}_{a}" for p in ("dkTa", "dsTa", "dHba", "dHsa") for a in "xyz")
 MIS_PAIRS = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))   # (i, j): input j sensed by axis i
 MIS_STATES = tuple(f"dma_{i}{j}" for i, j in MIS_PAIRS) + tuple(f"dmg_{i}{j}" for i, j in MIS_PAIRS)
+MAG_IRON_STATES = tuple(f"dmag_b{a}" for a in "xyz") + tuple(f"dmag_A{i}{j}" for i in range(3) for j in range(3))
 P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                slice(15, 18), slice(18, 21), slice(21, 24))
 
@@ -158,7 +159,22 @@ class FilterConfig:
     one more state, ψ_m = ψ + e_m + white, a Gauss-Markov process in the *rotation angle* of the body
     rather than in time: over a step in which the body turns by Δθ (rad, relative to the NED frame)
     φ = exp(−Δθ/θ_c), Q = σ_m²(1 − φ²), σ_m ``mag_error_sigma_rad``, θ_c ``mag_error_corr_rad``.
-    ``mag_heading_sigma_rad`` is then the white part only."""
+    ``mag_heading_sigma_rad`` is then the white part only.
+
+    ``mag_iron_states``: instead, the magnetometer's installation errors are 12 random constants
+    (no process noise) in its linear measurement equation
+
+        B_m = (I + ΔA) B_B + b + n          [T, (3,)]   b: hard iron (body frame, T, 3 states);
+                                                        ΔA: soft iron + misalignment + sensitivity
+                                                        error (3×3, −, 9 states, row-major)
+
+    The compass uses the corrected field B̂ = (I + ΔÂ)⁻¹ (B_m − b̂) (:func:`mag_iron_jacobian`);
+    prior covariance ``mag_iron_prior_cov`` (12, 12) (:func:`mag_iron_prior_cov`). Directions the
+    flight does not excite (e.g. b_z in level flight, the isotropic part of ΔA, which leaves the
+    heading unchanged) keep their prior. ``mag_heading_sigma_rad`` is the white part. The heading
+    is nonlinear in θ at the priors' size (~0.5 deg of second-order term against a 0.015 deg white
+    part), so the compass update is a Gaussian second-order one (E[z] and var from the Hessian in θ,
+    :func:`mag_iron_hessian`), iterated ``mag_iterations`` times (iterated EKF)."""
 
     nav_rate_hz: float = 50.0
     estimate_scale_factors: bool = False
@@ -190,6 +206,9 @@ class FilterConfig:
     mag_error_state: bool = False
     mag_error_sigma_rad: float = 0.0
     mag_error_corr_rad: float = 1.0
+    mag_iron_states: bool = False
+    mag_iron_prior_cov: np.ndarray | None = None
+    mag_iterations: int = 3
     sigma0_acc_misalignment_rad: float = 2e-3 / math.sqrt(3.0)
     estimate_nonlinearity: bool = False
     sigma0_acc_nonlinearity_s2_m: float = 48e-6 / 9.80665 / math.sqrt(3.0)
@@ -212,14 +231,15 @@ class FilterConfig:
         return (18 + (6 if self.estimate_scale_factors else 0) + (12 if self.estimate_misalignments else 0)
                 + (3 if self.estimate_nonlinearity else 0) + (12 if self.estimate_thermal_terms else 0)
                 + (3 if self.augment_gps else 0) + self.n_gyro_gm
-                + (1 if self.mag_error_state else 0))
+                + (1 if self.mag_error_state else 0) + (12 if self.mag_iron_states else 0))
 
     def state_names(self) -> tuple:
         return (BASE_STATES + (SCALE_STATES if self.estimate_scale_factors else ())
                 + (MIS_STATES if self.estimate_misalignments else ()) + (K2_STATES if self.estimate_nonlinearity else ())
                 + (THERMAL_STATES if self.estimate_thermal_terms else ())
                 + (GPS_STATES if self.augment_gps else ()) + (GYRO_GM_STATES if self.gyro_bias_gm_states else ())
-                + (("dmag_heading",) if self.mag_error_state else ()))
+                + (("dmag_heading",) if self.mag_error_state else ())
+                + (MAG_IRON_STATES if self.mag_iron_states else ()))
 
     def mis_slices(self) -> tuple[slice, slice]:
         """Slices of the accelerometer and gyro misalignment states (6 each, :data:`MIS_PAIRS`)."""
@@ -227,8 +247,13 @@ class FilterConfig:
         return slice(n0, n0 + 6), slice(n0 + 6, n0 + 12)
 
     def mag_index(self) -> int:
-        """Index of the compass heading-error state (the last one, when ``mag_error_state``)."""
-        return self.n_states - 1
+        """Index of the compass heading-error state (after the gyro GM states, when ``mag_error_state``)."""
+        return self.gyro_gm_slice().stop
+
+    def mag_iron_slice(self) -> slice:
+        """Slice of the magnetometer installation-error states (12, the last ones, when
+        ``mag_iron_states``): hard iron b (3, T) then ΔA (9, −, row-major)."""
+        return slice(self.n_states - (12 if self.mag_iron_states else 0), self.n_states)
 
     def k2_slice(self) -> slice:
         """Slice of the accelerometers' second-order nonlinearity states δk2 (s²/m), when
@@ -395,6 +420,71 @@ def mag_heading_jacobian(C_NB, B_B) -> np.ndarray:
     return np.array([B_N[2] * B_N[0] / h2, B_N[2] * B_N[1] / h2, -1.0])
 
 
+def mag_corrected_field(B_m, theta) -> np.ndarray:
+    """Field (3,) T corrected for the installation-error estimate ``theta`` (12,) = [b (3, T),
+    ΔA (9, row-major)]: B̂ = (I + ΔA)⁻¹ (B_m − b), the inverse of B_m = (I + ΔA) B_B + b."""
+    theta = np.asarray(theta, float)
+    A = np.eye(3) + theta[3:].reshape(3, 3)
+    return np.linalg.solve(A, np.asarray(B_m, float) - theta[:3])
+
+
+def mag_iron_jacobian(B_m, theta, roll, pitch) -> np.ndarray:
+    """∂z/∂θ̂ (12,) of the magnetic-heading innovation z = ŷaw − ψ_m(B̂) with respect to the
+    installation-error estimate θ̂ = [b̂, ΔÂ] (:func:`mag_corrected_field`); the filter's error
+    state is δθ = θ̂ − θ, so this is its H row. With the levelled field l = L B̂ (L: the rows of
+    :func:`mag_heading`'s levelling by the estimated roll and pitch), ψ_m = atan2(−l_y, l_x) + D:
+
+        ∂ψ_m/∂B̂ = Lᵀ [l_y, −l_x, 0] / (l_x² + l_y²)            (3,)  1/T
+        ∂B̂/∂b̂ = −(I + ΔÂ)⁻¹,  ∂B̂/∂ΔÂ_ij = −(I + ΔÂ)⁻¹ e_i B̂_j
+        g = ∂ψ_m/∂B̂ (I + ΔÂ)⁻¹:  H_b = g,  H_ΔA,ij = g_i B̂_j"""
+    theta = np.asarray(theta, float)
+    A = np.eye(3) + theta[3:].reshape(3, 3)
+    Bc = np.linalg.solve(A, np.asarray(B_m, float) - theta[:3])
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    rx = np.array([cp, sp * sr, sp * cr])
+    ry = np.array([0.0, cr, -sr])
+    lx, ly = rx @ Bc, ry @ Bc
+    dpsi_dB = (ly * rx - lx * ry) / (lx * lx + ly * ly)
+    g = np.linalg.solve(A.T, dpsi_dB)
+    return np.concatenate([g, np.outer(g, Bc).ravel()])
+
+
+def mag_iron_hessian(B_m, theta, roll, pitch) -> np.ndarray:
+    """∂²z/∂θ̂² (12, 12) of the magnetic-heading innovation (:func:`mag_iron_jacobian`), by central
+    differences of the analytic Jacobian (steps 1 nT on b̂, 1e-5 on ΔÂ; symmetrised)."""
+    theta = np.asarray(theta, float)
+    steps = np.r_[np.full(3, 1e-9), np.full(9, 1e-5)]
+    Hs = np.empty((12, 12))
+    for i in range(12):
+        d = np.zeros(12)
+        d[i] = steps[i]
+        Hs[i] = (mag_iron_jacobian(B_m, theta + d, roll, pitch) - mag_iron_jacobian(B_m, theta - d, roll, pitch)) / (2 * steps[i])
+    return 0.5 * (Hs + Hs.T)
+
+
+def mag_iron_prior_cov(hard_iron_max_T: float, soft_iron_max: float, misalignment_max_rad: float,
+                       sensitivity_spread: float) -> np.ndarray:
+    """Prior covariance (12, 12) of θ = [b, ΔA] for a fluxgate drawn as
+    :meth:`imurig.sensors.magnetometer.FluxgateTriad.from_datasheet` draws it and read with its
+    nominal sensitivity: B_m = D (S (I + M) B + b_h), D = diag(1 + d), d_i ~ U(±spread),
+    S = I + (U + Uᵀ)/2, U_ij ~ U(±soft), M_ij ~ U(±mis) (i ≠ j), b_h,i ~ U(±hard). Hence
+    b = D b_h: var = (1 + spread²/3) hard²/3; ΔA = D S (I + M) − I ≈ diag(d) + (S − I) + M:
+    var ΔA_ii = spread²/3 + soft²/3, var ΔA_ij = soft²/6 + mis²/3, cov(ΔA_ij, ΔA_ji) = soft²/6
+    (the symmetric soft iron). The second-order products (≤ soft·mis ≈ 2.5e-4 against σ ≈ 0.03)
+    are left out."""
+    P = np.zeros((12, 12))
+    P[:3, :3] = np.eye(3) * (1 + sensitivity_spread ** 2 / 3) * hard_iron_max_T ** 2 / 3
+    for i in range(3):
+        for j in range(3):
+            a = 3 + 3 * i + j
+            if i == j:
+                P[a, a] = sensitivity_spread ** 2 / 3 + soft_iron_max ** 2 / 3
+            else:
+                P[a, a] = soft_iron_max ** 2 / 6 + misalignment_max_rad ** 2 / 3
+                P[a, 3 + 3 * j + i] = soft_iron_max ** 2 / 6
+    return P
+
+
 class LooseEKF:
     """The loosely coupled error-state filter. ``run`` processes a whole flight."""
 
@@ -408,6 +498,14 @@ class LooseEKF:
             raise ConfigError("nav_rate_hz must be positive")
         if self.cfg.gps_pos_tau_s is not None and not self.cfg.gps_pos_tau_s > 0:
             raise ConfigError(f"gps_pos_tau_s must be > 0 s, got {self.cfg.gps_pos_tau_s!r}")
+        if self.cfg.mag_error_state and self.cfg.mag_iron_states:
+            raise ConfigError("mag_error_state and mag_iron_states model the same compass error: choose one")
+        if self.cfg.mag_iron_states:
+            Pm = None if self.cfg.mag_iron_prior_cov is None else np.asarray(self.cfg.mag_iron_prior_cov, float)
+            if Pm is None or Pm.shape != (12, 12) or not np.all(np.isfinite(Pm)) or np.any(np.linalg.eigvalsh(
+                    0.5 * (Pm + Pm.T)) < 0):
+                raise ConfigError("mag_iron_states needs mag_iron_prior_cov: a finite positive semi-definite "
+                                  "(12, 12) covariance of [b (T), ΔA] (see ekf.mag_iron_prior_cov)")
         self._gps_gm_var = np.zeros(3)   # σ_GM² per NED axis of the receiver's correlated error (set by run)
 
     # ---------------------------------------------------------------------------- model
@@ -516,7 +614,11 @@ class LooseEKF:
             s[c.gyro_gm_slice()] = self.noise.gyro_bias_sigma
         if c.mag_error_state:
             s[c.mag_index()] = c.mag_error_sigma_rad
-        return np.diag(s ** 2)
+        P0 = np.diag(s ** 2)
+        if c.mag_iron_states:
+            MI = c.mag_iron_slice()
+            P0[MI, MI] = np.asarray(c.mag_iron_prior_cov, float)
+        return P0
 
     def alignment_covariance(self, x0: ins.NavState, f_B, B_B, gps, *, window_s: float,
                              sigma_mag_rad: float, sigma_level_f_m_s2: float | None = None) -> np.ndarray:
@@ -554,7 +656,8 @@ class LooseEKF:
             self._gps_gm_var = np.maximum(s_pos2 - s_w2, 0.0)
         else:
             s_w2 = s_pos2
-        var = np.diag(self.initial_covariance()).copy()
+        P_prior = self.initial_covariance()
+        var = np.diag(P_prior).copy()
         if sigma_level_f_m_s2 is None:
             sigma_level_f_m_s2 = self.noise.vrw / math.sqrt(window_s)
         var[P] = s_w2
@@ -579,11 +682,20 @@ class LooseEKF:
         Amap[8] = h[0] * Amap[6] + h[1] * Amap[7] - np.eye(n)[8]
         if c.mag_error_state:           # ψ_m = ψ + e_m: z = hᵀψ + δe_m = 0, δe_m = ê_m − e_m = −e_m
             Amap[8, c.mag_index()] = 1.0
+        if c.mag_iron_states:           # z = hᵀψ + H_θ δθ = 0 (θ̂ = 0 at the alignment)
+            roll, pitch, _ = E.euler_from_C(C)
+            Amap[8, c.mag_iron_slice()] = mag_iron_jacobian(B_B, np.zeros(12), roll, pitch)
         Cl = C @ self.l_gps
         Amap[P] -= ins._skew(Cl) @ Amap[A]
         if c.augment_gps:
             Amap[P, c.gps_slice()] -= np.eye(3)
-        return (Amap * var) @ Amap.T
+        if not c.mag_iron_states:
+            return (Amap * var) @ Amap.T
+        # the iron states' prior is correlated (symmetric soft iron): Σ = diag(var) but that block
+        Sig = np.diag(var)
+        MI = c.mag_iron_slice()
+        Sig[MI, MI] = P_prior[MI, MI]
+        return Amap @ Sig @ Amap.T
 
     # ---------------------------------------------------------------------------- run
     def run(self, imu: ImuStream, gps, x0: ins.NavState, *, P0=None, progress=None) -> FilterResult:
@@ -619,6 +731,8 @@ class LooseEKF:
         qc = self._Qc()
         bgps = np.zeros(3)          # estimate of the receiver's Gauss-Markov position error, NED m
         emag = 0.0                  # estimate of the compass's systematic heading error, rad
+        theta_m = np.zeros(12)      # estimate of the magnetometer's installation errors [b (T), ΔA]
+        MI = c.mag_iron_slice() if c.mag_iron_states else None
         phi_gps = math.exp(-inc.T_s / c.gps_pos_tau_s) if G is not None else 1.0
         x = x0.copy()
         ba = np.zeros(3)
@@ -691,7 +805,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, bgm, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th
+            nonlocal ba, bg, bgm, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th, theta_m
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -722,6 +836,8 @@ class LooseEKF:
                 bgps = bgps - dx[G]
             if c.mag_error_state:
                 emag = emag - dx[c.mag_index()]
+            if MI is not None:
+                theta_m = theta_m - dx[MI]
 
         def update(kind, tk, z, H, R):
             nonlocal Pm
@@ -806,16 +922,58 @@ class LooseEKF:
                         update("gps_vel", tk, z, H, R)
                     C = ins._dcm(x.q_NB)
             if mag_every and k % mag_every == 0:
-                roll, pitch, yaw = E.euler_from_C(C)
                 decl = self.decl(x.lat_rad, x.lon_rad, x.h_m) if callable(self.decl) else self.decl
-                psi_m = mag_heading(np.asarray(imu.B_B[idx[k]], float), roll, pitch, decl)
-                z = np.array([E.wrap_pi(yaw - psi_m)])
-                H = np.zeros((1, n))
-                H[0, A] = mag_heading_jacobian(C, imu.B_B[idx[k]])
-                if c.mag_error_state:
-                    z = z + emag
-                    H[0, c.mag_index()] = 1.0
-                update("mag", tk, z, H, np.array([[c.mag_heading_sigma_rad ** 2]]))
+                B_m = np.asarray(imu.B_B[idx[k]], float)
+
+                def mag_model(q, th, B_m=B_m, decl=decl, P_prior=Pm, emag=emag):
+                    """Innovation z (1,), its H row (1, n) and R (1, 1) at attitude q, iron estimate th."""
+                    Cq = ins._dcm(q)
+                    roll, pitch, yaw = E.euler_from_C(Cq)
+                    B_c = B_m if MI is None else mag_corrected_field(B_m, th)
+                    z = np.array([E.wrap_pi(yaw - mag_heading(B_c, roll, pitch, decl))])
+                    H = np.zeros((1, n))
+                    H[0, A] = mag_heading_jacobian(Cq, B_c)
+                    Rm = c.mag_heading_sigma_rad ** 2
+                    if MI is not None:
+                        H[0, MI] = mag_iron_jacobian(B_m, th, roll, pitch)
+                        # Gaussian second-order filter: the heading is quadratic in the iron errors
+                        # at the size of the priors (5 % and 2000 nT: ~0.5 deg, 30x the white part),
+                        # so E[z] = −½ tr(Hs P) and var += ½ tr(Hs P Hs P) (P: the iron block)
+                        Hs = mag_iron_hessian(B_m, th, roll, pitch)
+                        HP = Hs @ P_prior[MI, MI]
+                        z = z + 0.5 * np.trace(HP)
+                        Rm = Rm + 0.5 * float(np.sum(HP * HP.T))
+                    if c.mag_error_state:
+                        z = z + emag
+                        H[0, c.mag_index()] = 1.0
+                    return z, H, np.array([[Rm]])
+
+                z, H, Rm = mag_model(x.q_NB, theta_m)
+                if MI is None or c.mag_iterations <= 1:
+                    update("mag", tk, z, H, Rm)
+                else:
+                    # iterated EKF (Gauss-Newton to the MAP): relinearise at the corrected attitude
+                    # and iron estimate, e_{i+1} = K_i (z(x_i) + H_i e_i); NIS from the prior's linearisation
+                    S0 = float((H @ Pm @ H.T + Rm)[0, 0])
+                    nis0 = float(z[0] ** 2 / S0)
+                    e = np.zeros(n)
+                    zi, Hi, Ri = z, H, Rm
+                    for _it in range(c.mag_iterations):
+                        Kg = Pm @ Hi.T / float((Hi @ Pm @ Hi.T + Ri)[0, 0])
+                        e = (Kg @ (zi + Hi @ e)).ravel()
+                        if _it == c.mag_iterations - 1:
+                            break
+                        qi = ins._qmul(ins._qrot(e[A]), x.q_NB)
+                        qi = qi / math.sqrt(float(qi @ qi))
+                        zi, Hi, Ri = mag_model(qi, theta_m - e[MI])
+                    IKH = I_n - Kg @ Hi
+                    Pm = IKH @ Pm @ IKH.T + Kg @ Ri @ Kg.T
+                    u = ups["mag"]
+                    u["time_s"].append(tk)
+                    u["nis"].append(nis0)
+                    u["dof"].append(1)
+                    u["innovation"].append(z.copy())
+                    inject(e)
                 C = ins._dcm(x.q_NB)
             if temp_every and k % temp_every == 0:
                 z = Ta - Tm[idx[k]]
@@ -877,7 +1035,9 @@ class LooseEKF:
                             meta={"nav_rate_hz": 1.0 / T, "imu_rate_hz": fs, "samples_per_step": K,
                                   "misalignment_acc_rad": Ma.tolist(), "misalignment_gyro_rad": Mg.tolist(),
                                   "nonlinearity_acc_s2_m": k2.tolist(), "thermal_terms_acc": th.tolist(),
-                                  "gyro_bias_gm_rad_s": bgm.tolist()})
+                                  "gyro_bias_gm_rad_s": bgm.tolist(),
+                                  "mag_hard_iron_T": theta_m[:3].tolist(),
+                                  "mag_matrix_error": theta_m[3:].reshape(3, 3).tolist()})
 
 
 def nees_nav(res: FilterResult, truth, idx) -> np.ndarray:
