@@ -91,6 +91,9 @@ def record_tests(d: dict, alpha: float) -> list[tuple[str, str, float, bool]]:
     elif "gyros" in d:
         out.append(("rate", "rate factor (> 5 SE)", 0.0, bool(d.get("rate_factor"))))
         engine("rate", d["shortfall"]["diagnosis"])
+        t = d.get("timer_resolution", {}).get("test")
+        if t is not None:
+            out.append(("rate", "timer variance LR", float(t["alpha"]), bool(d["timer_resolution"].get("finding"))))
         if "voltmeter" in d:
             engine("voltmeter", d["voltmeter"])
         else:
@@ -103,12 +106,16 @@ def record_tests(d: dict, alpha: float) -> list[tuple[str, str, float, bool]]:
     return out
 
 
-def fdr_study(seeds, groups=None, log=print) -> dict:
-    """Null records of every null group over ``seeds``; per-record and per-test false discoveries."""
+def fdr_study(seeds, groups=None, log=print, cases=None) -> dict:
+    """Null records of every null group over ``seeds``; per-record and per-test false discoveries.
+    ``cases`` (rig:effect or effect names): instead of the groups, the null records of these cases."""
     res = {}
-    for i, (group, case) in enumerate(null_groups().items()):
-        if groups and not any(w == str(i) or (not w.isdigit() and w in group) for w in groups):
-            continue
+    if cases:
+        todo = [(f"{c.rig}:{c.effect} null", c) for c in CASES if c.effect in cases or f"{c.rig}:{c.effect}" in cases]
+    else:
+        todo = [(g, c) for i, (g, c) in enumerate(null_groups().items())
+                if not groups or any(w == str(i) or (not w.isdigit() and w in g) for w in groups)]
+    for group, case in todo:
         alpha = engine_alpha(case.rig)
         t0 = time.perf_counter()
         fd_records, nominal, per_kind, examples = 0, None, {}, []
@@ -125,6 +132,12 @@ def fdr_study(seeds, groups=None, log=print) -> dict:
                 k = per_kind.setdefault(kind, {"tests": 0, "fired": 0, "nominal_alpha": a})
                 k["tests"] += 1
                 k["fired"] += hit
+            for name in {e for _, e in fired}:  # which effects fired, per record
+                k = per_kind.setdefault(f"finding: {name}", {"tests": 0, "fired": 0, "nominal_alpha": None})
+                k["fired"] += 1
+        for kind, k in per_kind.items():
+            if kind.startswith("finding: "):
+                k["tests"] = len(seeds)
         n = len(seeds)
         lo, hi = clopper_pearson(fd_records, n)
         for k in per_kind.values():
@@ -165,7 +178,10 @@ def main(argv=None):
                     "that the group's name holds")
     ap.add_argument("--list", action="store_true", help="list the null groups and cases, then stop")
     ap.add_argument("--power", action="store_true", help="only detection and power curves (no null study)")
-    ap.add_argument("--effects", default="", help="comma-separated effect names or rig:effect (default: all)")
+    ap.add_argument("--effects", default="", help="comma-separated effect names or rig:effect (default: all); "
+                    "with --fdr: the null records of these cases instead of the null groups")
+    ap.add_argument("--sizes", default="", help="comma-separated sizes for the power curve (default: the case's)")
+    ap.add_argument("--first-seed", type=int, default=None, help="first seed (default 100; --fdr: 1000)")
     ap.add_argument("--out", default="", help="write the results as JSON to this file")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -175,20 +191,23 @@ def main(argv=None):
             print(f"null group {i}: {g} (case {c.effect})")
         print("cases:", ", ".join(c.effect for c in CASES))
         return {}
+    effects = [w for w in a.effects.split(",") if w]
     if a.fdr:
-        out = {"fdr": fdr_study(list(range(1000, 1000 + a.fdr)), groups)}
+        s0 = 1000 if a.first_seed is None else a.first_seed
+        out = {"fdr": fdr_study(list(range(s0, s0 + a.fdr)), groups, cases=effects)}
         print(fdr_table(out["fdr"]))
     else:
         out = {"null": {}, "effects": {}}
-        seeds = list(range(100, 100 + a.seeds))
+        s0 = 100 if a.first_seed is None else a.first_seed
+        seeds = list(range(s0, s0 + a.seeds))
         if not a.power:
             out["null"] = fdr_study(seeds, groups)
-        effects = [w for w in a.effects.split(",") if w]
+        sizes = tuple(float(x) for x in a.sizes.split(",") if x) or None
         for case in CASES:
             key = f"{case.rig}:{case.effect}"  # effect names repeat across rigs (time_delay, temperature_drift)
             if effects and case.effect not in effects and key not in effects:
                 continue
-            out["effects"][key] = effect_study(case, seeds, power=not a.quick)
+            out["effects"][key] = effect_study(case, seeds, power=not a.quick, sizes=sizes)
             print(key, json.dumps(out["effects"][key]), flush=True)
     out["wall_s"] = round(time.perf_counter() - t0, 1)
     out["peak_rss_mb"] = round(peak_rss_mb(), 1)
@@ -228,37 +247,85 @@ def _mag_noise_per_kelvin(rec, d):
     return _mag_noise(rec, d) / float(np.ptp(_temperature_K(rec)))
 
 
+def _gyro_noise(rec, d, gyro="p"):
+    """Gyro p's fast sample noise (V): the median over table-angle bins of its robust spread."""
+    return float(np.median(d["gyros"][gyro]["scatter"]["noise_V_by_angle_bin"]))
+
+
+def _rate_ratio_se(rec, d):
+    """The standard error of the mean rate ratio measured / dial (1): a rate factor f is |1 - f| / SE."""
+    return float(d["locate"]["rate_ratio_se"])
+
+
+def _table_setting_seconds(rec, d):
+    """The table's relative setting error expressed as round-time error at the fastest row (s):
+    sqrt(12) x (setting sigma) x (shortest round time), the stopwatch resolution q whose round-time
+    error equals the table's own scatter there."""
+    t = d["timer_resolution"]["test"]
+    T = rec.channels["measured_round"]
+    return float(np.sqrt(12) * t["setting_sigma"] * T[T > 0].min())
+
+
 #: effect -> (recording, diagnosis) -> the noise (or exposure) the effect's size is compared with
-NOISE_REFERENCE = {"building_vibration": _acc_noise, "cable_fault_spikes": lambda rec, d: 1.0 / _record_seconds(rec, d),
+NOISE_REFERENCE = {"building_vibration": _acc_noise, "slip_ring_noise": _gyro_noise,
+                   "mains_rate_factor": _rate_ratio_se, "timer_quantisation": _table_setting_seconds, "cable_fault_spikes": lambda rec, d: 1.0 / _record_seconds(rec, d),
                    "hard_iron": _mag_noise, "local_field_anomaly": _mag_noise, "soft_iron": _mag_noise_per_field,
-                   "misalignment": _mag_noise_per_field, "temperature_drift": _mag_noise_per_kelvin}
+                   "misalignment": _mag_noise_per_field, "magnetometer:temperature_drift": _mag_noise_per_kelvin}
 
 
-def effect_study(case, seeds, power=True) -> dict:
-    """Detection, parameter z and (``power``) the power curve of one case."""
+def _noise_reference(case):
+    """The case's entry of NOISE_REFERENCE (by rig:effect, else by effect), or None."""
+    return NOISE_REFERENCE.get(f"{case.rig}:{case.effect}", NOISE_REFERENCE.get(case.effect))
+
+
+def effect_study(case, seeds, power=True, sizes=None) -> dict:
+    """Detection, parameter z and (``power``) the power curve of one case (``sizes``: instead of the
+    case's). At the realistic size a record counts as detected when the diagnosis reports exactly the
+    expected (channel, effect) pairs; on the power curve when it reports at least them. A size of the
+    curve equal to the realistic size reuses the realistic runs."""
     t0 = time.perf_counter()
-    hits, z, snr, noise = 0, [], [], []
+    hits, hits_curve, z, z_all, snr, se, noise = 0, 0, [], [], [], [], []
+    misses = []
     for s in seeds:
         rec = case.make(s, case.realistic_size)
         d = diagnose_case(case, rec, s)
-        hits += found_effects(d) == case.expected
+        f = found_effects(d)
+        hits += f == case.expected
+        hits_curve += f >= case.expected
+        if f != case.expected and len(misses) < 6:
+            misses.append({"seed": s, "found": sorted(map(list, f))})
         if case.truth_param and case.found_param and case.found_param(d):
-            est, se = case.found_param(d)
-            z.append((est - case.truth_param(rec)) / se)
-            snr.append(abs(case.truth_param(rec)) / se)
-        if case.effect in NOISE_REFERENCE:
-            noise.append(NOISE_REFERENCE[case.effect](rec, d))
+            est, e_se = case.found_param(d)
+            z.append((est - case.truth_param(rec)) / e_se)
+            snr.append(abs(case.truth_param(rec)) / e_se)
+            se.append(e_se)
+        if case.truth_param and case.estimate_param:
+            est, e_se = case.estimate_param(d)
+            z_all.append((est - case.truth_param(rec)) / e_se)
+        if _noise_reference(case) is not None:
+            noise.append(_noise_reference(case)(rec, d))
     row = {"realistic_size": case.realistic_size, "size_unit": case.size_unit, "seeds": len(seeds),
-           "detection_rate": hits / len(seeds),
+           "detection_rate": hits / len(seeds), "detected": hits, "misses": misses,
            "parameter_z_rms": float(np.sqrt(np.mean(np.square(z)))) if z else None,
+           "parameter_z_mean": float(np.mean(z)) if z else None,
            # the injected parameter in units of its standard error at the realistic size (the fit's SNR)
            "parameter_snr_realistic": float(np.median(snr)) if snr else None,
+           "parameter_se_realistic": float(np.median(se)) if se else None,
            "noise_reference": float(np.median(noise)) if noise else None}
-    if power and case.sizes:
+    if z_all:  # over every record, detected or not
+        row["parameter_z_rms_all_records"] = float(np.sqrt(np.mean(np.square(z_all))))
+        row["parameter_z_mean_all_records"] = float(np.mean(z_all))
+    sizes = case.sizes if sizes is None else sizes
+    if power and sizes:
         curve = {}
-        for size in case.sizes:
+        for size in sizes:
+            if np.isclose(size, case.realistic_size, rtol=1e-12, atol=0):
+                curve[size] = hits_curve / len(seeds)
+                continue
             h = sum(found_effects(diagnose_case(case, case.make(s, size), s)) >= case.expected for s in seeds)
             curve[size] = h / len(seeds)
+            print(f"  {case.rig}:{case.effect} size {size:g}: {h}/{len(seeds)} "
+                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
         row["power_curve"] = curve
         ok = [sz for sz, p in curve.items() if p >= 0.95]
         row["smallest_size_detected_95pct"] = s95 = min(ok) if ok else None
