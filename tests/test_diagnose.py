@@ -179,6 +179,21 @@ def test_turn_table_effects_found_with_truth(effect):
     assert found_effects(null) == set()
 
 
+def test_earth_rate_power_curve_moves_the_lab():
+    """The Earth-rate power curve's sizes: the lab moved to where the vertical Earth rate is that
+    fraction of Delft's (what the twin without the Earth's rate then leaves out); impossible
+    fractions are refused."""
+    from imurig.diagnose.suite import earth_fraction_site
+    from imurig.errors import ConfigError
+    from imurig.site import Site
+
+    delft = Site().earth_rate_W()[2]
+    for f in (0.25, 0.5, 1.0, 1.25):
+        assert earth_fraction_site(f).earth_rate_W()[2] == pytest.approx(f * delft, rel=1e-12, abs=1e-20)
+    with pytest.raises(ConfigError, match="outside"):
+        earth_fraction_site(1.3)
+
+
 # ------------------------------------------------------------------ thermal chamber
 @pytest.mark.parametrize("seed", [1, 2])
 def test_thermal_hysteresis_found_with_truth(seed):

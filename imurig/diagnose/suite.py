@@ -132,23 +132,29 @@ def _inverse_k2(rec, j):
 TURN_REMOUNTS = {"dial_rates_dps": (20, 100), "mounts": ("p_up", "q_up", "r_up") * 4, "min_window_s": 8.0}
 
 
+def earth_fraction_site(fraction: float):
+    """The default lab moved to the latitude where the Earth's vertical rate Omega sin(lat) is
+    ``fraction`` of Delft's (52 deg N); 0 <= fraction <= 1 / sin(52 deg) = 1.27."""
+    from imurig.errors import ConfigError
+    from imurig.site import Site
+
+    s = fraction * math.sin(math.radians(Site().latitude_deg))
+    if not 0.0 <= s <= 1.0:
+        raise ConfigError(f"Earth-rate fraction {fraction} needs sin(latitude) = {s:.3f}, outside [0, 1]; "
+                          "use 0 ... 1.27")
+    return Site(latitude_deg=math.degrees(math.asin(s)))
+
+
 def _turn(seed, g_sensitivity=0.0, slip_rings=False, slip_rms_V=None, earth_fraction=1.0):
     """A turn-table campaign (each axis up four times) whose gyros have a diagonal g-sensitivity
     ``g_sensitivity`` ((rad/s)/(m/s^2)) times (1, -1, 1). ``slip_rms_V`` (V) resizes the slip rings'
     contact noise (switched on); ``earth_fraction`` moves the lab to the latitude where the Earth's
     vertical rate Omega sin(lat) is that fraction of Delft's (1: Delft, 52 deg N; at most 1.27)."""
     from imurig.campaigns.turn_table import TurnTableCampaign
-    from imurig.errors import ConfigError
     from imurig.rigs.turn_table import TurnTableProtocol
     from imurig.sensors.noise import child_rng
-    from imurig.site import Site
 
-    kw = {}
-    if earth_fraction != 1.0:
-        s = earth_fraction * math.sin(math.radians(Site().latitude_deg))
-        if not 0.0 <= s <= 1.0:
-            raise ConfigError(f"earth_fraction {earth_fraction} needs sin(latitude) = {s:.3f}, outside [0, 1]")
-        kw["site"] = Site(latitude_deg=math.degrees(math.asin(s)))
+    kw = {} if earth_fraction == 1.0 else {"site": earth_fraction_site(earth_fraction)}
     camp = TurnTableCampaign(protocol=TurnTableProtocol(**TURN_REMOUNTS), seed=seed,
                              slip_rings=slip_rings or slip_rms_V is not None, **kw)
     camp.check_identifiable()
