@@ -141,3 +141,20 @@ def test_temperature_drift_found_with_truth():
     est, se = case.found_param(d)
     assert abs(est - case.truth_param(rec)) < 4 * se
     assert found_effects(diagnose_case(case, null_recording(case, 1), 1, null=True)) == set()
+
+
+def test_crosstalk_from_a_temperature_channel_is_named_indistinguishable_from_drift():
+    """The scan wraps from 'temp_box' to acc_x, so acc_x's crosstalk candidate moves with the
+    temperature. On a temperature-drift record (seed 3, where crosstalk used to take the drift's
+    place on x) the two columns correlate above 0.9 given the twin: the pair is reported as
+    indistinguishable, crosstalk is not claimed on x, and no axis reports crosstalk."""
+    case = _case("temperature_drift")
+    rec = case.make(3, case.realistic_size)
+    assert rec.meta["adc"]["scan_list"][-1] == "temp_box" and rec.meta["adc"]["scan_list"][0] == "acc_x"
+    d = diagnose_case(case, rec, 3)
+    alias = d["axes"]["x"]["indistinguishable"][0]
+    assert alias["effects"] == ["temperature_drift", "adc_crosstalk"] and abs(alias["correlation"]) > 0.9
+    found = found_effects(d)
+    assert ("x", "temperature_drift") in found
+    assert not {e for e in found if e[1] == "adc_crosstalk"}
+    assert "indistinguishable" not in d["axes"]["y"]   # acc_y's neighbour is mag_x, not a temperature

@@ -768,6 +768,16 @@ def fit_tables(d: dict) -> list[str]:
     return md
 
 
+def _indistinguishable_notes(d: dict) -> list[str]:
+    """report.md lines for the pairs the data cannot tell apart (whole record and per channel)."""
+    notes = [f"- {' / '.join(n['effects'])}: {n['note']}" for n in d.get("indistinguishable", [])]
+    for ch, e in (d.get("axes") or d.get("gyros") or d.get("channels") or {}).items():
+        pairs = e.get("indistinguishable", [])
+        notes += [f"- {ch}: {' / '.join(n['effects'])}: {n['note']}" for n in ([pairs] if isinstance(pairs, dict)
+                                                                                  else pairs)]
+    return ["\n## Indistinguishable here (the runner-up named, not silently dropped)\n", *notes, ""] if notes else []
+
+
 def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str | None = None,
         earth_rate: bool | None = None, twin: dict | None = None) -> dict:
     """Diagnose ``rec`` and write report.md, diagnosis.json, the figures and diagnosis.rrd.
@@ -790,6 +800,7 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
               "" if rows else "No effect accepted: the recording agrees with its twin.\n",
               "## What differs and where, the physics left out, beside what the seed says\n",
               md_table(["observable", "effect", "physics left out", "fitted / evidence", "seed"], rows) if rows else "",
+              *_indistinguishable_notes(d),
               *fit_tables(d),
               ("\nAn effect is accepted only when its statistic beats the max-statistic threshold simulated "
               "under the noise model over the whole library and all scanned parameters, it improves blocked "

@@ -91,6 +91,9 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
             t_dev = temps[:, 0] - np.mean(temps[:, 0])
             lib.append(Candidate("temperature_drift", "the bias drifts with the sensor's temperature over the "
                                  "campaign", ("drift",), lambda _, t=t_dev: t))
+        alias = _crosstalk_alias_of_drift(lib, X0, prev)
+        if alias is not None:
+            lib = [c for c in lib if c.name != "adc_crosstalk"]
         others = [n for n in ("ax", "ay", "az") if n != f"a{a}"]
         if not set(others) & set(res.names):
             lib.append(Candidate("axis_misalignment", f"the sensitive axis of acc_{a} leans towards the other two "
@@ -105,6 +108,8 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                              lambda _, o=others: inputs[o[0]] * inputs[o[1]]))
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
         entry = d.to_dict()
+        if alias is not None:
+            entry["indistinguishable"] = [alias]
         entry["scatter"] = _scatter(rec100, ch, mid)
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
                                          reading=inputs[f"a{a}"], prev=prev))
@@ -161,6 +166,27 @@ def _position_residuals(y, X0, names0, lib, d, a: str, hours_elapsed, reading, p
         "after": st["resid_after"].tolist(), "elapsed_h": np.asarray(hours_elapsed, float).tolist(),
         "reading_m_s2": np.asarray(reading, float).tolist(), "variables": variables,
         "convention": "residual = twin's reference - recording through the calibration (position medians)"}}
+
+
+def _crosstalk_alias_of_drift(lib: list, X0: np.ndarray, prev: str | None, r_max: float = 0.9) -> dict | None:
+    """Crosstalk from a temperature channel (the scan wraps from 'temp_box' to acc_x) moves
+    with the temperature: across the positions its column, given the twin's columns X0, can
+    match the temperature drift's. When |r| > ``r_max`` the two cannot be told apart; the
+    drift is tested (a crosstalk c ~ 2e-4 of a 10 mV/K temperature channel is ~2 uV/K, far
+    below a Q-Flex's bias tempco) and the pair is reported as indistinguishable."""
+    cols = {c.name: c.design(None)[:, 0] for c in lib
+            if c.name in ("adc_crosstalk", "temperature_drift")}
+    if len(cols) < 2 or prev is None or not prev.startswith("temp"):
+        return None
+    Q, _ = np.linalg.qr(X0)
+    a, b = (v - Q @ (Q.T @ v) for v in (cols["adc_crosstalk"], cols["temperature_drift"]))
+    r = float(a @ b / np.sqrt((a @ a) * (b @ b)))
+    if abs(r) <= r_max:
+        return None
+    return {"effects": ["temperature_drift", "adc_crosstalk"], "correlation": r,
+            "note": f"crosstalk from the previously scanned channel '{prev}' (a temperature channel) has the "
+                    f"temperature drift's signature across the positions (r = {r:.3f} given the twin); the drift, "
+                    "the physically likely one, is tested"}
 
 
 def _with_survey_nuisance(X0: np.ndarray, names: list, Jj: np.ndarray, rtol: float = 1e-6):
