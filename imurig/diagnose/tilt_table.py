@@ -128,8 +128,9 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                                                       f"times in MuJoCo and keeps it in memory; records up to "
                                                       f"{MAX_DYNAMIC_SAMPLES} samples (cut the record into runs)"}
         else:
+            static_found = tuple(a for a in AXES if out["axes"][a]["findings"])
             out["dynamic"] = diagnose_tilt_dynamics(rec, cal, rng, alpha=alpha, n_sim=n_sim,
-                                                    skew_in_twin=skew_in_twin)
+                                                    skew_in_twin=skew_in_twin, recalibrate_axes=static_found)
     return out
 
 
@@ -362,7 +363,8 @@ def _block_mean(x: np.ndarray, idx: np.ndarray, nb: int) -> np.ndarray:
 
 
 def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
-                           skew_in_twin: bool = True, block: int = 50, twin: dict | None = None) -> dict:
+                           skew_in_twin: bool = True, block: int = 50, twin: dict | None = None,
+                           recalibrate_axes: tuple = ()) -> dict:
     """Compare the slews between positions with the dynamic twin and test delay, lever arm and g.
 
     Measurement: f_meas (n, 3) = the nominal static calibration ``cal`` applied to every sample
@@ -384,6 +386,9 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
       kinematic part, eps = g_twin / g_true - 1. (The static fit scales everything by
       g_twin / g_true, so only the g-free kinematic part shows; it equals a lever arm
       eps r0 along the phi axis in the platform frame: the two are indistinguishable.)
+
+    ``recalibrate_axes``: axes whose position means showed an effect the static fit lacks; their
+    bias, gains and axes are re-fitted in the slews (nuisance columns f_twin,k on axis j).
 
     Noise model first: per axis an AR(1) fitted to the nuisance-only residual whitens rows and
     columns within each run; each axis is then scaled to unit innovation variance.
@@ -443,7 +448,15 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
             nuis.append(cols[:, used])
     N = np.column_stack(nuis)
     N = N[:, np.linalg.norm(N, axis=0) > 0]
-    consts = np.kron(np.eye(3), np.ones((nb, 1)))                               # per-axis bias correction
+    # per axis a bias; on the axes in ``recalibrate_axes`` also a linear re-calibration against the
+    # twin's specific force: where the position means found an effect the static fit lacked
+    # (crosstalk...), that fit absorbed part of it, which acts in the slews as an error of gain and
+    # axes (a false lever arm of 4 cm on the crosstalk case without it). Not added elsewhere: in
+    # constant-rate slews df/dt is a rotation of f, so these columns also take power from a delay.
+    F_tw = _block_mean(f_tw, idx, nb)
+    consts = np.column_stack([np.kron(np.eye(3), np.ones((nb, 1)))]
+                             + [np.kron(np.eye(3)[:, [a]], F_tw) for a, ax in enumerate(AXES) if ax in recalibrate_axes])
+    const_names = [f"bias_{a}" for a in AXES] + [f"gain_{a}{k}" for a in AXES if a in recalibrate_axes for k in AXES]
     y = R.T.reshape(-1)
     # noise model: AR(1) per axis from the blocks where the twin rests (no rotation: no candidate
     # acts there), each resting stretch's mean removed (the window's angle offset), within runs
@@ -524,14 +537,14 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
                                      f"channel '{prev}' leaks into '{ch}' sample by sample (it moves during the "
                                      "slews)", ("c_m_s2_per_V",), lambda _, c=col: c))
     X0 = proj(whiten(consts) * scale)
-    d = select_effects(yp, X0, ["bias_x", "bias_y", "bias_z"], lib, rng, alpha=alpha, n_sim=n_sim)
+    d = select_effects(yp, X0, const_names, lib, rng, alpha=alpha, n_sim=n_sim)
     out = d.to_dict()
     # the report: the fit step by step (whitened space) and the residuals in m/s^2 before and after,
     # from the full GLS fit (nuisance, constants and the accepted effects; by Frisch-Waugh-Lovell its
     # effect coefficients are the engine's)
     from imurig.diagnose.report import effect_steps
 
-    out["fit_steps"] = effect_steps(yp, X0, ["bias_x", "bias_y", "bias_z"], lib, d)["steps"]
+    out["fit_steps"] = effect_steps(yp, X0, const_names, lib, d)["steps"]
     raw = {f"time_delay_{ax}": axis_only(cand_cols["delay"], a) for a, ax in enumerate(AXES)}
     raw["lever_arm"] = np.column_stack([stacked(c) for c in cand_cols["lever"]])
     raw["wrong_local_gravity"] = stacked(cand_cols["gravity"])
