@@ -10,6 +10,13 @@ also expressed relative to the noise (see ``relative_size``).
     python benchmarks/bench_diagnose.py --fdr 30                   # false-discovery rate of every null group
     python benchmarks/bench_diagnose.py --fdr 30 --groups thermal  # ... of the groups whose name holds a word
     python benchmarks/bench_diagnose.py --power --seeds 10 --effects table_slip,adc_crosstalk
+    python benchmarks/bench_diagnose.py --power --seeds 6 --effects lever_arm --sizes 5e-4,1e-3  # own sizes
+    python benchmarks/bench_diagnose.py --fdr 40 --effects timer_quantisation   # one case's null records
+
+Detection at the realistic size counts records with exactly the expected findings; the power
+curve counts records with at least them. Where a case can give its parameter for every record
+(``Case.estimate_param``), z is also reported over all records, not only the detected ones
+(those are biased away from zero when the power is below 1).
 
 False-discovery study (``--fdr N``): the null records of every group of ``null_groups()``
 over N seeds. A record counts as a false discovery if any channel reports any effect. The
