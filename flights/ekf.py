@@ -684,7 +684,12 @@ class LooseEKF:
             Amap[8, c.mag_index()] = 1.0
         if c.mag_iron_states:           # z = hᵀψ + H_θ δθ = 0 (θ̂ = 0 at the alignment)
             roll, pitch, _ = E.euler_from_C(C)
-            Amap[8, c.mag_iron_slice()] = mag_iron_jacobian(B_B, np.zeros(12), roll, pitch)
+            MI = c.mag_iron_slice()
+            Amap[8, MI] = mag_iron_jacobian(B_B, np.zeros(12), roll, pitch)
+            # the heading is quadratic in θ at the priors' size: the part of the alignment's heading
+            # error that is not H_θ δθ has variance ½ tr(Hs P Hs P) (as in the compass update)
+            HP = mag_iron_hessian(B_B, np.zeros(12), roll, pitch) @ P_prior[MI, MI]
+            var[8] += 0.5 * float(np.sum(HP * HP.T))
         Cl = C @ self.l_gps
         Amap[P] -= ins._skew(Cl) @ Amap[A]
         if c.augment_gps:

@@ -36,6 +36,9 @@ class FlightOptions:
     quick_calibration: bool = True
     gps_latency_s: float = 0.0
     gps_time_sigma_s: float = 0.0
+    # uncalibrated compass: the fluxgate's installation errors as 12 random-constant states
+    # (ekf.FilterConfig.mag_iron_states) instead of one Gauss-Markov heading-error state
+    mag_iron_states: bool = False
 
     def validate(self):
         if self.flight not in ("default", "static"):
@@ -365,14 +368,29 @@ def mag_heading_error_model_datasheet(incl_rad: float, H_T: float, n_heading: in
     return math.sqrt(sig2), theta_c
 
 
-def datasheet_priors(truth) -> dict:
+def mag_iron_prior_datasheet() -> np.ndarray:
+    """Prior covariance (12, 12) of the uncalibrated fluxgate's installation errors [b (T), ΔA]
+    (:func:`ekf.mag_iron_prior_cov`) from the limits :meth:`FluxgateTriad.from_datasheet` draws
+    within: hard iron ±2000 nT, soft iron ±0.05 (symmetrised), misalignment ±5 mrad, sensitivity ±2 %."""
+    from imurig.sensors.magnetometer import FluxgateTriad as F
+
+    return ekf.mag_iron_prior_cov(datasheet_values(F, "hard_iron_max_nT") * 1e-9, datasheet_values(F, "soft_iron_max"),
+                                  datasheet_values(F, "misalignment_max_mrad") * 1e-3, MAG_SENSITIVITY_SPREAD)
+
+
+MAG_SENSITIVITY_SPREAD = 0.02   # FluxgateTriad.from_datasheet: sensitivity × (1 + U(±0.02))
+
+
+def datasheet_priors(truth, mag_iron_states: bool = False) -> dict:
     """Filter priors of the uncalibrated run, from the datasheet limits of the sensor models (each
     error uniform within ±limit: σ = limit/√3): accelerometer bias (8000 µg) with the 2nd-order
     nonlinearity at 1 g (48 µg/g²); scale factors (Q-Flex 1 %, FOG 2 %) and misalignments (2 mrad) as
     states; gyro turn-on bias N(0, 0.003 deg/s) as a random constant and the bias instability as its
     own Gauss-Markov states (``gyro_bias_gm_states``); the compass's
     systematic heading error (hard/soft iron) as a state with σ_m and correlation angle θ_c from the
-    fluxgate's datasheet (:func:`mag_heading_error_model_datasheet`), white part = fluxgate noise / H."""
+    fluxgate's datasheet (:func:`mag_heading_error_model_datasheet`), white part = fluxgate noise / H;
+    or, with ``mag_iron_states``, the fluxgate's hard iron and soft-iron/misalignment/sensitivity
+    matrix as 12 random constants with the datasheet prior (:func:`mag_iron_prior_datasheet`)."""
     from imurig.sensors.accelerometer import QFlexTriad as Q
     from imurig.sensors.gyro import FOGTriad as G
     from imurig.sensors.magnetometer import FluxgateTriad as F
@@ -405,7 +423,8 @@ def datasheet_priors(truth) -> dict:
             # the Gauss-Markov part, carried as its own states (σ, τ of the sensor model)
             "sigma0_gyro_bias_rad_s": datasheet_values(G, "bias_repeatability_dps") * DEG,
             "gyro_bias_gm_states": True,
-            "mag_error_state": True, "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c,
+            **({"mag_iron_states": True, "mag_iron_prior_cov": mag_iron_prior_datasheet()} if mag_iron_states else
+               {"mag_error_state": True, "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c}),
             "mag_heading_sigma_rad": datasheet_values(F, "noise_nT_rms") * 1e-9 / (H_nT * 1e-9)}
 
 
@@ -451,9 +470,10 @@ def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, c
     """The filter as ``imurig flight`` runs it: priors from the datasheet (``cals`` None: with the
     scale-factor and misalignment states, which the nominal conversions leave at 1-2 % and 2 mrad) or
     from the calibrations' standard errors; P0 from the alignment's own error propagation
-    (:meth:`ekf.LooseEKF.alignment_covariance`)."""
+    (:meth:`ekf.LooseEKF.alignment_covariance`). ``opt.mag_iron_states`` chooses the uncalibrated
+    compass's error model (iron states instead of the Gauss-Markov heading error)."""
     noise = imu_noise(lab, truth.rate_hz)
-    pri = datasheet_priors(truth) if cals is None else calibrated_priors(cals, noise)
+    pri = datasheet_priors(truth, opt.mag_iron_states) if cals is None else calibrated_priors(cals, noise)
     cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s, **pri,
                            gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))
     decl = declination_model(truth)
