@@ -86,6 +86,9 @@ def record_tests(d: dict, alpha: float) -> list[tuple[str, str, float, bool]]:
             engine(a, e)
             out.append((a, "spikes (> 8 robust sigma, >= 3)", 0.0, "finding_spikes" in e["scatter"]))
             out.append((a, "spectral peak (> 25x median)", 0.0, "finding_vibration" in e["scatter"]))
+        dyn = d.get("dynamic")
+        if isinstance(dyn, dict) and "findings" in dyn:  # the slews: one engine call over the stacked axes
+            engine("slews", dyn)
     if "channels" in d:
         for ch, e in d["channels"].items():
             engine(ch, e)
