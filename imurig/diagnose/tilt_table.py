@@ -129,8 +129,9 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                                                       f"{MAX_DYNAMIC_SAMPLES} samples (cut the record into runs)"}
         else:
             static_found = tuple(a for a in AXES if out["axes"][a]["findings"])
-            out["dynamic"] = diagnose_tilt_dynamics(rec, cal, rng, alpha=alpha, n_sim=n_sim,
-                                                    skew_in_twin=skew_in_twin, recalibrate_axes=static_found)
+            crosstalk = tuple(a for a in AXES if any(f["effect"] == "adc_crosstalk" for f in out["axes"][a]["findings"]))
+            out["dynamic"] = diagnose_tilt_dynamics(rec, cal, rng, alpha=alpha, n_sim=n_sim, skew_in_twin=skew_in_twin,
+                                                    recalibrate_axes=static_found, crosstalk_axes=crosstalk)
     return out
 
 
@@ -364,7 +365,7 @@ def _block_mean(x: np.ndarray, idx: np.ndarray, nb: int) -> np.ndarray:
 
 def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
                            skew_in_twin: bool = True, block: int = 50, twin: dict | None = None,
-                           recalibrate_axes: tuple = ()) -> dict:
+                           recalibrate_axes: tuple = (), crosstalk_axes: tuple = ()) -> dict:
     """Compare the slews between positions with the dynamic twin and test delay, lever arm and g.
 
     Measurement: f_meas (n, 3) = the nominal static calibration ``cal`` applied to every sample
@@ -389,6 +390,8 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
 
     ``recalibrate_axes``: axes whose position means showed an effect the static fit lacks; their
     bias, gains and axes are re-fitted in the slews (nuisance columns f_twin,k on axis j).
+    ``crosstalk_axes``: axes whose position means found crosstalk; the previously scanned
+    channel's block means join the nuisance on them.
 
     Noise model first: per axis an AR(1) fitted to the nuisance-only residual whitens rows and
     columns within each run; each axis is then scaled to unit innovation variance.
@@ -521,21 +524,19 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
                          "(eps = g_twin / g_true - 1); identical to a lever arm eps x r0 along the phi axis",
                          ("eps",), lambda _, c=lib_cols["wrong_local_gravity"]: c))
     # the multiplexer's crosstalk acts sample by sample: in the slews the previously scanned channel
-    # (a magnetometer turning in the Earth's field, a neighbour accelerometer) moves, and a twin without it
-    # leaves that signal in the residual, where it must not be forced onto a delay or a lever arm
-    xt_raw = {}
+    # (a magnetometer turning in the Earth's field, a neighbour accelerometer) moves. Where the
+    # position means found it (``crosstalk_axes``), its column joins the nuisance here, so that its
+    # dynamic signature is not forced onto a delay or a lever arm; it is tested (and reported) in
+    # the position means only (as a slew candidate too it fired on 6/30 null records)
     for a, ax in enumerate(AXES):
         ch = f"acc_{ax}"
-        if ch in scan and len(scan) > 1:
+        if ax in crosstalk_axes and ch in scan and len(scan) > 1:
             prev = scan[scan.index(ch) - 1]
             if prev in rec.channels:
                 z = np.zeros((nb, 3))
                 z[:, a] = _block_mean(np.asarray(rec.channels[prev], float), idx, nb)
-                xt_raw[f"adc_crosstalk_{ax}"] = stacked(z)
-                col = lib_cols[f"adc_crosstalk_{ax}"] = proj(whiten(stacked(z)) * scale)
-                lib.append(Candidate(f"adc_crosstalk_{ax}", f"ADC multiplexer crosstalk: the previously scanned "
-                                     f"channel '{prev}' leaks into '{ch}' sample by sample (it moves during the "
-                                     "slews)", ("c_m_s2_per_V",), lambda _, c=col: c))
+                consts = np.column_stack([consts, stacked(z)])
+                const_names.append(f"crosstalk_{ax}_from_{prev}")
     X0 = proj(whiten(consts) * scale)
     d = select_effects(yp, X0, const_names, lib, rng, alpha=alpha, n_sim=n_sim)
     out = d.to_dict()
@@ -548,7 +549,6 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
     raw = {f"time_delay_{ax}": axis_only(cand_cols["delay"], a) for a, ax in enumerate(AXES)}
     raw["lever_arm"] = np.column_stack([stacked(c) for c in cand_cols["lever"]])
     raw["wrong_local_gravity"] = stacked(cand_cols["gravity"])
-    raw.update(xt_raw)
     A0 = np.column_stack([N, consts])
     A1 = np.column_stack([A0] + [raw[f.name] for f in d.findings])
     resid = []
