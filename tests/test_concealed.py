@@ -67,3 +67,16 @@ def test_concealed_all_diagnoses_the_files_as_the_benchmark_does(tmp_path):
     assert hard["expected"] == ["mag:hard_iron"] and hard["correct"], hard
     assert abs(hard["z"]) < 4.0
     assert "voltmeter:instrument_range_change" in by["rate_table_rows-instrument_range_change-s1"]["found"]
+
+
+def test_an_effect_named_indistinguishable_at_its_realistic_size_scores_as_right():
+    """A wrong local gravity (standard instead of Delft's g) cannot be identified: the diagnosis
+    claims nothing and names it as indistinguishable from the scale factors, which is right at the
+    realistic size; the same silence at another size is not."""
+    case = cases.find_case("tilt_table:wrong_local_gravity")
+    rec = cases.case_recording(case, 1)
+    d = suite.diagnose_case(case, rec, 1)
+    s = cases.score(case, rec, d)
+    assert s["found"] == [] and s["indistinguishable_reported"] and s["correct"]
+    rec.meta["concealed_case"]["size"] = 2 * case.realistic_size      # the same data, claimed at another size
+    assert not cases.score(case, rec, d)["correct"]

@@ -82,6 +82,13 @@ def score(case, rec: Recording, d: dict) -> dict:
     info = rec.meta["concealed_case"]
     found = sorted(f"{ch}:{e}" for ch, e in _suite().found_effects(d))
     out = {"found": found, "expected": info["expected"], "correct": found == info["expected"]}
+    # an effect the diagnosis names as indistinguishable (and does not claim) is the right answer
+    # when the case says the data cannot identify it at this size (e.g. a wrong local gravity)
+    named = {e for n in d.get("indistinguishable", []) for e in n["effects"]}
+    expected_effects = {e.split(":")[1] for e in info["expected"]}
+    out["indistinguishable_reported"] = bool(expected_effects) and expected_effects <= named
+    if not found and out["indistinguishable_reported"] and info["size"] == case.realistic_size:
+        out["correct"] = True
     if not info["null"] and case.found_param is not None and "truth_parameter" in info:
         est = case.found_param(d)
         if est is not None:
@@ -139,7 +146,8 @@ def run_all(out_dir, seeds: int = 1, overwrite: bool = False, cases: list[str] |
                  "wall_s": time.perf_counter() - t0, **score(case, rec, d)}
             results.append(r)
             rows.append([name, ", ".join(r["expected"]) or "nothing", ", ".join(r["found"]) or "nothing",
-                         "yes" if r["correct"] else "**no**",
+                         ("yes (named indistinguishable)" if r["correct"] and not r["found"] and r["expected"]
+                          else "yes" if r["correct"] else "**no**"),
                          f"{r['z']:+.2f}" if "z" in r else "–", f"{r['wall_s']:.1f}"])
             bar.update(1)
         summary = {"n_records": len(results), "n_correct": sum(r["correct"] for r in results),
