@@ -56,12 +56,17 @@ def _check_fit_steps(e: dict) -> None:
             assert s["variance_share"] == pytest.approx(f["variance_share"], rel=1e-9)
 
 
+def _diagnosed(tmp_path_factory, rig: str, effect: str):
+    """(recording, diagnosis, report folder) of the suite case at its realistic size, seed 1."""
+    case = _case(rig, effect)
+    rec = case.make(1, case.realistic_size)
+    out = tmp_path_factory.mktemp(effect) / "diag"
+    return rec, run(rec, out), out
+
+
 @pytest.fixture(scope="module")
 def thermal(tmp_path_factory):
-    case = _case("thermal", "temperature_hysteresis")
-    rec = case.make(1, case.realistic_size)
-    out = tmp_path_factory.mktemp("thermal") / "diag"
-    return rec, run(rec, out), out
+    return _diagnosed(tmp_path_factory, "thermal", "temperature_hysteresis")
 
 
 def test_thermal_report_fields_and_numbers(thermal):
@@ -100,10 +105,7 @@ def test_thermal_report_fields_and_numbers(thermal):
 @pytest.fixture(scope="module")
 def lever(tmp_path_factory):
     """The lever-arm case (dynamic protocol): position means and slews."""
-    case = _case("tilt_table", "lever_arm")
-    rec = case.make(1, case.realistic_size)
-    out = tmp_path_factory.mktemp("lever") / "diag"
-    return rec, run(rec, out), out
+    return _diagnosed(tmp_path_factory, "tilt_table", "lever_arm")
 
 
 def test_tilt_report_positions_and_slews(lever):
