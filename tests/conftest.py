@@ -20,3 +20,22 @@ def small_campaign(**kw) -> TiltTableCampaign:
 def small_recording():
     """A simulated small tilt-table recording (evening: pump off by the clock)."""
     return small_campaign(seed=11).simulate()
+
+
+@pytest.fixture(scope="session")
+def check_concealed_case():
+    """``check(case, seed, size)``: the diagnosis of the case's recording names exactly the
+    expected (channel, effect) pairs with the first parameter within 4 SE of the injected
+    truth, and the case's null recording comes back clean. Returns the diagnosis and recording."""
+    from imurig.diagnose.suite import diagnose_case, found_effects, null_recording
+
+    def check(case, seed: int, size: float):
+        rec = case.make(seed, size)
+        d = diagnose_case(case, rec, seed)
+        assert found_effects(d) == case.expected
+        est, se = case.found_param(d)
+        assert abs(est - case.truth_param(rec)) < 4 * se
+        assert found_effects(diagnose_case(case, null_recording(case, seed), seed, null=True)) == set()
+        return d, rec
+
+    return check
