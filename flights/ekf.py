@@ -485,6 +485,19 @@ def mag_iron_prior_cov(hard_iron_max_T: float, soft_iron_max: float, misalignmen
     return P
 
 
+def attitude_reset_jacobian(psi_hat) -> np.ndarray:
+    """G (3, 3) of the attitude error's reset when the estimate ``psi_hat`` (3,) rad is injected,
+    C_new = exp([ψ̂×]) Ĉ. With the error defined by Ĉ = exp(−[ψ×]) C, BCH gives the error after the
+    injection ψ' = ψ − ψ̂ + ½ ψ̂ × ψ + O(|ψ|³), so the covariance becomes G P Gᵀ with
+
+        G = I + ½ [ψ̂×]
+
+    Without it a large heading correction (the uncalibrated compass's ~4 deg, resolved by the
+    first GPS velocities) leaves the tilt's correlation with the accelerometer biases rotated by
+    the heading error: the biases' tilt then leaks into the final attitude (1.5 mrad on one IMU)."""
+    return np.eye(3) + 0.5 * ins._skew(np.asarray(psi_hat, float))
+
+
 class LooseEKF:
     """The loosely coupled error-state filter. ``run`` processes a whole flight."""
 
@@ -694,13 +707,20 @@ class LooseEKF:
         Amap[P] -= ins._skew(Cl) @ Amap[A]
         if c.augment_gps:
             Amap[P, c.gps_slice()] -= np.eye(3)
-        if not c.mag_iron_states:
-            return (Amap * var) @ Amap.T
-        # the iron states' prior is correlated (symmetric soft iron): Σ = diag(var) but that block
         Sig = np.diag(var)
-        MI = c.mag_iron_slice()
-        Sig[MI, MI] = P_prior[MI, MI]
-        return Amap @ Sig @ Amap.T
+        if c.mag_iron_states:     # the iron states' prior is correlated (symmetric soft iron)
+            MI = c.mag_iron_slice()
+            Sig[MI, MI] = P_prior[MI, MI]
+        P0 = Amap @ Sig @ Amap.T
+        # second order: the levelling fixes the tilt in the body frame; mapped to NED with the
+        # compass's heading (error ψ_d) the linear map above carries an extra −½ ψ_d e_z × ψ_tilt
+        # (BCH of the heading and tilt rotations). Its variance (Isserlis, zero-mean Gaussians),
+        # uncorrelated with the linear terms: ¼ J (σ_d² Σ_tt + 2 c cᵀ) Jᵀ, J = [[0, −1], [1, 0]],
+        # c = cov(ψ_tilt, ψ_d)
+        Jz = np.array([[0.0, -1.0], [1.0, 0.0]])
+        cz = P0[6:8, 8]
+        P0[6:8, 6:8] += 0.25 * Jz @ (P0[8, 8] * P0[6:8, 6:8] + 2.0 * np.outer(cz, cz)) @ Jz.T
+        return P0
 
     # ---------------------------------------------------------------------------- run
     def run(self, imu: ImuStream, gps, x0: ins.NavState, *, P0=None, progress=None) -> FilterResult:
@@ -810,7 +830,7 @@ class LooseEKF:
         hist_v = out_v
 
         def inject(dx):
-            nonlocal ba, bg, bgm, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th, theta_m
+            nonlocal ba, bg, bgm, Ta, sa, sg, x, bgps, Ma, Mg, emag, k2, th, theta_m, Pm
             _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
             lat = x.lat_rad - dx[0] / (R_N + x.h_m)
             lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
@@ -819,6 +839,10 @@ class LooseEKF:
             q = ins._qmul(ins._qrot(dx[A]), x.q_NB)
             q /= math.sqrt(float(q @ q))
             x = ins.NavState(lat, lon, h, v, q)
+            # reset Jacobian (:func:`attitude_reset_jacobian`): P ← G P Gᵀ
+            Gr = attitude_reset_jacobian(dx[A])
+            Pm[A, :] = Gr @ Pm[A, :]
+            Pm[:, A] = Pm[:, A] @ Gr.T
             ba = ba - dx[BA]
             bg = bg - dx[BG]
             if GM is not None:
