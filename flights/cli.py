@@ -13,6 +13,10 @@ def add_flight_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=2005, help="the IMU (same seed as the calibration campaigns)")
     p.add_argument("--nav-rate", type=float, default=25.0, help="navigation/filter rate, Hz")
     p.add_argument("--gps-rate", type=float, default=1.0, help="GPS fix rate, Hz")
+    p.add_argument("--compass-model", default="iron", choices=["iron", "gauss-markov"],
+                   help="uncalibrated fluxgate in the filter: 'iron' = hard/soft iron as 12 random-constant "
+                        "states (compass updates heading, gyro biases, iron); 'gauss-markov' = one heading-error "
+                        "state, Gauss-Markov in the rotation angle (consistent, but far too cautious)")
     p.add_argument("--full-calibration", action="store_true", help="full campaign protocols instead of reduced ones")
     p.add_argument("--out", default="imurig-out/flight")
     p.add_argument("--overwrite", action="store_true")
@@ -23,7 +27,8 @@ def _run(args) -> int:
     from imurig.flights.report import FlightOptions, run
 
     opt = FlightOptions(flight=args.flight, seed=args.seed, duration_s=args.duration, nav_rate_hz=args.nav_rate,
-                        gps_rate_hz=args.gps_rate, quick_calibration=not args.full_calibration)
+                        gps_rate_hz=args.gps_rate, quick_calibration=not args.full_calibration,
+                        mag_iron_states=args.compass_model == "iron")
     s = run(args.out, opt, overwrite=args.overwrite)
     u, c = s["runs"]["uncalibrated"], s["runs"]["calibrated"]
     print(f"wrote {args.out}: heading RMS {u['heading_rms_deg']:.3f} -> {c['heading_rms_deg']:.3f} deg, "

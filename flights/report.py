@@ -37,8 +37,9 @@ class FlightOptions:
     gps_latency_s: float = 0.0
     gps_time_sigma_s: float = 0.0
     # uncalibrated compass: the fluxgate's installation errors as 12 random-constant states
-    # (ekf.FilterConfig.mag_iron_states) instead of one Gauss-Markov heading-error state
-    mag_iron_states: bool = False
+    # (ekf.FilterConfig.mag_iron_states, compass updating heading, gyro biases and iron only);
+    # False: one Gauss-Markov heading-error state instead (consistent but far too cautious, NIS 0.05)
+    mag_iron_states: bool = True
 
     def validate(self):
         if self.flight not in ("default", "static"):
@@ -381,7 +382,7 @@ def mag_iron_prior_datasheet() -> np.ndarray:
 MAG_SENSITIVITY_SPREAD = 0.02   # FluxgateTriad.from_datasheet: sensitivity × (1 + U(±0.02))
 
 
-def datasheet_priors(truth, mag_iron_states: bool = False) -> dict:
+def datasheet_priors(truth, mag_iron_states: bool = True) -> dict:
     """Filter priors of the uncalibrated run, from the datasheet limits of the sensor models (each
     error uniform within ±limit: σ = limit/√3): accelerometer bias (8000 µg) with the 2nd-order
     nonlinearity at 1 g (48 µg/g²); scale factors (Q-Flex 1 %, FOG 2 %) and misalignments (2 mrad) as
@@ -389,8 +390,9 @@ def datasheet_priors(truth, mag_iron_states: bool = False) -> dict:
     own Gauss-Markov states (``gyro_bias_gm_states``); the compass's
     systematic heading error (hard/soft iron) as a state with σ_m and correlation angle θ_c from the
     fluxgate's datasheet (:func:`mag_heading_error_model_datasheet`), white part = fluxgate noise / H;
-    or, with ``mag_iron_states``, the fluxgate's hard iron and soft-iron/misalignment/sensitivity
-    matrix as 12 random constants with the datasheet prior (:func:`mag_iron_prior_datasheet`)."""
+    or, with ``mag_iron_states`` (the default), the fluxgate's hard iron and soft-iron/misalignment/
+    sensitivity matrix as 12 random constants with the datasheet prior (:func:`mag_iron_prior_datasheet`),
+    the compass updating only the heading, the gyro biases and the iron states (``mag_consider_states``)."""
     from imurig.sensors.accelerometer import QFlexTriad as Q
     from imurig.sensors.gyro import FOGTriad as G
     from imurig.sensors.magnetometer import FluxgateTriad as F
@@ -423,7 +425,8 @@ def datasheet_priors(truth, mag_iron_states: bool = False) -> dict:
             # the Gauss-Markov part, carried as its own states (σ, τ of the sensor model)
             "sigma0_gyro_bias_rad_s": datasheet_values(G, "bias_repeatability_dps") * DEG,
             "gyro_bias_gm_states": True,
-            **({"mag_iron_states": True, "mag_iron_prior_cov": mag_iron_prior_datasheet()} if mag_iron_states else
+            **({"mag_iron_states": True, "mag_iron_prior_cov": mag_iron_prior_datasheet(), "mag_consider_states": True}
+               if mag_iron_states else
                {"mag_error_state": True, "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c}),
             "mag_heading_sigma_rad": datasheet_values(F, "noise_nT_rms") * 1e-9 / (H_nT * 1e-9)}
 
