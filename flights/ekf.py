@@ -771,7 +771,7 @@ class LooseEKF:
         mag_consider = None
         if MI is not None and c.mag_consider_states:
             upd = np.zeros(n, bool)
-            upd[[8]] = True
+            upd[A.start + 2] = True          # ψ_d, the heading
             upd[BG] = True
             upd[MI] = True
             if c.gyro_bias_gm_states:
