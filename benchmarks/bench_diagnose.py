@@ -46,7 +46,7 @@ import time
 import numpy as np
 from scipy import stats
 
-from imurig.diagnose.suite import (
+from imurig.concealed.suite import (
     CASES,
     diagnose_case,
     found_effects,

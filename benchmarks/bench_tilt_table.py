@@ -15,7 +15,7 @@ import tempfile
 import time
 
 from imurig.campaigns.tilt_table import TiltTableCampaign
-from imurig.campaigns.tilt_table_report import analyse, run
+from imurig.reports.tilt_table import analyse, run
 from imurig.rigs.tilt_table import TiltTableProtocol
 
 

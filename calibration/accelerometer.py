@@ -9,7 +9,7 @@ from __future__ import annotations
 from imurig.calibration.terms import TermLibrary, seed_accelerometer_terms
 from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.calibration.triad import indicated as _indicated
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 
 AXES = ("x", "y", "z")
 ACC = tuple(f"acc_{a}" for a in AXES)

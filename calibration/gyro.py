@@ -20,9 +20,9 @@ import numpy as np
 
 from imurig.calibration.terms import TermLibrary, polynomial
 from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
-from imurig.errors import RecordingError
-from imurig.recording import Recording
-from imurig.site import EARTH_RATE_RAD_S, Site
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import EARTH_RATE_RAD_S, Site
 
 AXES = ("p", "q", "r")
 GYRO = tuple(f"gyro_{a}" for a in AXES)

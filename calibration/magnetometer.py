@@ -38,7 +38,7 @@ navigation frame). A level sensor then measures the horizontal field ``H`` as (s
     h_x = H cos(psi),   h_y = -H sin(psi)       ->   psi = atan2(-h_y, h_x)
 
 For **FLU** body axes (x forward, y left, z up - the body counterpart of the ENU frame used by the
-rigs, see :mod:`imurig.site`) ``h_y = +H sin(psi)`` and ``psi = atan2(h_y, h_x)``; pass
+rigs, see :mod:`imurig.kernel.site`) ``h_y = +H sin(psi)`` and ``psi = atan2(h_y, h_x)``; pass
 ``frame="FLU"``. True heading = magnetic heading + declination (declination positive east).
 """
 from __future__ import annotations
@@ -51,7 +51,7 @@ import numpy as np
 import scipy.linalg
 
 from imurig.calibration.regression import fit_ols
-from imurig.errors import RecordingError, ScheduleError, UnidentifiableTermsError
+from imurig.kernel.errors import RecordingError, ScheduleError, UnidentifiableTermsError
 
 __all__ = [
     "wrap_pi",

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from imurig.errors import RecordingError
-from imurig.recording import Recording
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
 
 
 def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,

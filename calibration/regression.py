@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from imurig.errors import UnidentifiableTermsError
+from imurig.kernel.errors import UnidentifiableTermsError
 
 __all__ = ["RegressionResult", "fit_ols", "check_identifiable", "RELATIVE_SUPPORT_TOL"]
 

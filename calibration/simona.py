@@ -31,7 +31,7 @@ Residuals are reference minus calibrated rate (deg/s for reporting).
 
 Row recording
 -------------
-:func:`read_simona` returns a *row-level* :class:`~imurig.recording.Recording`: one sample
+:func:`read_simona` returns a *row-level* :class:`~imurig.kernel.recording.Recording`: one sample
 per table row. The real table has no clock (one row per dial setting), so ``time_s`` is
 just the row index 0, 1, 2, ... in seconds, and segment ``i`` spans ``[i, i + 1)`` s, i.e.
 exactly sample ``i``. A virtual turn table that wants its output compared with the real
@@ -48,9 +48,9 @@ from pathlib import Path
 import numpy as np
 
 from imurig.calibration.regression import fit_ols
-from imurig.errors import RecordingError
-from imurig.recording import Recording, atomic_write
-from imurig.units import DEG, split_column, to_si
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording, atomic_write
+from imurig.kernel.units import DEG, split_column, to_si
 
 __all__ = [
     "ASSET_NAME",

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.stats
 
-from imurig.errors import UnidentifiableTermsError
+from imurig.kernel.errors import UnidentifiableTermsError
 
 from .regression import RegressionResult, check_identifiable, fit_ols
 from .terms import TermLibrary

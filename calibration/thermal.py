@@ -23,9 +23,9 @@ import numpy as np
 
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import fit_ols
-from imurig.errors import RecordingError
-from imurig.recording import Recording
-from imurig.site import Site
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import Site
 
 T0 = 298.15
 ACC = ("acc_x", "acc_y", "acc_z")

@@ -34,8 +34,8 @@ from imurig.calibration.preprocess import segment_samples, segment_statistic, se
 from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import TermLibrary, polynomial
-from imurig.errors import RecordingError
-from imurig.recording import Recording
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
 
 
 @dataclass(frozen=True)

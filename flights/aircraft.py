@@ -43,7 +43,7 @@ import numpy as np
 from imurig.flights.van import TyreModel
 from imurig.rigs.mujoco_rig import load_model
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 G0 = 9.81  # the flat world's gravity, m/s^2 (the truth uses WGS-84 normal gravity instead)
 

@@ -51,7 +51,7 @@ import numpy as np
 from imurig.flights import earth as E
 from imurig.flights import ins
 
-from imurig.errors import ConfigError, RecordingError
+from imurig.kernel.errors import ConfigError, RecordingError
 
 BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d",
                "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")

@@ -34,7 +34,7 @@ from imurig.flights import earth
 from imurig.flights.truth import FlightTruth, offset_position
 from scipy import signal
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 MODES = ("standalone", "differential", "rtk")
 CEP_TO_SIGMA = 1.0 / 1.1774

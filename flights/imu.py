@@ -25,8 +25,8 @@ from imurig.flights.truth import FlightTruth
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
 
-from imurig.errors import ConfigError
-from imurig.recording import Recording
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.recording import Recording
 
 FLIGHT_SCAN = ("acc_x", "acc_y", "acc_z", "gyro_p", "gyro_q", "gyro_r", "mag_x", "mag_y", "mag_z",
                "temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box")

@@ -31,7 +31,7 @@ import numpy as np
 from imurig.flights import earth as E
 from scipy.integrate import solve_ivp
 
-from imurig.errors import ConfigError, RecordingError
+from imurig.kernel.errors import ConfigError, RecordingError
 
 
 # --- pre-integration -----------------------------------------------------------------------------

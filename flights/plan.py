@@ -42,7 +42,7 @@ from imurig.flights.aircraft import (
 )
 from imurig.flights.truth import FlightTruth, cabin_temperature_K, truth_from_kinematics
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 DEG = math.pi / 180.0
 SCHIPHOL = (52.31, 4.76, 43.0)          # lat deg, lon deg, ellipsoidal height m (−3 m MSL + geoid ~46 m)
@@ -399,7 +399,7 @@ def fly(plan: FlightPlan | None = None, progress_bar: bool = True) -> FlownPlan:
     """Fly ``plan`` (default: :func:`default_phases`) in MuJoCo; returns the recorded kinematics."""
     import time
 
-    from imurig.progress import progress
+    from imurig.kernel.progress import progress
 
     plan = (plan or FlightPlan()).validate()
     t0 = time.perf_counter()

@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from imurig.flights import earth
 
-from imurig.errors import ConfigError
-from imurig.site import decimal_year, parse_time
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.site import decimal_year, parse_time
 
 DEG = np.pi / 180.0
 
@@ -146,7 +146,7 @@ def integrate_position(v_N: np.ndarray, dt: float, lat0: float, lon0: float, h0:
 
 def igrf_N(lat, lon, h, when: _dt.datetime, time_s, step_s: float = 10.0) -> np.ndarray:
     """IGRF main field (N,3) tesla in NED along a track, evaluated every ``step_s`` seconds
-    with pyIGRF (as :meth:`imurig.site.Site.magnetic_field_W`) and interpolated linearly."""
+    with pyIGRF (as :meth:`imurig.kernel.site.Site.magnetic_field_W`) and interpolated linearly."""
     import pyIGRF
 
     t = np.asarray(time_s, float)

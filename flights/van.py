@@ -98,7 +98,7 @@ class VanPlan:
     rate_hz: float = 100.0
 
     def validate(self) -> VanPlan:
-        from imurig.errors import ConfigError
+        from imurig.kernel.errors import ConfigError
 
         for p in self.phases:
             if isinstance(p, VanCircle):

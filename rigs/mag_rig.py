@@ -18,12 +18,12 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.errors import ScheduleError
-from imurig.recording import Recording
+from imurig.kernel.errors import ScheduleError
+from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
 from imurig.rigs.tilt_table import rotate_to_body
-from imurig.site import Site, parse_time
-from imurig.units import DEG
+from imurig.kernel.site import Site, parse_time
+from imurig.kernel.units import DEG
 
 
 @dataclass(frozen=True)

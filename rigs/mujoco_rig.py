@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from imurig.progress import progress
+from imurig.kernel.progress import progress
 
 
 def load_model(asset: str) -> mujoco.MjModel:

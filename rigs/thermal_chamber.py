@@ -24,11 +24,11 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.errors import ScheduleError
-from imurig.recording import Recording
+from imurig.kernel.errors import ScheduleError
+from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import rot_y, rot_z
 from imurig.sensors.thermal import first_order_lag
-from imurig.site import Site, parse_time
+from imurig.kernel.site import Site, parse_time
 
 ATTITUDES = {"z_up": (0.0, 0.0), "z_down": (math.pi, 0.0), "x_up": (math.pi / 2, math.pi),
              "x_down": (math.pi / 2, 0.0), "y_up": (math.pi / 2, math.pi / 2),

@@ -22,11 +22,11 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from imurig.errors import ScheduleError
-from imurig.recording import Recording
+from imurig.kernel.errors import ScheduleError
+from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
-from imurig.site import Site, parse_time
-from imurig.units import ARCMIN, ARCSEC, DEG
+from imurig.kernel.site import Site, parse_time
+from imurig.kernel.units import ARCMIN, ARCSEC, DEG
 
 # Mountings: rotation R_MC from the IMU case frame C to the platform mount frame M.
 MOUNTS = {

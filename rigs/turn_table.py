@@ -24,12 +24,12 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.errors import ScheduleError
-from imurig.recording import Recording
+from imurig.kernel.errors import ScheduleError
+from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
 from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y, rotate_to_body
-from imurig.site import Site, parse_time
-from imurig.units import ARCSEC, DEG
+from imurig.kernel.site import Site, parse_time
+from imurig.kernel.units import ARCSEC, DEG
 
 #: R_MC: IMU case frame C -> mount frame M (M's z is the spin axis). '<axis>_up' puts that
 #: IMU axis (p = x, q = y, r = z of C) along +z of the table, '_down' along -z.

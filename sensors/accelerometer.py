@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.units import G_STANDARD
+from imurig.kernel.units import G_STANDARD
 from imurig.sensors.noise import band_noise
 
 AXES = ("x", "y", "z")

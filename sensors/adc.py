@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 GROUNDINGS = ("GRSE", "NRSE", "DIFF")
 

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.sensors.accelerometer import AXES, CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration, SlipRingNoise
@@ -26,7 +26,7 @@ from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.magnetometer import FluxgateTriad
 from imurig.sensors.timers import EventTimer, gps_mark_timer, hp6700_counter
 from imurig.sensors.noise import child_rng
-from imurig.site import parse_time
+from imurig.kernel.site import parse_time
 
 DEFAULT_SCAN = ("acc_x", "mag_x", "acc_y", "mag_y", "acc_z", "mag_z",
                 "temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box")

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy import signal
 
-from imurig.units import DEG
+from imurig.kernel.units import DEG
 
 AXES = ("p", "q", "r")
 

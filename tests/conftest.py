@@ -27,7 +27,7 @@ def check_concealed_case():
     """``check(case, seed, size)``: the diagnosis of the case's recording names exactly the
     expected (channel, effect) pairs with the first parameter within 4 SE of the injected
     truth, and the case's null recording comes back clean. Returns the diagnosis and recording."""
-    from imurig.diagnose.suite import diagnose_case, found_effects, null_recording
+    from imurig.concealed.suite import diagnose_case, found_effects, null_recording
 
     def check(case, seed: int, size: float):
         rec = case.make(seed, size)

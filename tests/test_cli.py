@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from imurig.cli import main
+from imurig.cli.main import main
 
 ARGS = ["campaign", "tilt-table", "--theta", "0,45,90", "--phi", "0,90,180,270", "--dwell", "2", "--seed", "3"]
 
@@ -78,8 +78,8 @@ def test_apply_calibration_to_a_new_recording(report, tmp_path):
     reference to within the residual sigma of the original fit."""
     from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
     from imurig.campaigns.tilt_table import TiltTableCampaign, tilt_table_reference
-    from imurig.labcsv import write_csv
-    from imurig.recording import load_h5
+    from imurig.kernel.labcsv import write_csv
+    from imurig.kernel.recording import load_h5
     from imurig.rigs.tilt_table import TiltTableProtocol
 
     old = load_h5(report / "recording.h5")

@@ -7,11 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from imurig.cli import main
-from imurig.diagnose import cases, suite
-from imurig.diagnose.report import TWIN_OPTIONS
-from imurig.errors import ConfigError
-from imurig.recording import load
+from imurig.cli.main import main
+from imurig.concealed import cases
+from imurig.concealed import suite
+from imurig.reports.diagnosis import TWIN_OPTIONS
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.recording import load
 
 
 def test_every_case_names_a_twin_the_diagnose_command_can_rebuild():

@@ -132,7 +132,7 @@ def test_crosstalk_coefficient_against_truth():
 
 
 # ------------------------------------------- effects the twin leaves out of its model
-from imurig.diagnose.suite import CASES, diagnose_case, found_effects, null_recording  # noqa: E402
+from imurig.concealed.suite import CASES, diagnose_case, found_effects, null_recording  # noqa: E402
 
 
 @pytest.mark.parametrize("effect,seed", [("axis_misalignment", 3), ("scale_nonlinearity", 4)])
@@ -150,7 +150,7 @@ def test_model_terms_left_out_of_the_twin(effect, seed):
 
 
 def test_unknown_twin_model_refused():
-    from imurig.errors import ConfigError
+    from imurig.kernel.errors import ConfigError
 
     with pytest.raises(ConfigError, match="twin model"):
         diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=3).simulate(), np.random.default_rng(0),
@@ -183,9 +183,9 @@ def test_earth_rate_power_curve_moves_the_lab():
     """The Earth-rate power curve's sizes: the lab moved to where the vertical Earth rate is that
     fraction of Delft's (what the twin without the Earth's rate then leaves out); impossible
     fractions are refused."""
-    from imurig.diagnose.suite import earth_fraction_site
-    from imurig.errors import ConfigError
-    from imurig.site import Site
+    from imurig.concealed.suite import earth_fraction_site
+    from imurig.kernel.errors import ConfigError
+    from imurig.kernel.site import Site
 
     delft = Site().earth_rate_W()[2]
     for f in (0.25, 0.5, 1.0, 1.25):
@@ -206,9 +206,9 @@ def test_thermal_hysteresis_found_with_truth(seed, check_concealed_case):
 
 def test_diagnose_cli_on_thermal_and_turn_table(tmp_path):
     """`imurig diagnose` dispatches a thermal and a turn-table recording and writes its products."""
-    from imurig.cli import main
-    from imurig.diagnose.suite import _thermal
-    from imurig.recording import save_h5
+    from imurig.cli.main import main
+    from imurig.concealed.suite import _thermal
+    from imurig.kernel.recording import save_h5
 
     p = save_h5(_thermal(3), tmp_path / "thermal.h5")
     assert main(["diagnose", str(p), "--out", str(tmp_path / "d")]) == 0

@@ -2,14 +2,14 @@
 table's slew law and servo), and the effects only the slews show -- a time delay of a channel
 against the set-points (the multiplexer's scan skew), a lever arm, a wrong local gravity --
 plus the temperature drift of the position means. Concealed-effect cases of
-:mod:`imurig.diagnose.suite`; truth-based checks within 4 standard errors."""
+:mod:`imurig.concealed.suite`; truth-based checks within 4 standard errors."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from imurig.sensors.accelerometer import lever_arm_specific_force
 
-from imurig.diagnose.suite import CASES, diagnose_case, found_effects, null_recording
+from imurig.concealed.suite import CASES, diagnose_case, found_effects, null_recording
 from imurig.diagnose.tilt_table import (
     diagnose_tilt_dynamics,
     slew_commands,
@@ -29,7 +29,7 @@ def test_slew_law_matches_the_rig():
         _position_index,
     )
 
-    from imurig.units import DEG
+    from imurig.kernel.units import DEG
 
     p = TiltTableProtocol(theta_deg=(0, 30), phi_deg=(0, 90, 200), dwell_s=1.0, settle_s=0.5, slew_rate_deg_s=20.0)
     th = np.repeat(np.array(p.theta_deg, float) * DEG, 3)

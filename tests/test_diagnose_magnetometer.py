@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from imurig.diagnose import magnetometer as M
-from imurig.diagnose.suite import CASES, diagnose_case, found_effects
-from imurig.errors import ConfigError, RecordingError
+from imurig.concealed.suite import CASES, diagnose_case, found_effects
+from imurig.kernel.errors import ConfigError, RecordingError
 
 Z_BOUND = 4.0  # |estimate - injected| <= 4 standard errors
 MAG_CASES = {c.effect: c for c in CASES if c.rig == "magnetometer"}
@@ -74,7 +74,7 @@ def test_same_seed_same_data_and_report(tmp_path):
     b = M.case_recording("hard_iron", 3, 50.0)
     for c in M.MAG:
         np.testing.assert_array_equal(a.channels[c], b.channels[c])
-    from imurig.diagnose.report import _findings_rows, run
+    from imurig.reports.diagnosis import _findings_rows, run
 
     d = run(a, tmp_path / "diag", seed=1)
     assert d["kind"] == "magnetometer"

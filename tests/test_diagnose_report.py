@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from imurig.cli import main
-from imurig.diagnose.report import run
-from imurig.diagnose.suite import CASES, found_effects, null_recording
+from imurig.cli.main import main
+from imurig.reports.diagnosis import run
+from imurig.concealed.suite import CASES, found_effects, null_recording
 
 
 def _case(rig, effect):
@@ -173,9 +173,9 @@ def test_turn_report_round_means(tmp_path):
 
 def test_null_tilt_positions_say_no_effect(tmp_path):
     """A null tilt record (nothing left out of the physical twin): the same plots, 'no effect accepted'."""
-    from imurig.diagnose.report import _figure_tilt_positions
+    from imurig.reports.diagnosis import _figure_tilt_positions
     from imurig.diagnose.tilt_table import diagnose_tilt_table
-    from imurig.report import OutputFolder
+    from imurig.reports.common import OutputFolder
 
     case = _case("tilt_table", "adc_crosstalk")
     rec = null_recording(case, 2)
@@ -191,7 +191,7 @@ def test_null_tilt_positions_say_no_effect(tmp_path):
 def test_twin_model_choice_checked_against_the_rig(tmp_path, capsys):
     """--twin-model takes the magnetometer twins, and refuses a twin that does not fit the rig."""
     from imurig.diagnose import magnetometer as M
-    from imurig.recording import save_h5
+    from imurig.kernel.recording import save_h5
 
     rec = M.null_recording(3, "nominal")
     path = save_h5(rec, tmp_path / "mag.h5")

@@ -10,7 +10,7 @@ import pytest
 
 from imurig.calibration.simona import read_simona
 from imurig.diagnose.rate_table import diagnose_rate_rows, timer_quantisation_test
-from imurig.diagnose.suite import CASES, diagnose_case, found_effects, null_recording
+from imurig.concealed.suite import CASES, diagnose_case, found_effects, null_recording
 
 CASE = next(c for c in CASES if c.effect == "timer_quantisation")
 

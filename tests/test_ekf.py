@@ -9,7 +9,7 @@ from imurig.flights import earth as E
 from imurig.flights import ekf, ins
 from scipy.stats import chi2
 
-from imurig.errors import ConfigError, RecordingError
+from imurig.kernel.errors import ConfigError, RecordingError
 
 D = math.pi / 180
 RUNS = 8
@@ -179,7 +179,7 @@ def _perfect_imu_real_gps(tr, seed, acc_bias_prior=1e-3):
     truth's own IMU samples (held over each interval) plus the white noise of the filter's IMU model,
     the magnetometer's true field, and the receiver model's fixes. The accelerometer-bias prior is
     1e-3 m/s² (the true bias is zero)."""
-    from imurig.flights import report as R
+    from imurig.reports import flight as R
 
     class Opt:
         nav_rate_hz, gps_rate_hz, gps_latency_s, gps_time_sigma_s = 25.0, 1.0, 0.0, 0.0
@@ -369,7 +369,7 @@ def test_alignment_covariance_is_the_levelling_error_propagation():
     to second order, |Δψ| < 10 (|b|/g)², and P0 is positive semi-definite."""
     from types import SimpleNamespace
 
-    from imurig.flights import report as R
+    from imurig.reports import flight as R
 
     g = 9.81
     eul = (0.05, -0.03, 1.2)
@@ -405,7 +405,7 @@ def test_white_noise_model_is_the_flight_acquisitions():
     plus the same DAQ noise. The random-walk density N is measured from differences of 1-s means of
     2000 s of noise (σ_1s = N/√1 s; differences remove the FOG's slow bias instability, leaving
     <1 % of it); bound: 4 standard errors of the sample σ (√(1/2n))."""
-    from imurig.flights import report as R
+    from imurig.reports import flight as R
     from imurig.flights.imu import flight_lab as acquisition
 
     lab = R.flight_lab(2005)

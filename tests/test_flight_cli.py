@@ -2,10 +2,10 @@
 import json
 
 import pytest
-from imurig.flights.report import FlightOptions, run
+from imurig.reports.flight import FlightOptions, run
 
-from imurig.cli import main
-from imurig.errors import ConfigError, OutputExistsError
+from imurig.cli.main import main
+from imurig.kernel.errors import ConfigError, OutputExistsError
 
 
 @pytest.mark.slow
@@ -52,7 +52,7 @@ def real_chain_runs():
     import dataclasses
 
     import numpy as np
-    from imurig.flights import report as R
+    from imurig.reports import flight as R
     from imurig.flights.plan import simulate_flight
 
     tr = simulate_flight(progress_bar=False)

@@ -24,7 +24,7 @@ from imurig.flights.truth import mechanise, static_tests_truth
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.gyro import FOGTriad
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 V0, H0 = 120.0, 1500.0
 
@@ -155,7 +155,7 @@ def test_static_truth_closed_form_earth_terms():
     np.testing.assert_allclose(np.degrees(roll[i]), -30.0, atol=1e-9)
     import pyIGRF
 
-    from imurig.site import decimal_year, parse_time
+    from imurig.kernel.site import decimal_year, parse_time
     _, _, _, bn, be, bd, F = pyIGRF.igrf_value(52.31, 4.76, 0.043, decimal_year(parse_time(st.meta["start_time"])))
     assert np.linalg.norm(st.B_B[0]) * 1e9 == pytest.approx(F, rel=1e-4)
     np.testing.assert_allclose(C[0] @ st.B_B[0] * 1e9, [bn, be, bd], rtol=2e-4, atol=2.0)

@@ -7,7 +7,7 @@ from imurig.flights import earth
 from imurig.flights.gps import CEP_TO_SIGMA, GpsReceiver, antenna_track
 from imurig.flights.truth import BodyKinematics, truth_from_kinematics
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 ORIGIN = (52.0, 4.2, 50.0)
 

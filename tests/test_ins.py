@@ -11,7 +11,7 @@ import pytest
 from imurig.flights import earth as E
 from imurig.flights import ins
 
-from imurig.errors import RecordingError
+from imurig.kernel.errors import RecordingError
 
 D = np.pi / 180
 LAT0, LON0 = 52.0 * D, 4.37 * D

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from imurig.campaigns.magnetometer import MagnetometerCampaign, analyse
-from imurig.errors import ScheduleError
-from imurig.site import Site, parse_time
+from imurig.kernel.errors import ScheduleError
+from imurig.kernel.site import Site, parse_time
 
 
 def test_igrf_at_delft_2005_matches_the_paper():

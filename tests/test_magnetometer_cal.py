@@ -21,7 +21,7 @@ from imurig.calibration.magnetometer import (
     wrap_2pi,
     wrap_pi,
 )
-from imurig.errors import RecordingError, ScheduleError
+from imurig.kernel.errors import RecordingError, ScheduleError
 from imurig.sensors.magnetometer import FluxgateTriad
 
 H = 19010e-9           # horizontal intensity [T] (paper section 3.2: ~19018 nT)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import stats as sst
 
-from imurig.errors import (
+from imurig.kernel.errors import (
     ConfigError,
     OutputExistsError,
     ScheduleError,
@@ -27,7 +27,7 @@ from imurig.montecarlo.engine import (
     run_seed,
     run_study,
 )
-from imurig.montecarlo.report import read_results_h5
+from imurig.reports.montecarlo import read_results_h5
 from imurig.montecarlo.stats import binomial_band, parameter_stats
 
 #: a small tilt-table schedule (4 x 4 x 2 positions, 5 s at 100 Hz averaged): ~0.1 s per run
@@ -210,7 +210,7 @@ def test_static_rig_equals_mujoco_rig_in_the_windows():
     from imurig.sensors.noise import child_rng
 
     from imurig.montecarlo.tilt import TILT_TABLE, static_rig
-    from imurig.site import Site
+    from imurig.kernel.site import Site
 
     p = TILT_TABLE.validate({"theta_deg": [0, 35, 90], "phi_deg": [0, 120, 250], "dwell_s": 0.5,
                              "slew_rate_deg_s": 30.0, "sample_rate_hz": 1000.0})
@@ -287,7 +287,7 @@ def test_killed_study_resumes_to_the_uninterrupted_result(client, tmp_path):
 def test_tilt_run_on_worker_process_reproduced_alone_equals_its_row(tmp_path, capsys):
     """Runs of the real tilt-table campaign on a 1-process local cluster; run 2 reproduced in this
     process (Python API and `imurig montecarlo --only-run`) equals its stored row exactly."""
-    from imurig.cli import main
+    from imurig.cli.main import main
 
     out = tmp_path / "tilt"
     st = run_study("tilt-table", 3, master_seed=21, params=SMALL_TILT, workers=1, out=out)
@@ -354,7 +354,7 @@ def test_bad_distributions_refused(spec, msg):
 
 
 def test_bad_inputs_refused(tmp_path, capsys):
-    from imurig.cli import main
+    from imurig.cli.main import main
 
     for n in (0, -3, 2.5):
         with pytest.raises(ConfigError, match="runs"):

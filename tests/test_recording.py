@@ -6,9 +6,9 @@ import pytest
 
 from imurig.calibration.accelerometer import indicated
 from imurig.campaigns.tilt_table import calibrate
-from imurig.errors import OutputExistsError, RecordingError
-from imurig.labcsv import read_csv, write_csv
-from imurig.recording import Recording, load_h5, save_h5
+from imurig.kernel.errors import OutputExistsError, RecordingError
+from imurig.kernel.labcsv import read_csv, write_csv
+from imurig.kernel.recording import Recording, load_h5, save_h5
 
 
 def test_hdf5_round_trip_is_bit_exact(small_recording, tmp_path):
@@ -29,7 +29,7 @@ def test_hdf5_round_trip_is_bit_exact(small_recording, tmp_path):
 def _json_equal(a, b):
     import json
 
-    from imurig.recording import to_json
+    from imurig.kernel.recording import to_json
 
     return json.loads(to_json(a)) == json.loads(to_json(b))
 
@@ -113,7 +113,7 @@ def test_recording_without_segments_is_refused(tmp_path):
 
 
 def test_cli_bad_input_writes_nothing(tmp_path, capsys):
-    from imurig.cli import main
+    from imurig.cli.main import main
 
     p = tmp_path / "bad.csv"
     p.write_text(CSV.replace("0.01,0,0,0,0.001", "0.01,0,0,0,nan"))

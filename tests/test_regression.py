@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import Term, TermLibrary, polynomial, seed_accelerometer_terms
-from imurig.errors import UnidentifiableTermsError
+from imurig.kernel.errors import UnidentifiableTermsError
 
 SWIMMER_CSV = Path("/work/shared/reference/swimmer_table_4_1.csv")
 EPS = np.finfo(np.float64).eps

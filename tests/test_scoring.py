@@ -276,7 +276,7 @@ def test_turn_export_holds_no_truth(turn, tmp_path):
 
 
 def test_truth_file_inside_export_refused(tmp_path):
-    from imurig.errors import ImurigError
+    from imurig.kernel.errors import ImurigError
     from imurig.scoring.export import export_campaign
 
     with pytest.raises(ImurigError, match="inside the export folder"):
@@ -296,7 +296,7 @@ def test_scores_from_csv_and_json_equal_in_process(tilt, tilt_score, tilt_export
         assert s.rows == tilt_score.rows
         assert s.residuals == tilt_score.residuals
     # through the command line: summary.json holds the same numbers
-    from imurig.cli import main
+    from imurig.cli.main import main
 
     assert main(["score", "--truth", str(truth_file), "--estimates", str(tmp_path / "est.csv"),
                  "--out", str(tmp_path / "score")]) == 0
@@ -365,7 +365,7 @@ def test_malformed_file_structure_refused(tmp_path, tilt):
 
 
 def test_score_cli_fails_with_exit_status_and_names_parameter(tilt_score, tilt_export, tmp_path, capsys):
-    from imurig.cli import main
+    from imurig.cli.main import main
 
     _, truth_file = tilt_export
     rows = [(r["name"], repr(r["estimate"] + (6 * r["std_error"] if r["name"] == "sensitivity_z" else 0)),

@@ -116,7 +116,7 @@ def _flat_numbers(x):
 
 
 def test_streams_hold_no_truth(nominal):
-    from imurig.flights import report as R
+    from imurig.reports import flight as R
     from imurig.flights.imu import measure_flight
     from imurig.sensors.chain import ImuLab
 

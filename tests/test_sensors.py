@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from imurig.calibration.preprocess import lowpass_downsample
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.noise import band_noise
-from imurig.units import G_STANDARD
+from imurig.kernel.units import G_STANDARD
 
 FS = 1000.0
 
@@ -90,7 +90,7 @@ def test_grounding_ground_loop_and_common_mode():
 
 
 def test_scan_too_slow_and_bad_settings_refused():
-    from imurig.errors import ConfigError
+    from imurig.kernel.errors import ConfigError
 
     with pytest.raises(ConfigError, match="input ranges"):
         _quiet_adc(scan_list=("a",), range_V=3.0).validate()
@@ -128,7 +128,7 @@ def test_antialias_filter_matches_butterworth_response():
 
 
 def test_downsample_ratio_must_be_whole():
-    from imurig.errors import RecordingError
+    from imurig.kernel.errors import RecordingError
 
     t = np.arange(100) / FS
     rec = Recording(time_s=t, channels={"a": np.zeros(100)}, units={"a": "V"}, meta={})

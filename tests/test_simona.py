@@ -8,9 +8,9 @@ import pytest
 
 from imurig.calibration.simona import (GYROS, fit_simona, measured_rate, plot_fig_4_19, read_simona,
                                        simona_markdown)
-from imurig.errors import RecordingError
-from imurig.recording import Recording
-from imurig.units import DEG
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
+from imurig.kernel.units import DEG
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 
 from imurig.calibration.thermal import fit_thermal
 from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
-from imurig.errors import RecordingError, ScheduleError
+from imurig.kernel.errors import RecordingError, ScheduleError
 from imurig.rigs.thermal_chamber import ThermalProfile
 from imurig.sensors.thermal import first_order_lag, hysteresis_state, play_operator
 

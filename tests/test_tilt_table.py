@@ -11,10 +11,10 @@ from hypothesis import strategies as st
 from conftest import small_campaign
 from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
 from imurig.campaigns.tilt_table import Z_BOUND, calibrate, compare_with_truth
-from imurig.errors import ScheduleError, UnidentifiableTermsError
+from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, rotate_to_body,
                                     specific_force_C)
-from imurig.site import EARTH_RATE_RAD_S, Site
+from imurig.kernel.site import EARTH_RATE_RAD_S, Site
 
 G = 9.81242231
 
@@ -201,7 +201,7 @@ def test_impossible_schedules_are_refused(kw, msg):
 
 
 def test_multiplexer_too_slow_for_sample_rate_is_refused():
-    from imurig.errors import ConfigError
+    from imurig.kernel.errors import ConfigError
 
     camp = small_campaign(mux_frequency_hz=5e3)  # 10 channels at 5 kHz take 2 ms > 1 ms
     with pytest.raises(ConfigError, match="longer than one sample period"):
@@ -231,7 +231,7 @@ def test_noise_free_triad_recovers_forward_parameters():
     the truncation of the inverse model (second order in k2, k2 M cross terms), far below
     2 k2 b, the scale-factor error of converting the linear coefficient without the bias."""
     from imurig.calibration.accelerometer import AccelerometerCalibration
-    from imurig.recording import Recording
+    from imurig.kernel.recording import Recording
 
     theta, phi = np.meshgrid(np.radians(np.arange(0, 181, 10.0)), np.radians(np.arange(0, 360, 20.0)))
     f1 = specific_force_C(theta.ravel(), phi.ravel(), "z_up", G)

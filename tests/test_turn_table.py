@@ -10,7 +10,7 @@ from imurig.calibration.allan import fit_arw
 from imurig.calibration.gyro import pulse_edges
 from imurig.campaigns.turn_table import (Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros, gyro_parameters,
                                          round_time_error_at, simona_virtual, timer_study)
-from imurig.errors import ScheduleError, UnidentifiableTermsError
+from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.gyro import FOGTriad

@@ -1,4 +1,4 @@
-"""imurig.viz: .rrd files are written atomically and read back with rerun's RrdReader."""
+"""imurig.reports.viz: .rrd files are written atomically and read back with rerun's RrdReader."""
 
 from pathlib import Path
 import warnings
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from imurig import viz
-from imurig.errors import OutputExistsError
+from imurig.reports import viz
+from imurig.kernel.errors import OutputExistsError
 
 # A fixed tilted base, a hinged arm (box) and an IMU child body with a site.
 MJCF = """

@@ -21,14 +21,14 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.magnetometer import compass_swing, fit_ellipse_2d, fit_ellipsoid_3d, heading_from_field, wrap_pi
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.rigs.mag_rig import CompassSwing, LevelCircle, MagRig, Tumble
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 from imurig.sensors.magnetometer import FluxgateTriad
 from imurig.sensors.noise import child_rng
-from imurig.site import Site
+from imurig.kernel.site import Site
 
 Z_BOUND = 4.0
 MAG = ("mag_x", "mag_y", "mag_z")

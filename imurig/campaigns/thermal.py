@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.thermal import ThermalFit, branch_gap, fit_thermal, step_table
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.rigs.thermal_chamber import ThermalChamber, ThermalProfile
 from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
@@ -20,7 +20,7 @@ from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.noise import child_rng
-from imurig.site import Site
+from imurig.kernel.site import Site
 
 Z_BOUND = 4.0
 THERMAL_SCAN = ("acc_x", "acc_y", "acc_z", "gyro_p", "gyro_q", "gyro_r",

@@ -14,16 +14,16 @@ import numpy as np
 from imurig.calibration.accelerometer import (AXES, INPUTS, MODELS, AccelerometerCalibration, injected_parameters)
 from imurig.calibration.preprocess import lowpass_downsample
 from imurig.calibration.regression import check_identifiable
-from imurig.errors import RecordingError, UnidentifiableTermsError
-from imurig.recording import Recording
+from imurig.kernel.errors import RecordingError, UnidentifiableTermsError
+from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol,
                                     reference_with_jacobian, setting_error_covariance, specific_force_C)
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
 from imurig.sensors.noise import child_rng
-from imurig.site import Site
-from imurig.units import ARCSEC
+from imurig.kernel.site import Site
+from imurig.kernel.units import ARCSEC
 
 #: z-score bound used to call an estimate consistent with the injected value
 Z_BOUND = 4.0

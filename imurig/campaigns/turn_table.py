@@ -23,8 +23,8 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.triad import delta_cov
-from imurig.errors import ScheduleError, UnidentifiableTermsError
-from imurig.recording import Recording
+from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
+from imurig.kernel.recording import Recording
 from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import TURN_TABLE_SCAN, ImuLab
@@ -32,8 +32,8 @@ from imurig.sensors.disturbances import SlipRingNoise
 from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.noise import child_rng
 from imurig.sensors.voltmeter import AutoscaleVoltmeter
-from imurig.site import Site
-from imurig.units import DEG
+from imurig.kernel.site import Site
+from imurig.kernel.units import DEG
 
 Z_BOUND = 4.0
 TIMERS = ("adc", "gps_mark", "hp6700")

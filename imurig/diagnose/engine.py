@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imurig.calibration.regression import RegressionResult, fit_ols
-from imurig.errors import UnidentifiableTermsError
+from imurig.kernel.errors import UnidentifiableTermsError
 
 
 @dataclass

@@ -51,9 +51,9 @@ import numpy as np
 from scipy import stats
 
 from imurig.diagnose.engine import Candidate, select_effects
-from imurig.errors import ConfigError, RecordingError
-from imurig.recording import Recording
-from imurig.site import Site
+from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import Site
 
 AXES = "xyz"
 MAG = ("mag_x", "mag_y", "mag_z")
@@ -124,7 +124,7 @@ def _twin_rig(key: str) -> Recording:
 
 @functools.lru_cache(maxsize=4)
 def _twin_cached(key: str):
-    from imurig.site import parse_time
+    from imurig.kernel.site import parse_time
 
     d = json.loads(key)
     site = Site.from_dict(d["site"])
@@ -345,7 +345,7 @@ def diagnose_magnetometer(rec: Recording, rng: np.random.Generator, alpha: float
            "noise": {"sample_sigma_nT": sig_s.tolist(), "block_sigma_predicted_nT": sig_b.tolist(),
                      "model": "white (second differences of the samples)"},
            "magnetometer": d.to_dict(), "indistinguishable": _aliases(names, d, Tb, tb)}
-    from imurig.diagnose.report import effect_steps
+    from imurig.reports.diagnosis import effect_steps
 
     out["magnetometer"]["fit_steps"] = effect_steps(y, X0, names0, lib_used, d)["steps"]
     out["per_axis"] = {a: {"sigma_before_nT": float(np.std(r0[:, j])), "sigma_after_nT": float(np.std(r1[:, j])),
@@ -484,7 +484,7 @@ def _figure(out, d: dict) -> str:
 
 
 def _rrd(path, d: dict):
-    from imurig.viz import RrdWriter, log_scalars, log_text
+    from imurig.reports.viz import RrdWriter, log_scalars, log_text
 
     s = d["series"]
     t = np.asarray(s["time_s"])
@@ -498,8 +498,8 @@ def _rrd(path, d: dict):
 
 def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "nominal") -> dict:
     """Diagnose ``rec`` and write report.md, diagnosis.json, fig_diagnosis.png, diagnosis.rrd."""
-    from imurig.diagnose.report import fit_tables
-    from imurig.report import OutputFolder, clean_json, md_table
+    from imurig.reports.diagnosis import fit_tables
+    from imurig.reports.common import OutputFolder, clean_json, md_table
 
     d = {"kind": "magnetometer", **diagnose_magnetometer(rec, np.random.default_rng(seed), twin_model=twin_model)}
     with OutputFolder(out_dir, overwrite=overwrite) as out:
@@ -550,7 +550,7 @@ def _rig_run(anomaly_W_T):
     if anomaly_W_T is None:  # the IGRF field: the same gimbal run as the twin's
         from dataclasses import asdict
 
-        from imurig.site import parse_time
+        from imurig.kernel.site import parse_time
 
         rig = MagRig(site=camp.site)
         return _twin_rig(_twin_key(camp.site.to_dict(), parse_time(camp.start_time).isoformat(), rig.record_rate_hz,
@@ -575,7 +575,7 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     from imurig.sensors.magnetometer import FluxgateTriad
     from imurig.sensors.noise import child_rng
     from imurig.sensors.thermal import first_order_lag
-    from imurig.site import parse_time
+    from imurig.kernel.site import parse_time
 
     camp = MagnetometerCampaign(seed=seed)
     ss = np.random.SeedSequence(seed)
@@ -626,7 +626,7 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
 
 
 # ---------------------------------------------------------------------------------------------
-# the concealed-effect cases (used by imurig.diagnose.suite)
+# the concealed-effect cases (used by imurig.concealed.suite)
 
 #: off-diagonal patterns (xy, xz, yz) of the injected soft iron and rotation, and the hard iron's direction
 PAIR_PATTERN = np.array([1.0, -0.6, 0.4])
@@ -689,7 +689,7 @@ def truth_param(effect: str, rec: Recording) -> float:
     if effect == "misalignment":
         return float(t["misalignment_rad"][0][1])
     if effect == "local_field_anomaly":
-        from imurig.site import parse_time
+        from imurig.kernel.site import parse_time
 
         B_W = Site.from_dict(rec.meta["site"]).magnetic_field_W(parse_time(rec.meta["start_time"]))
         dB = np.asarray(rec.truth["magnetometer_diagnosis"]["anomaly_W_T"])

@@ -31,8 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.diagnose.engine import Candidate, select_effects, wild_bootstrap_noise
-from imurig.errors import RecordingError
-from imurig.recording import Recording
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
 
 MOTOR_MAINS = {"60 Hz motor on 50 Hz mains": 50 / 60, "50 Hz motor on 60 Hz mains": 60 / 50,
                "motor on its design mains": 1.0}

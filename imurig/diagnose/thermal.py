@@ -25,7 +25,7 @@ import numpy as np
 
 from imurig.calibration.thermal import _design, step_table, term_names
 from imurig.diagnose.engine import Candidate, ar1_covariance, select_effects
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 
 
 def diagnose_thermal(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300) -> dict:
@@ -54,7 +54,7 @@ def diagnose_thermal(rec: Recording, rng: np.random.Generator, alpha: float = 0.
         d = select_effects(y, X0, term_names(order, False), lib, rng, alpha=alpha, n_sim=n_sim, cov=cov)
         # for the report: the fit step by step (AR(1)-whitened, the engine's space) and the step-bias
         # residuals before/after in the channel's own unit (y - X b: the engine's residuals are whitened)
-        from imurig.diagnose.report import effect_steps
+        from imurig.reports.diagnosis import effect_steps
 
         st = effect_steps(y, X0, term_names(order, False), lib, d, cov=cov)
         out["channels"][name] = {**d.to_dict(), "fit_steps": st["steps"], "residuals": {

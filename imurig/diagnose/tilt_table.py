@@ -26,9 +26,9 @@ from imurig.calibration.accelerometer import AXES, indicated
 from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
 from imurig.campaigns.tilt_table import calibrate, tilt_table_reference
 from imurig.diagnose.engine import Candidate, select_effects
-from imurig.errors import ConfigError, RecordingError
-from imurig.recording import Recording
-from imurig.site import parse_time
+from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import parse_time
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -150,7 +150,7 @@ def _position_residuals(y, X0, names0, lib, d, a: str, hours_elapsed, reading, p
     Observable: y = the twin's reference specific force per position (m/s^2); the recording
     through the nominal calibration is y - r_before, the corrected twin y - r_before + r_after
     (so that twin - recording = r_before and corrected twin - recording = r_after)."""
-    from imurig.diagnose.report import effect_steps
+    from imurig.reports.diagnosis import effect_steps
 
     st = effect_steps(y, X0, names0, lib, d)
     variables = []
@@ -301,8 +301,8 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
     """
     from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
     from imurig.rigs.tilt_table import MOUNTS, _copy_model, _quat_wxyz, rot_x, rot_z
-    from imurig.site import Site
-    from imurig.units import DEG
+    from imurig.kernel.site import Site
+    from imurig.kernel.units import DEG
 
     site = Site.from_dict(rec.meta.get("site", {}))
     g = site.gravity_m_s2 if gravity_m_s2 is None else gravity_m_s2
@@ -543,7 +543,7 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
     # the report: the fit step by step (whitened space) and the residuals in m/s^2 before and after,
     # from the full GLS fit (nuisance, constants and the accepted effects; by Frisch-Waugh-Lovell its
     # effect coefficients are the engine's)
-    from imurig.diagnose.report import effect_steps
+    from imurig.reports.diagnosis import effect_steps
 
     out["fit_steps"] = effect_steps(yp, X0, const_names, lib, d)["steps"]
     raw = {f"time_delay_{ax}": axis_only(cand_cols["delay"], a) for a, ax in enumerate(AXES)}
@@ -610,7 +610,7 @@ SKEW_SLOT_Y = 2
 
 
 def _dyn_record(seed: int, change=None, **camp_kw):
-    from imurig.diagnose.suite import _tilt_lab
+    from imurig.concealed.suite import _tilt_lab
     from imurig.rigs.tilt_table import TiltTableProtocol
 
     return _tilt_lab(seed, change or (lambda lab: lab), protocol=TiltTableProtocol(**DYNAMIC_PROTOCOL), **camp_kw)
@@ -642,7 +642,7 @@ def case_recording(effect: str, seed: int, size: float) -> Recording:
         rec.truth["site_gravity_m_s2"] = rec.meta["site"]["gravity_m_s2"]
         rec.meta["site"] = dict(rec.meta["site"], gravity_m_s2=rec.meta["site"]["gravity_m_s2"] * (1 + size))
     elif effect == "temperature_drift":
-        from imurig.diagnose.suite import _tilt_lab
+        from imurig.concealed.suite import _tilt_lab
 
         def change(lab):
             acc = replace(lab.accelerometers, bias_tempco_m_s2_per_K=size * np.array([1.0, -1.0, 1.0]),
@@ -676,7 +676,7 @@ def truth_param(effect: str, rec: Recording) -> float:
         return rec.meta["site"]["gravity_m_s2"] / rec.truth["site_gravity_m_s2"] - 1.0
     if effect == "temperature_drift":
         # inverse model: f = ... - kb dT / D_x, the column being the temp_acc_x volts (10 mV/K)
-        from imurig.diagnose.suite import _scale_D
+        from imurig.concealed.suite import _scale_D
 
         return -acc["bias_tempco_m_s2_per_K"][0] / _scale_D(rec)[0] / 0.01
     raise ConfigError(f"no truth for '{effect}'")

@@ -42,9 +42,9 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import Candidate, select_effects
-from imurig.errors import RecordingError
-from imurig.recording import Recording
-from imurig.site import EARTH_RATE_RAD_S, Site
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import EARTH_RATE_RAD_S, Site
 
 
 def _mounts(rw: Recording) -> list[str]:
@@ -122,7 +122,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
         entry["truth_hint"] = {"Omega_vertical_rad_s": float(omega_v)}
         # the report: the fit step by step (GLS-whitened) and the round-mean residuals in rad/s
         # (residual = the twin's reference - the recording through the calibration)
-        from imurig.diagnose.report import effect_steps
+        from imurig.reports.diagnosis import effect_steps
 
         st = effect_steps(ref[:, j], X0, list(lib_names.names), lib, d, cov=cov)
         entry["fit_steps"] = st["steps"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.errors import UnidentifiableTermsError
+from imurig.kernel.errors import UnidentifiableTermsError
 
 
 def fisher_information(J: np.ndarray, C: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.errors import ConfigError, OutputExistsError
+from imurig.kernel.errors import ConfigError, OutputExistsError
 from imurig.montecarlo import registry
 from imurig.montecarlo.engine import dask_client, run_study
-from imurig.montecarlo.report import _atomic_text, _save_fig
-from imurig.report import clean_json, md_table
+from imurig.reports.montecarlo import _atomic_text, _save_fig
+from imurig.reports.common import clean_json, md_table
 
 GROUPS = {"sensitivity": ("sensitivity_", 1e6, "ppm of S"), "misalignment": ("misalignment_", 1e6, "µrad"),
           "bias": ("bias_", 1e6 / 9.80665, "µg"), "nonlinearity": ("nonlinearity_", 1e6 * 9.80665, "µg/g²")}

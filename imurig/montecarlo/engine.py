@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.errors import ConfigError, ImurigError, OutputExistsError
+from imurig.kernel.errors import ConfigError, ImurigError, OutputExistsError
 from imurig.montecarlo import distributions as _dist
 from imurig.montecarlo import registry
-from imurig.progress import progress
+from imurig.kernel.progress import progress
 
 FORMAT = 1
 RUN_FILE = "run_{:06d}.json"
@@ -270,7 +270,7 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
                     "runs_per_min_incl_startup": 60 * new / wall if new and wall > 0 else None,
                     "workers": _n_workers(client, scheduler, workers)}
     if out is not None and report:
-        from imurig.montecarlo.report import write_study_outputs
+        from imurig.reports.montecarlo import write_study_outputs
 
         write_study_outputs(study, camp)
     return study

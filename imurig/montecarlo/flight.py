@@ -41,7 +41,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 from imurig.montecarlo.distributions import Source
 from imurig.montecarlo.registry import register
 from imurig.sensors.chain import ImuLab
@@ -277,7 +277,7 @@ def calibrated_stream(truth, rec, lab: ImuLab, residual: dict):
 # -------------------------------------------------------------------- GPS and filter
 def _gps(truth, p: dict, ss: np.random.SeedSequence):
     """The Euro4 receiver's fixes (flights.report.gps_fixes, seeded from this run)."""
-    from imurig.flights.report import FlightOptions, gps_fixes
+    from imurig.reports.flight import FlightOptions, gps_fixes
 
     opt = FlightOptions(nav_rate_hz=p["nav_rate_hz"], imu_rate_hz=p["imu_rate_hz"], gps_rate_hz=p["gps_rate_hz"])
     seed = int(child_rng(ss, "gps").integers(0, 2**62))
@@ -287,7 +287,7 @@ def _gps(truth, p: dict, ss: np.random.SeedSequence):
 def navigate(truth, stream, gps, opt, lab: ImuLab, p: dict) -> dict:
     """LooseEKF with priors from the residuals' sigma (what a calibrated system knows); RMS errors."""
     from imurig.flights import ekf
-    from imurig.flights.report import (
+    from imurig.reports.flight import (
         align,
         errors,
         flight_declination,
@@ -349,8 +349,8 @@ def budget(rows_by_run: dict, configurations: list[str]) -> dict:
 
 def budget_report(study, folder) -> dict:
     """The budget table (markdown), summary dict and figure of a flight study."""
-    from imurig.montecarlo.report import _save_fig
-    from imurig.report import md_table
+    from imurig.reports.montecarlo import _save_fig
+    from imurig.reports.common import md_table
 
     camp = FLIGHT
     p = camp.validate(study.config["params"])

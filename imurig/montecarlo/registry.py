@@ -22,7 +22,7 @@ then runs it.
 """
 from __future__ import annotations
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 
 CAMPAIGNS: dict[str, object] = {}
 

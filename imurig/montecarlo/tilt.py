@@ -49,7 +49,7 @@ from imurig.campaigns.tilt_table import (
     calibrate,
     compare_with_truth,
 )
-from imurig.errors import ConfigError, ScheduleError
+from imurig.kernel.errors import ConfigError, ScheduleError
 from imurig.montecarlo.crlb import (
     crlb_covariance,
     fisher_information,
@@ -58,7 +58,7 @@ from imurig.montecarlo.crlb import (
 from imurig.montecarlo.distributions import Source
 from imurig.montecarlo.distributions import draw as draw_source
 from imurig.montecarlo.registry import register
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import (
     MOUNTS,
     TableSurvey,
@@ -75,8 +75,8 @@ from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 from imurig.sensors.noise import child_rng
-from imurig.site import Site, parse_time
-from imurig.units import ARCMIN, ARCSEC, DEG
+from imurig.kernel.site import Site, parse_time
+from imurig.kernel.units import ARCMIN, ARCSEC, DEG
 
 THETA_SEED = [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0]
 PHI_12 = [float(v) for v in range(0, 360, 30)]

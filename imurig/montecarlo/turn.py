@@ -43,12 +43,12 @@ from imurig.campaigns.turn_table import (
     calibrate_gyros,
     gyro_parameters,
 )
-from imurig.errors import ConfigError, ScheduleError
+from imurig.kernel.errors import ConfigError, ScheduleError
 from imurig.montecarlo.crlb import crlb_covariance, numerical_jacobian
 from imurig.montecarlo.distributions import Source
 from imurig.montecarlo.distributions import draw as draw_source
 from imurig.montecarlo.registry import register
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.rigs.turn_table import (
     TurnTable,
     TurnTableErrors,
@@ -59,8 +59,8 @@ from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import TURN_TABLE_SCAN, ImuLab
 from imurig.sensors.disturbances import SlipRingNoise
 from imurig.sensors.noise import child_rng
-from imurig.site import EARTH_RATE_RAD_S, Site
-from imurig.units import DEG
+from imurig.kernel.site import EARTH_RATE_RAD_S, Site
+from imurig.kernel.units import DEG
 
 AXES = ("p", "q", "r")
 PARAM_NAMES = ([f"sensitivity_{a}" for a in AXES]

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from imurig.errors import ImurigError
-from imurig.recording import Recording
+from imurig.kernel.errors import ImurigError
+from imurig.kernel.recording import Recording
 
 
 @dataclass

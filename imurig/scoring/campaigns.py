@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from imurig.errors import ImurigError
-from imurig.recording import Recording
+from imurig.kernel.errors import ImurigError
+from imurig.kernel.recording import Recording
 from imurig.scoring.score import TruthSet
 
 ACC_UNITS = {"sensitivity": "V/(m/s^2)", "misalignment": "rad", "bias": "m/s^2", "nonlinearity": "1/(m/s^2)"}

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.errors import ImurigError, OutputExistsError
-from imurig.recording import Recording, atomic_write, to_json
-from imurig.report import OutputFolder
+from imurig.kernel.errors import ImurigError, OutputExistsError
+from imurig.kernel.recording import Recording, atomic_write, to_json
+from imurig.reports.common import OutputFolder
 from imurig.scoring.campaigns import BenchCampaign, campaign
 
 MAT_LAYOUT = """recording.mat (MATLAB v5, load('recording.mat') or Octave load):
@@ -116,7 +116,7 @@ def _readme(c: BenchCampaign, truth_path: Path, template) -> str:
 def export_campaign(name: str, out, seed: int | None = None, truth_out=None, overwrite: bool = False,
                     mat: bool = True) -> dict:
     """Write the export folder ``out`` and the truth file (module doc). Returns the manifest."""
-    from imurig.labcsv import write_csv
+    from imurig.kernel.labcsv import write_csv
 
     c = campaign(name, seed)
     out = Path(out)

@@ -1,6 +1,6 @@
 """Score a user's navigation filter on the project's simulated flight (issue 6 wired to issue 8).
 
-The flight is the chain the ``imurig flight`` job uses (:mod:`imurig.flights.report`), made short:
+The flight is the chain the ``imurig flight`` job uses (:mod:`imurig.reports.flight`), made short:
 
     plan --MuJoCo--> FlightTruth (100 Hz at the IMU)
         -> IMU lab drawn from ``seed`` -> raw volts (Q-Flex, FOG, fluxgate, DAQ-6036E)
@@ -35,7 +35,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from imurig.errors import ConfigError
+from imurig.kernel.errors import ConfigError
 from imurig.scoring.interface import (
     EstimatesError,
     GpsStream,
@@ -110,7 +110,7 @@ def flight_streams(seed: int, duration_s: float | None = None, plan=None, *, cal
     the IMU, 100 Hz) is for scoring only and is not in the streams; ``meta`` (dict) describes the
     run (plan, seed, wall times) and is also not given to the filter.
     """
-    from imurig.flights import report as R
+    from imurig.reports import flight as R
     from imurig.sensors.chain import ImuLab
 
     t0 = time.perf_counter()
@@ -252,7 +252,7 @@ class ProjectEKF:
     def run(self, streams: NavStreams) -> NavSolution:
         from imurig.flights import earth as E
         from imurig.flights import ekf
-        from imurig.flights import report as R
+        from imurig.reports import flight as R
 
         m = streams.meta
         lat0, lon0 = math.radians(m["origin_deg"][0]), math.radians(m["origin_deg"][1])
@@ -285,7 +285,7 @@ class ProjectEKF:
         # over the default route); the stream's constant ``declination_rad`` only without a start time
         decl = m["declination_rad"]
         if m.get("start_time"):
-            from imurig.site import decimal_year, parse_time
+            from imurig.kernel.site import decimal_year, parse_time
 
             decl = ekf.IgrfDeclination(decimal_year(parse_time(m["start_time"])))
         f = ekf.LooseEKF(cfg, noise, lever_gps_B=lever, declination=decl)

@@ -45,8 +45,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from imurig.errors import ImurigError
-from imurig.recording import Recording
+from imurig.kernel.errors import ImurigError
+from imurig.kernel.recording import Recording
 
 
 class EstimatesError(ImurigError, ValueError):

@@ -26,7 +26,7 @@ def _template_units(kind: str) -> dict[str, str]:
     from imurig.scoring.campaigns import ACC_UNITS, _triad_names
 
     if kind != "tilt-table":
-        from imurig.errors import ImurigError
+        from imurig.kernel.errors import ImurigError
 
         raise ImurigError(f"Monte-Carlo scoring knows the tilt-table campaign only so far, not {kind!r}")
     return {n: ACC_UNITS[n.split("_")[0]] for n in _triad_names(("x", "y", "z"))}
@@ -79,7 +79,7 @@ def score_monte_carlo(calibrator, runs: int, master_seed: int = 0, campaign: str
 
 
 def monte_carlo_table(result: dict) -> str:
-    from imurig.report import md_table
+    from imurig.reports.common import md_table
 
     def f(v, d=3):
         return "–" if v is None else f"{v:.{d}g}"

@@ -2,7 +2,7 @@
 
 Parameter units are written as products and quotients of atomic units with integer powers,
 e.g. ``V/(m/s^2)``, ``1/(rad/s)``, ``m/s^2/K^2``, ``mg``, ``deg/h``, ``mV/(deg/s)``. The
-atomic units are those of the lab CSV suffix table (:mod:`imurig.units`: V, mV, uV, A, mA,
+atomic units are those of the lab CSV suffix table (:mod:`imurig.kernel.units`: V, mV, uV, A, mA,
 uA, rad, deg, arcmin, arcsec, T, uT, nT, K, degC, s, ms, us, m, Hz, ohm, and the suffix
 forms rad_s, deg_s, dps, m_s2) plus g, mg, ug (standard gravity), mrad, urad, h, min,
 ppm, % and 1.
@@ -20,8 +20,8 @@ import math
 import re
 from dataclasses import dataclass
 
-from imurig.errors import ImurigError
-from imurig.units import G_STANDARD, UNITS
+from imurig.kernel.errors import ImurigError
+from imurig.kernel.units import G_STANDARD, UNITS
 
 BASE = ("V", "A", "rad", "m", "s", "T", "K")
 

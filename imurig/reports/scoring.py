@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.report import OutputFolder, clean_json, md_table
+from imurig.reports.common import OutputFolder, clean_json, md_table
 from imurig.scoring.score import Score
 
 

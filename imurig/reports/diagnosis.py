@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.diagnose.rate_table import SEED_SAYS, diagnose_rate_rows
-from imurig.errors import RecordingError
-from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_table
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording
+from imurig.reports.common import OutputFolder, clean_json, md_table
 
 
 def effect_steps(y: np.ndarray, X0: np.ndarray, names0: list, candidates: list, diag, cov: np.ndarray | None = None,
@@ -102,7 +102,7 @@ def twin_options(rec: Recording, twin: dict | None = None, **given) -> dict:
     """The twin options for ``rec``: ``twin`` (default: the recording's own ``meta["diagnose_twin"]``,
     written by ``imurig concealed write``), overridden by the ``given`` ones that are not None.
     Refuses an option or a twin model that does not fit the recording's kind (ConfigError)."""
-    from imurig.errors import ConfigError
+    from imurig.kernel.errors import ConfigError
 
     kind = record_kind(rec)
     opts = dict(rec.meta.get("diagnose_twin") or {}) if twin is None else dict(twin)
@@ -631,7 +631,7 @@ def _figure_tilt(out, d: dict, key: str = "axes", prefix: str = "acc_", unit: st
 def _rrd(path, rec: Recording, d: dict):
     """The .rrd: recording, twin and corrected twin overlaid per channel (entities
     ``signals/<channel>/<observable>/{recording,twin,corrected_twin}``) and the findings as text."""
-    from imurig.viz import RrdWriter, log_scalars, log_text
+    from imurig.reports.viz import RrdWriter, log_scalars, log_text
 
     summary = "# Diagnosis\n\n" + ("\n".join(f"- **{r[1]}** ({r[0]}): {r[2]}" for r in _findings_rows(d))
                                     or "No effect accepted: the recording agrees with its twin.")

@@ -19,8 +19,8 @@ from imurig.flights import ekf, ins
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.noise import child_rng
 
-from imurig.errors import ConfigError
-from imurig.progress import progress
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.progress import progress
 
 DEG = math.pi / 180
 
@@ -252,7 +252,7 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
 
 def flight_declination(truth) -> float:
     """IGRF declination (rad, east positive) at the start of the flight."""
-    from imurig.site import decimal_year, parse_time
+    from imurig.kernel.site import decimal_year, parse_time
 
     yr = decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00")))
     return ekf.declination_rad(float(truth.lat_rad[0]), float(truth.lon_rad[0]), float(truth.h_m[0]), yr)
@@ -260,7 +260,7 @@ def flight_declination(truth) -> float:
 
 def declination_model(truth) -> ekf.IgrfDeclination:
     """IGRF declination along the route (callable D(lat, lon, h), rad) at the flight's date."""
-    from imurig.site import decimal_year, parse_time
+    from imurig.kernel.site import decimal_year, parse_time
 
     return ekf.IgrfDeclination(decimal_year(parse_time(truth.meta.get("start_time", "2005-06-26T08:00:00+02:00"))))
 
@@ -397,7 +397,7 @@ def datasheet_priors(truth, mag_iron_states: bool = True) -> dict:
     from imurig.sensors.gyro import FOGTriad as G
     from imurig.sensors.magnetometer import FluxgateTriad as F
 
-    from imurig.units import G_STANDARD
+    from imurig.kernel.units import G_STANDARD
 
     g = G_STANDARD
     s_b = datasheet_values(Q, "bias_max_ug") * 1e-6 * g
@@ -565,7 +565,7 @@ def summarise(err: dict, res: ekf.FilterResult, settle_s: float = 60.0) -> dict:
 
 def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     """The whole job; writes ``out`` atomically. Returns the summary."""
-    from imurig.report import OutputFolder
+    from imurig.reports.common import OutputFolder
 
     opt.validate()
     folder = OutputFolder(out, overwrite=overwrite)
@@ -622,7 +622,7 @@ def write_products(folder, truth, runs, gps, summary):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from imurig.report import md_table, published_figures
+    from imurig.reports.common import md_table, published_figures
 
     col = {"uncalibrated": "tab:red", "calibrated": "tab:blue"}
     # Fig. 6: roll and pitch in the static phases (or the first minutes on the ground)
@@ -735,7 +735,7 @@ Real-time factor of the filter: {summary['real_time_factor']:.1f}x ({summary['fi
 """
     folder.write_text("report.md", text)
     # rerun
-    from imurig import viz
+    from imurig.reports import viz
 
     with viz.RrdWriter(folder.file("flight.rrd"), overwrite=True) as w:
         lat0, lon0, h0 = truth.lat_rad[0], truth.lon_rad[0], truth.h_m[0]

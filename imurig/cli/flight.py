@@ -24,7 +24,7 @@ def add_flight_parser(sub) -> None:
 
 
 def _run(args) -> int:
-    from imurig.flights.report import FlightOptions, run
+    from imurig.reports.flight import FlightOptions, run
 
     opt = FlightOptions(flight=args.flight, seed=args.seed, duration_s=args.duration, nav_rate_hz=args.nav_rate,
                         gps_rate_hz=args.gps_rate, quick_calibration=not args.full_calibration,

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from imurig.montecarlo.stats import error_matrix, parameter_stats, table_arrays
-from imurig.report import clean_json, fmt, md_table
+from imurig.reports.common import clean_json, fmt, md_table
 
 
 def _tmp_for(path: Path) -> Path:
@@ -252,7 +252,7 @@ def render_report(study, stats, figs, lab, per_run, extra_md: str = "", lab_note
 
 
 def _write_rrd(path: Path, study, stats) -> None:
-    from imurig.viz import RrdWriter, log_scalars, log_text
+    from imurig.reports.viz import RrdWriter, log_scalars, log_text
 
     idx, names, units, A = table_arrays(study.rows)
     with RrdWriter(path, recording_name="Monte-Carlo study", overwrite=True, blueprint=None) as w:

@@ -13,12 +13,12 @@ import numpy as np
 import imurig
 from imurig.calibration.gyro import AXES
 from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
-from imurig.campaigns.tilt_table_report import peak_rss_bytes
+from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros,
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
-from imurig.progress import progress
-from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
+from imurig.kernel.progress import progress
+from imurig.kernel.recording import Recording
+from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -252,7 +252,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             bar.update()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            from imurig.campaigns.turn_table_rrd import write_rrd
+            from imurig.reports.turn_table_rrd import write_rrd
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
             bar.update(int(save_recording) + int(rrd))

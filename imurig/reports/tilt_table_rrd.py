@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.calibration.accelerometer import ACC, AXES
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
 from imurig.rigs.tilt_table import MOUNTS, _quat_wxyz
-from imurig.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
 
 DISPLAY_HZ = 10.0
 

@@ -17,10 +17,10 @@ from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
 from imurig.calibration.preprocess import lowpass_downsample
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
-from imurig.errors import UnidentifiableTermsError
-from imurig.progress import progress
-from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
+from imurig.kernel.errors import UnidentifiableTermsError
+from imurig.kernel.progress import progress
+from imurig.kernel.recording import Recording
+from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""
@@ -272,7 +272,7 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             figs = make_figures(out, rec, res)
             files.update({f"figure_{k}": v for k, v in figs.items()})
             bar.update()
-            from imurig.campaigns.tilt_table_rrd import write_rrd
+            from imurig.reports.tilt_table_rrd import write_rrd
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
             bar.update(int(save_recording) + int(rrd))

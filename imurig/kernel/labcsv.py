@@ -17,7 +17,7 @@ numbers::
 
 Rules
 - Every column but ``segment`` and ``run`` ends in a unit suffix (``_V``, ``_deg``,
-  ``_dps``, ``_m_s2``, ``_degC``, ``_nT`` ...; see :mod:`imurig.units`). Values are
+  ``_dps``, ``_m_s2``, ``_degC``, ``_nT`` ...; see :mod:`imurig.kernel.units`). Values are
   converted to SI on import.
 - ``time_s`` is required and must increase strictly.
 - ``segment`` (optional, integer): the acquisition window a row belongs to, ``-1`` while
@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.errors import RecordingError
-from imurig.recording import Recording, atomic_write
-from imurig.units import from_si, split_column, to_si
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.recording import Recording, atomic_write
+from imurig.kernel.units import from_si, split_column, to_si
 
 INDEX_COLUMNS = ("segment", "run")
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.campaigns.turn_table_rrd import block_means
-from imurig.recording import Recording
+from imurig.reports.turn_table_rrd import block_means
+from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
-from imurig.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
 
 
 def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True, display_period_s: float = 10.0) -> None:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.calibration.gyro import AXES, GYRO
-from imurig.recording import Recording
+from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
 from imurig.rigs.tilt_table import _quat_wxyz
 from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
-from imurig.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
 
 DISPLAY_HZ = 10.0
 

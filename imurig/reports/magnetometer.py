@@ -8,10 +8,10 @@ import numpy as np
 
 import imurig
 from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse, indicated_field, manoeuvre_mask
-from imurig.campaigns.tilt_table_report import peak_rss_bytes
-from imurig.progress import progress
-from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.reports.tilt_table import peak_rss_bytes
+from imurig.kernel.progress import progress
+from imurig.kernel.recording import Recording
+from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
 
 
 def _fig5(out, res) -> str:
@@ -152,7 +152,7 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
     """The gimbal turning the IMU; the measured field (ellipsoid) against the calibrated one
     (on the IGRF sphere), in uT; X, Y and norm over time."""
     from imurig.rigs.mujoco_rig import load_model
-    from imurig.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
+    from imurig.reports.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
                             log_scalars, log_sphere, log_text)
 
     model = load_model("mag_rig.xml")

@@ -15,7 +15,7 @@ A Recording holds
   with ``true_`` or ending in ``_true`` are truth and are dropped by ``without_truth``.
 
 Storage: HDF5 (h5py), see :func:`save_h5`; lab exchange: CSV with ``# key: value``
-metadata lines, see :mod:`imurig.labcsv`.
+metadata lines, see :mod:`imurig.kernel.labcsv`.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from imurig.errors import OutputExistsError, RecordingError
+from imurig.kernel.errors import OutputExistsError, RecordingError
 
 FORMAT_NAME = "imurig-recording"
 FORMAT_VERSION = 1
@@ -286,7 +286,7 @@ def load(path) -> Recording:
     if p.suffix.lower() in (".h5", ".hdf5"):
         return load_h5(p)
     if p.suffix.lower() == ".csv":
-        from imurig.labcsv import read_csv
+        from imurig.kernel.labcsv import read_csv
 
         return read_csv(p)
     raise RecordingError(f"unknown recording type '{p.suffix}' for {p}; use .h5 or .csv")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from imurig.errors import RecordingError
+from imurig.kernel.errors import RecordingError
 
 G_STANDARD = 9.80665  # m/s^2, used only to convert datasheet 'g' figures
 ARCMIN = math.pi / (180 * 60)  # rad

@@ -6,7 +6,7 @@ import importlib
 import sys
 from pathlib import Path
 
-from imurig.errors import ImurigError
+from imurig.kernel.errors import ImurigError
 
 
 def add_scoring_parsers(sub) -> None:
@@ -66,7 +66,7 @@ def _run_export(a):
 
 def _run_score(a):
     from imurig.scoring.files import read_estimates
-    from imurig.scoring.report import write_score
+    from imurig.reports.scoring import write_score
     from imurig.scoring.score import TruthSet, score_estimates
 
     truth = TruthSet.load(a.truth)

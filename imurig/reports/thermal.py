@@ -9,10 +9,10 @@ import numpy as np
 import imurig
 from imurig.calibration.thermal import T0
 from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
-from imurig.campaigns.tilt_table_report import peak_rss_bytes
-from imurig.progress import progress
-from imurig.recording import Recording
-from imurig.report import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.reports.tilt_table import peak_rss_bytes
+from imurig.kernel.progress import progress
+from imurig.kernel.recording import Recording
+from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
 
 
 def _figs(out, rec: Recording, res: dict) -> dict:
@@ -117,7 +117,7 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
             out.write_json("thermal_calibration.json", thermal_calibration_dict(res))
             files = {"report": "report.md", "summary": "summary.json", "calibration": "thermal_calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            from imurig.campaigns.thermal_rrd import write_rrd
+            from imurig.reports.thermal_rrd import write_rrd
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
             bar.update()

@@ -97,7 +97,7 @@ def _params(args) -> dict:
 
 
 def run_cli(args) -> None:
-    from imurig.errors import ConfigError
+    from imurig.kernel.errors import ConfigError
     from imurig.montecarlo import distributions as dist
     from imurig.montecarlo import registry
     from imurig.montecarlo.engine import RUN_FILE, load_study, reproduce_run, run_study

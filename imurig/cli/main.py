@@ -19,7 +19,7 @@ import json
 import sys
 from pathlib import Path
 
-from imurig.errors import ImurigError
+from imurig.kernel.errors import ImurigError
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -95,7 +95,7 @@ def _add_turn_table(sub):
 
 def _run_turn_table(a):
     from imurig.campaigns.turn_table import TurnTableCampaign
-    from imurig.campaigns.turn_table_report import run
+    from imurig.reports.turn_table import run
     from imurig.rigs.turn_table import TurnTableProtocol
 
     proto = TurnTableProtocol(dial_rates_dps=a.rates, directions=tuple(int(d) for d in a.directions),
@@ -118,7 +118,7 @@ def _run_turn_table(a):
 def _run_simona(a):
     from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
     from imurig.campaigns.turn_table import simona_virtual
-    from imurig.report import OutputFolder
+    from imurig.reports.common import OutputFolder
 
     real = read_simona(a.csv)
     virt = simona_virtual(a.seed)
@@ -151,7 +151,7 @@ def _add_thermal(sub):
 
 def _run_thermal(a):
     from imurig.campaigns.thermal import ThermalCampaign
-    from imurig.campaigns.thermal_report import run
+    from imurig.reports.thermal import run
     from imurig.rigs.thermal_chamber import ThermalProfile
 
     prof = ThermalProfile(low_C=a.low, high_C=a.high, step_C=a.step, cycles=a.cycles, soak_s=a.soak)
@@ -189,7 +189,7 @@ def _add_magnetometer(sub):
 
 def _run_magnetometer(a):
     from imurig.campaigns.magnetometer import MagnetometerCampaign
-    from imurig.campaigns.magnetometer_report import run
+    from imurig.reports.magnetometer import run
 
     camp = MagnetometerCampaign(seed=a.seed, start_time=a.start_time, hard_iron_max_nT=a.hard_iron_nT,
                                 noise_nT=a.noise_nT)
@@ -206,7 +206,7 @@ def _run_magnetometer(a):
 
 def _run_tilt_table(a):
     from imurig.campaigns.tilt_table import TiltTableCampaign
-    from imurig.campaigns.tilt_table_report import run
+    from imurig.reports.tilt_table import run
     from imurig.rigs.tilt_table import TiltTableProtocol
 
     proto = TiltTableProtocol(theta_deg=a.theta, phi_deg=a.phi, runs=a.runs, dwell_s=a.dwell,
@@ -238,9 +238,9 @@ def _print_summary(s: dict, out):
 
 
 def _run_calibrate(a):
-    from imurig.campaigns.tilt_table_report import analyse, make_figures, summary_dict, _report_md
-    from imurig.recording import load
-    from imurig.report import OutputFolder
+    from imurig.reports.tilt_table import analyse, make_figures, summary_dict, _report_md
+    from imurig.kernel.recording import load
+    from imurig.reports.common import OutputFolder
 
     rec = load(a.recording).validate()
     if a.rig != "tilt-table":
@@ -260,8 +260,8 @@ def _run_calibrate(a):
 def _run_apply(a):
     from imurig.calibration.accelerometer import AccelerometerCalibration
     from imurig.calibration.gyro import GyroCalibration
-    from imurig.labcsv import write_csv
-    from imurig.recording import load, save_h5
+    from imurig.kernel.labcsv import write_csv
+    from imurig.kernel.recording import load, save_h5
 
     try:
         d = json.loads(Path(a.calibration).read_text())
@@ -281,7 +281,7 @@ def _run_apply(a):
 
 
 def _run_diagnose(a):
-    from imurig.diagnose.report import run
+    from imurig.reports.diagnosis import run
 
     if a.recording == "simona":
         from imurig.calibration.simona import read_simona
@@ -292,13 +292,13 @@ def _run_diagnose(a):
 
         rec = read_simona(a.recording)
     else:
-        from imurig.recording import load
+        from imurig.kernel.recording import load
 
         rec = load(a.recording).validate()
     # the twin: the recording's own meta["diagnose_twin"] (if any), overridden by the flags given
     d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
             earth_rate=False if a.twin_without_earth_rate else None)
-    from imurig.diagnose.report import _findings_rows
+    from imurig.reports.diagnosis import _findings_rows
 
     for r in _findings_rows(d):
         print(f"- {r[1]} ({r[0]}): {r[2]}\n    {r[3]}")
@@ -314,8 +314,8 @@ def _is_appendix_b(path) -> bool:
 
 
 def _run_convert(a):
-    from imurig.labcsv import write_csv
-    from imurig.recording import load, save_h5
+    from imurig.kernel.labcsv import write_csv
+    from imurig.kernel.recording import load, save_h5
 
     rec = load(a.input)
     dst = Path(a.output)
@@ -329,7 +329,7 @@ def _run_convert(a):
 
 
 def _run_info(a):
-    from imurig.recording import load
+    from imurig.kernel.recording import load
 
     rec = load(a.recording)
     info = {"samples": rec.n, "duration_s": float(rec.time_s[-1] - rec.time_s[0]),
@@ -360,13 +360,13 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--overwrite", action="store_true")
     sim.set_defaults(func=_run_simona)
 
-    from imurig.montecarlo.cli import add_montecarlo_parser
+    from imurig.cli.montecarlo import add_montecarlo_parser
     add_montecarlo_parser(sub)
 
-    from imurig.flights.cli import add_flight_parser
+    from imurig.cli.flight import add_flight_parser
     add_flight_parser(sub)
 
-    from imurig.diagnose.cases import add_concealed_parser
+    from imurig.concealed.cases import add_concealed_parser
     add_concealed_parser(sub)
 
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
@@ -413,7 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("recording")
     info.set_defaults(func=_run_info)
 
-    from imurig.scoring.cli import add_scoring_parsers
+    from imurig.cli.scoring import add_scoring_parsers
     add_scoring_parsers(sub)
     return p
 

@@ -28,7 +28,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from imurig.errors import OutputExistsError
+from imurig.kernel.errors import OutputExistsError
 
 TIMELINE = "time"
 _SOLID = rr.components.FillMode.Solid

@@ -135,8 +135,8 @@ TURN_REMOUNTS = {"dial_rates_dps": (20, 100), "mounts": ("p_up", "q_up", "r_up")
 def earth_fraction_site(fraction: float):
     """The default lab moved to the latitude where the Earth's vertical rate Omega sin(lat) is
     ``fraction`` of Delft's (52 deg N); 0 <= fraction <= 1 / sin(52 deg) = 1.27."""
-    from imurig.errors import ConfigError
-    from imurig.site import Site
+    from imurig.kernel.errors import ConfigError
+    from imurig.kernel.site import Site
 
     s = fraction * math.sin(math.radians(Site().latitude_deg))
     if not 0.0 <= s <= 1.0:

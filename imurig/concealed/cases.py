@@ -1,6 +1,6 @@
 """The concealed-effect suite as files: ``imurig concealed``.
 
-Every case of :mod:`imurig.diagnose.suite` (one library effect present at a chosen size but
+Every case of :mod:`imurig.concealed.suite` (one library effect present at a chosen size but
 left out of the twin) and its null data (nothing left out) can be written as an ordinary
 recording, with the injected truth inside it, and diagnosed with ``imurig diagnose`` like a
 lab recording. The recording names the twin it must be compared with in
@@ -24,12 +24,12 @@ import json
 import time
 from pathlib import Path
 
-from imurig.errors import ConfigError
-from imurig.recording import Recording
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.recording import Recording
 
 
 def _suite():
-    from imurig.diagnose import suite
+    from imurig.concealed import suite
 
     return suite
 
@@ -60,12 +60,12 @@ def case_recording(case, seed: int, size: float | None = None, null: bool = Fals
     size = case.realistic_size if size is None else float(size)
     rec = suite.null_recording(case, seed) if null else case.make(seed, size)
     twin = case.null_twin if null and case.null_twin is not None else case.twin
-    from imurig.diagnose.report import TWIN_OPTIONS
+    from imurig.reports.diagnosis import TWIN_OPTIONS
 
     unknown = set(twin) - TWIN_OPTIONS[case.rig]
     if unknown:  # a twin that `imurig diagnose` could not rebuild from the file
         raise ConfigError(f"case {case.rig}:{case.effect} uses twin options {sorted(unknown)} that "
-                          "`imurig diagnose` does not read; add them to imurig.diagnose.report.TWIN_OPTIONS and to the dispatcher")
+                          "`imurig diagnose` does not read; add them to imurig.reports.diagnosis.TWIN_OPTIONS and to the dispatcher")
     # the suite compares slews only where the case says so; the file says it explicitly
     rec.meta["diagnose_twin"] = {"dynamics": False, **twin} if case.rig == "tilt_table" else dict(twin)
     rec.meta["concealed_case"] = {
@@ -98,7 +98,7 @@ def score(case, rec: Recording, d: dict) -> dict:
 
 
 def _write(a):
-    from imurig.recording import save_h5
+    from imurig.kernel.recording import save_h5
 
     case = find_case(a.case)
     rec = case_recording(case, a.seed, a.size, a.null)
@@ -110,7 +110,7 @@ def _write(a):
 
 
 def _list(_a):
-    from imurig.report import md_table
+    from imurig.reports.common import md_table
 
     rows = [[f"{c.rig}:{c.effect}", f"{c.realistic_size:.4g}", c.size_unit, json.dumps(c.twin) if c.twin else "–",
              ", ".join(sorted(f"{ch}:{e}" for ch, e in c.expected))] for c in _suite().CASES]
@@ -120,10 +120,10 @@ def _list(_a):
 def run_all(out_dir, seeds: int = 1, overwrite: bool = False, cases: list[str] | None = None) -> dict:
     """Write every case (at its realistic size) and every null record of the suite, diagnose
     each through ``imurig diagnose``'s own path, and report the score (module doc)."""
-    from imurig.diagnose.report import run as diagnose_run
-    from imurig.progress import progress
-    from imurig.recording import load, save_h5
-    from imurig.report import OutputFolder, md_table
+    from imurig.reports.diagnosis import run as diagnose_run
+    from imurig.kernel.progress import progress
+    from imurig.kernel.recording import load, save_h5
+    from imurig.reports.common import OutputFolder, md_table
 
     suite = _suite()
     chosen = [find_case(s) for s in cases] if cases else list(suite.CASES)

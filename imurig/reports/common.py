@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.errors import OutputExistsError
-from imurig.recording import to_json
+from imurig.kernel.errors import OutputExistsError
+from imurig.kernel.recording import to_json
 
 
 def published_figures() -> dict:
@@ -117,7 +117,7 @@ def save_products(out: OutputFolder, rec, res, write_rrd, save_recording: bool =
     """Write the recording (HDF5) and the rerun file of a campaign into ``out``; returns the
     files written. ``write_rrd(path, rec, res)`` is the campaign's own rerun writer;
     ``stage(name)`` is called before each (progress display)."""
-    from imurig.recording import save_h5
+    from imurig.kernel.recording import save_h5
 
     files = {}
     if save_recording:

@@ -1,0 +1,4 @@
+"""The command line: ``imurig COMMAND``."""
+from imurig.cli.main import main
+
+__all__ = ["main"]

@@ -1,0 +1,1 @@
+"""Reports: Markdown, figures, summary.json and rerun recordings of every study."""
