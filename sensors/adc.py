@@ -21,12 +21,14 @@ with f_mux because the amplifier has less time to settle (seed Table 4.3).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from imurig.kernel.errors import ConfigError
+from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
+from imurig.sensors.effects.adc_quantisation import variance_V2
+from imurig.sensors.effects.base import ScanSlot
 
 GROUNDINGS = ("GRSE", "NRSE", "DIFF")
 
@@ -65,11 +67,18 @@ class DAQ6036E:
     def lsb_V(self) -> float:
         return 2 * self.range_V / 2**self.bits
 
+    @property
+    def crosstalk(self) -> AdcCrosstalk:
+        """The settling crosstalk effect of this converter (:mod:`imurig.sensors.effects.adc_crosstalk`)."""
+        return AdcCrosstalk(settling_tau_s=self.settling_tau_s, enabled=self.crosstalk_enabled)
+
     def crosstalk_coefficient(self) -> float:
         """Fraction of the previous channel's difference left when this one is sampled."""
-        if not self.crosstalk_enabled:
-            return 0.0
-        return math.exp(-1.0 / (self.mux_frequency_hz * self.settling_tau_s))
+        return self.crosstalk.coefficient(self.mux_frequency_hz)
+
+    def sample_variance_V2(self) -> float:
+        """Per-logged-sample variance of rounding and input noise (V^2), :func:`variance_V2`."""
+        return variance_V2(self.lsb_V, self.input_noise_lsb_rms, self.averaging)
 
     def convert(self, analog: dict[str, np.ndarray], time_s: np.ndarray, rng: np.random.Generator,
                 slope: dict[str, np.ndarray] | None = None) -> tuple[dict[str, np.ndarray], dict]:
@@ -90,7 +99,8 @@ class DAQ6036E:
             phase = rng.uniform(0, 2 * np.pi)
             common += self.ground_loop_V * (np.sin(2 * np.pi * self.mains_hz * time_s + phase)
                                             + 0.3 * np.sin(2 * np.pi * 3 * self.mains_hz * time_s))
-        c = self.crosstalk_coefficient()
+        crosstalk = self.crosstalk
+        c = crosstalk.coefficient(self.mux_frequency_hz)
         q = self.lsb_V
         lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
         out, saturated = {}, {}
@@ -109,13 +119,12 @@ class DAQ6036E:
                     prev = np.concatenate(([u[0]], last[:-1]))
                 else:
                     prev = held
-                u = u + c * (prev - u)
+                u = crosstalk.inject(u, ScanSlot(j, self.mux_frequency_hz, prev))
             held = u_in
             if self.averaging > 1:
                 # the mean of `averaging` dithered conversions: quantisation and input noise
-                # average down, (q^2/12 + (e q)^2) / averaging, and the result is no longer on the grid
-                var = (q**2 / 12 + (self.input_noise_lsb_rms * q) ** 2) / self.averaging
-                codes = np.clip((u + np.sqrt(var) * rng.standard_normal(n)) / q, lo, hi)
+                # average down and the result is no longer on the grid
+                codes = np.clip((u + np.sqrt(self.sample_variance_V2()) * rng.standard_normal(n)) / q, lo, hi)
             else:
                 u = u + self.input_noise_lsb_rms * q * rng.standard_normal(n)
                 codes = np.clip(np.round(u / q), lo, hi)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from imurig.rigs.tilt_table import TiltTableProtocol
+from imurig.sensors.effects import AdcCrosstalk
 
 DEG_PER_H_PER_G = math.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
 SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
@@ -272,9 +273,7 @@ def _param(d, axis, effect, k=0):
 CASES = [
     Case("adc_crosstalk", "tilt_table", {("y", "adc_crosstalk"), ("z", "adc_crosstalk")}, _crosstalk, 2e-4,
          sizes=(1e-5, 2e-5, 5e-5, 1e-4, 2e-4), size_unit="settling residual c (V/V)",
-         truth_param=lambda rec: -rec.truth["chain"]["adc"]["crosstalk_coefficient"] / (
-             rec.truth["sensors"]["accelerometers"]["sensitivity_V_per_m_s2"][1]
-             * (1 - rec.truth["chain"]["adc"]["crosstalk_coefficient"])),
+         truth_param=lambda rec: AdcCrosstalk().fitted(rec.truth, "acc_y")["c"],
          found_param=lambda d: _param(d, "y", "adc_crosstalk")),
     Case("building_vibration", "tilt_table", {(a, "building_vibration") for a in "xyz"}, _pump, 0.03,
          sizes=(0.001, 0.002, 0.005, 0.01, 0.03), size_unit="pump rms (m/s^2)"),

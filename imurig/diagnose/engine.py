@@ -28,22 +28,7 @@ import numpy as np
 
 from imurig.calibration.regression import RegressionResult, fit_ols
 from imurig.kernel.errors import UnidentifiableTermsError
-
-
-@dataclass
-class Candidate:
-    """A named physical mechanism, linear in its amplitude(s) for a fixed scan value."""
-
-    name: str
-    physics: str                                     # what was left out, in words
-    param_names: tuple[str, ...]
-    columns: Callable[[object], np.ndarray]          # theta -> (m, k)
-    scan: tuple = (None,)                            # values of the nonlinear parameter
-    scan_name: str | None = None
-
-    def design(self, theta) -> np.ndarray:
-        c = np.asarray(self.columns(theta), float)
-        return c[:, None] if c.ndim == 1 else c
+from imurig.sensors.effects.base import Candidate  # noqa: F401  (the engine's candidates are the effect library's)
 
 
 @dataclass

@@ -29,6 +29,7 @@ from imurig.diagnose.engine import Candidate, select_effects
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
+from imurig.sensors.effects import AdcCrosstalk, PositionView, for_view
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -65,6 +66,10 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     inputs = {n: u[:, j] for j, n in enumerate(("ax", "ay", "az"))}
     temp_names = [c for c in ("temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box") if c in rec100.channels]
     temps = segment_statistic(rec100, temp_names, "median") if temp_names else None
+
+    def medians(name: str):
+        """Per-position median of a recorded channel (V), or None where it is not recorded."""
+        return segment_statistic(rec100, [name], "median")[:, 0] if name in rec100.channels else None
     for j, a in enumerate(AXES):
         res = cal.results_[a]
         from imurig.calibration.terms import TermLibrary
@@ -76,16 +81,11 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         # reference, dref/d(error), joins the twin as nuisance columns where the model terms do
         # not already hold it (a per-mounting phi-zero difference is not a misalignment)
         X0, names0 = _with_survey_nuisance(X0, list(res.names), J[:, j, :])
-        lib = []
         ch = f"acc_{a}"
-        prev = None
-        if ch in scan:
-            prev = scan[scan.index(ch) - 1] if scan.index(ch) > 0 else scan[-1]
-            if prev in rec100.channels:
-                pv = segment_statistic(rec100, [prev], "median")[:, 0]
-                lib.append(Candidate("adc_crosstalk", f"ADC multiplexer crosstalk: the previously scanned channel "
-                                     f"'{prev}' leaks into '{ch}' (settling too short for the mux frequency)",
-                                     ("c",), lambda _, pv=pv: pv))
+        view = PositionView(channel=ch, axis=a, readings=inputs, channel_median=medians, scan_list=tuple(scan),
+                            model_terms=frozenset(res.names))
+        lib = [c for cls in for_view(PositionView.kind) for c in cls().candidates(view)]
+        prev = AdcCrosstalk.previous_channel(scan, ch)
         # a drift with temperature can only be named where the temperature moved (> 0.2 K)
         if temps is not None and np.ptp(temps[:, 0]) * 1e3 * 0.1 > 0.2:  # volts -> K: 1 uA/K over 10 kohm
             t_dev = temps[:, 0] - np.mean(temps[:, 0])

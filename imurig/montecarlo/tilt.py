@@ -438,8 +438,7 @@ def window_noise_cov(p: dict, lab: ImuLab, n_window: int) -> np.ndarray:
             var_i += rms**2 / (_power_gain(fs, hi) * n_window)
         # band-pass above DC: zero mean power at DC, nothing left in a long window mean
     cov = np.diag(var_i * acc.load_resistor_ohm**2)
-    q = adc.lsb_V
-    cov += np.eye(3) * (q**2 / 12 + (adc.input_noise_lsb_rms * q) ** 2) / max(adc.averaging, 1) / n_window
+    cov += np.eye(3) * adc.sample_variance_V2() / n_window
     if adc.grounding != "DIFF":
         cov += adc.common_mode_noise_V_rms**2 / n_window
     return cov

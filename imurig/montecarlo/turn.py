@@ -61,6 +61,7 @@ from imurig.sensors.disturbances import SlipRingNoise
 from imurig.sensors.noise import child_rng
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
 from imurig.kernel.units import DEG
+from imurig.sensors.effects.adc_quantisation import variance_V2
 
 AXES = ("p", "q", "r")
 PARAM_NAMES = ([f"sensitivity_{a}" for a in AXES]
@@ -319,7 +320,7 @@ def whole_round_noise(rec: Recording, rw: Recording, rate: np.ndarray, p: dict) 
     C = np.einsum("ij,k,kl->ikjl", K, SF**2, np.eye(3))                     # (n, 3, n, 3)
     adc = rec.meta["adc"]
     q = float(adc["lsb_V"])
-    white = (q**2 / 12 + (adc["input_noise_lsb_rms"] * q) ** 2) / max(int(adc.get("averaging", 1)), 1)
+    white = variance_V2(q, adc["input_noise_lsb_rms"], adc.get("averaging", 1))
     cm = adc["common_mode_noise_V_rms"] ** 2 if adc["grounding"] != "DIFF" else 0.0
     slip = 0.0
     sr = (rec.truth.get("chain") or {}).get("slip_rings")

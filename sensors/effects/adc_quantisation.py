@@ -1,0 +1,45 @@
+"""Quantisation and input noise of the 16-bit converter (seed 2 and 4.3.4).
+
+    code = round((u + e_adc) / q),  e_adc ~ N(0, (k_e q)^2),  q = 2 range / 2^bits     [V]
+
+Per logged sample the error is white with variance
+
+    var = (q^2 / 12 + (k_e q)^2) / n_avg                                           [V^2]
+
+where n_avg conversions are averaged into one logged sample (1 without averaging). This is the
+one place the project writes that variance: the Cramér-Rao bounds, the Monte-Carlo budgets and the
+diagnosis' noise floor (never below q / sqrt(12)) ask :func:`variance_V2` or the effect.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from imurig.sensors.effects.base import ChainContext, Effect, Param
+
+
+def variance_V2(lsb_V: float, input_noise_lsb_rms: float = 0.0, averaging: int = 1) -> float:
+    """Per-logged-sample variance (V^2) of a converter's rounding and input noise: (q^2/12 + (k_e q)^2) / n_avg."""
+    q = float(lsb_V)
+    return (q * q / 12.0 + (float(input_noise_lsb_rms) * q) ** 2) / max(int(averaging), 1)
+
+
+def floor_V(lsb_V: float) -> float:
+    """The smallest noise level a quantised channel can show: q / sqrt(12) (V)."""
+    return float(lsb_V) / 12.0 ** 0.5
+
+
+@dataclass
+class AdcQuantisation(Effect):
+    """The converter's rounding and input noise; the size is the converter's (``ctx.adc``)."""
+
+    name: ClassVar[str] = "adc_quantisation"
+    stage: ClassVar[str] = "conversion"
+    physics: ClassVar[str] = "rounding to the converter's step q and the converter's own input noise"
+    seed_section: ClassVar[str] = "2, 4.3.4"
+    seed_says: ClassVar[str] = "a 16-bit converter (DAQ-6036E) digitises every analog line"
+    params: ClassVar[tuple] = (Param("input_noise_lsb_rms", "LSB", datasheet=0.6),)
+
+    def noise_variance(self, ctx: ChainContext) -> float:
+        adc = ctx.adc
+        return variance_V2(adc.lsb_V, adc.input_noise_lsb_rms, adc.averaging)
