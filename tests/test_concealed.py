@@ -10,7 +10,7 @@ import pytest
 from imurig.cli.main import main
 from imurig.concealed import cases
 from imurig.concealed import suite
-from imurig.reports.diagnosis import TWIN_OPTIONS
+from imurig.diagnose.dispatch import TWIN_OPTIONS
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import load
 

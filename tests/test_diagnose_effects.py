@@ -10,11 +10,8 @@ import pytest
 from imurig.sensors.accelerometer import lever_arm_specific_force
 
 from imurig.concealed.suite import CASES, diagnose_case, found_effects, null_recording
-from imurig.diagnose.tilt_table import (
-    diagnose_tilt_dynamics,
-    slew_commands,
-    tilt_table_twin,
-)
+from imurig.diagnose.tilt_dynamics import diagnose_tilt_dynamics
+from imurig.diagnose.tilt_twin import slew_commands, tilt_table_twin
 
 
 def _case(effect):

@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from imurig.concealed import magnetometer as MC
 from imurig.diagnose import magnetometer as M
 from imurig.concealed.suite import CASES, diagnose_case, found_effects
 from imurig.kernel.errors import ConfigError, RecordingError
@@ -47,9 +48,9 @@ def test_installation_errors_named_together():
 
 @pytest.mark.parametrize("twin_model", ["nominal", "calibrated"])
 def test_null_records_clean(twin_model):
-    rec = M.null_recording(7, twin_model)
+    rec = MC.null_recording(7, twin_model)
     d = M.diagnose_magnetometer(rec, np.random.default_rng(7), twin_model=twin_model)
-    assert not M.found_effects(d)
+    assert not MC.found_effects(d)
     # the noise model: the fluxgate's 5 nT (plus the DAQ's share) from the samples themselves
     sig = np.array(d["noise"]["sample_sigma_nT"])
     assert np.all((sig > 4.8) & (sig < 5.6)), sig
@@ -57,11 +58,11 @@ def test_null_records_clean(twin_model):
 
 def test_outside_the_library_is_unexplained():
     """A periodic disturbance (8 nT, 47 s period, x only) that no library effect describes."""
-    rec = M.null_recording(4, "calibrated")
+    rec = MC.null_recording(4, "calibrated")
     s = rec.meta["mag_nominal_sensitivity_V_per_T"][0]
     rec.channels["mag_x"] = rec.channels["mag_x"] + 8e-9 * s * np.sin(2 * np.pi * rec.time_s / 47.0)
     d = M.diagnose_magnetometer(rec, np.random.default_rng(4), twin_model="calibrated")
-    assert M.found_effects(d) == {("mag", "unexplained_residual")}
+    assert MC.found_effects(d) == {("mag", "unexplained_residual")}
     u = d["unexplained_finding"]
     assert u["axes"] == ["x"]
     # the block series has gaps between manoeuvres: the peak sits within a few bins of 1/47 Hz
@@ -70,8 +71,8 @@ def test_outside_the_library_is_unexplained():
 
 
 def test_same_seed_same_data_and_report(tmp_path):
-    a = M.case_recording("hard_iron", 3, 50.0)
-    b = M.case_recording("hard_iron", 3, 50.0)
+    a = MC.case_recording("hard_iron", 3, 50.0)
+    b = MC.case_recording("hard_iron", 3, 50.0)
     for c in M.MAG:
         np.testing.assert_array_equal(a.channels[c], b.channels[c])
     from imurig.reports.diagnosis import _findings_rows, run
@@ -87,7 +88,7 @@ def test_same_seed_same_data_and_report(tmp_path):
 
 
 def test_bad_input_refused():
-    rec = M.null_recording(3, "nominal")
+    rec = MC.null_recording(3, "nominal")
     with pytest.raises(ConfigError, match="twin model"):
         M.diagnose_magnetometer(rec, np.random.default_rng(0), twin_model="physical")
     short = rec.replace(time_s=rec.time_s[:-5], channels={k: v[:-5] for k, v in rec.channels.items()})
@@ -103,7 +104,7 @@ def test_bad_input_refused():
 
 def test_twin_attitude_reproduces_the_field():
     """The TRIAD attitude of the twin maps the IGRF field onto the gimbal's field to rounding."""
-    rec = M.null_recording(3, "nominal")
+    rec = MC.null_recording(3, "nominal")
     tw = M.build_twin(rec)
     B = np.einsum("nij,j->ni", tw.R_CW, tw.B_W)
     B_true = np.column_stack([rec.truth_signals[f"B_C_{a}"] for a in "xyz"]) * 1e9

@@ -173,7 +173,7 @@ def test_turn_report_round_means(tmp_path):
 
 def test_null_tilt_positions_say_no_effect(tmp_path):
     """A null tilt record (nothing left out of the physical twin): the same plots, 'no effect accepted'."""
-    from imurig.reports.diagnosis import _figure_tilt_positions
+    from imurig.reports.diagnosis_figures_tilt import figure_tilt_positions
     from imurig.diagnose.tilt_table import diagnose_tilt_table
     from imurig.reports.common import OutputFolder
 
@@ -182,7 +182,7 @@ def test_null_tilt_positions_say_no_effect(tmp_path):
     d = {"kind": "tilt_table", **diagnose_tilt_table(rec, np.random.default_rng(2), n_sim=200)}
     assert found_effects(d) == set()
     with OutputFolder(tmp_path / "f") as out:
-        name = _figure_tilt_positions(out, d)
+        name = figure_tilt_positions(out, d)
     assert (tmp_path / "f" / name).stat().st_size > 1000
     for e in d["axes"].values():
         assert e["fit_steps"][0]["residual_rms"] == pytest.approx(np.sqrt(np.mean(np.square(e["residuals"]["before"]))))
@@ -190,10 +190,10 @@ def test_null_tilt_positions_say_no_effect(tmp_path):
 
 def test_twin_model_choice_checked_against_the_rig(tmp_path, capsys):
     """--twin-model takes the magnetometer twins, and refuses a twin that does not fit the rig."""
-    from imurig.diagnose import magnetometer as M
+    from imurig.concealed import magnetometer as MC
     from imurig.kernel.recording import save_h5
 
-    rec = M.null_recording(3, "nominal")
+    rec = MC.null_recording(3, "nominal")
     path = save_h5(rec, tmp_path / "mag.h5")
     assert main(["diagnose", str(path), "--out", str(tmp_path / "a"), "--twin-model", "physical"]) == 2
     assert "does not fit a magnetometer recording" in capsys.readouterr().err

@@ -12,12 +12,12 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.accelerometer import (AXES, INPUTS, MODELS, AccelerometerCalibration, injected_parameters)
-from imurig.calibration.preprocess import lowpass_downsample
 from imurig.calibration.regression import check_identifiable
-from imurig.kernel.errors import RecordingError, UnidentifiableTermsError
+# the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
+from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
+from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.kernel.recording import Recording
-from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol,
-                                    reference_with_jacobian, setting_error_covariance, specific_force_C)
+from imurig.rigs.tilt_table import TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, specific_force_C
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
@@ -110,41 +110,6 @@ class TiltTableCampaign:
 
 
 # -------------------------------------------------------------------- analysis
-def tilt_table_reference(rec: Recording):
-    """Reference specific force per segment from set-points and survey: (ref, J, sigma)."""
-    return reference_with_jacobian(*_reference_inputs(rec))
-
-
-def _reference_inputs(rec: Recording):
-    """(segments with 'mount', local gravity, survey) of a tilt-table recording."""
-    for col in ("theta", "phi"):
-        if col not in rec.segments:
-            raise RecordingError(f"the recording's segments lack the set-point '{col}'; tilt-table recordings "
-                                 "need theta and phi set-points (CSV columns theta_deg, phi_deg and the "
-                                 "'# setpoints: [\"theta\", \"phi\"]' metadata line)")
-    segs = dict(rec.segments)
-    if "mount" not in segs:
-        runs = rec.meta.get("runs", ["z_up"])
-        run_idx = segs.get("run", np.zeros(rec.n_segments, int)).astype(int)
-        segs["mount"] = np.array([runs[i] for i in run_idx])
-    g = Site.from_dict(rec.meta.get("site", {})).gravity_m_s2
-    survey = rec.meta.get("table_survey") or {}
-    survey = TableSurvey(**survey) if survey else TableSurvey()
-    return segs, g, survey
-
-
-def calibrate(rec: Recording, model: str = "physical", statistic: str = "median",
-              processed: Recording | None = None) -> AccelerometerCalibration:
-    """Low-pass/downsample (if not given) and fit the inverse model with the reference's uncertainty."""
-    rec100 = processed if processed is not None else lowpass_downsample(rec)
-    ref, J, sigma = tilt_table_reference(rec100)
-    cal = AccelerometerCalibration(model=model, statistic=statistic)
-    if statistic == "raw":
-        return cal.fit(rec100, ref)
-    setting = None if model in ("stepwise", "backward") else setting_error_covariance(*_reference_inputs(rec100))
-    return cal.fit(rec100, ref, J, sigma, segment_cov=setting)
-
-
 def compare_with_truth(cal: AccelerometerCalibration, truth: dict | None) -> list[dict]:
     """Every estimated physical parameter with its injected value and z = (est - inj) / se."""
     params = cal.physical_parameters()

@@ -13,12 +13,28 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from imurig.rigs.tilt_table import TiltTableProtocol
+from imurig.calibration.thermal import fit_thermal, step_table
+from imurig.campaigns.thermal import ThermalCampaign, twin_channels
+from imurig.campaigns.turn_table import SimonaSetup, TurnTableCampaign, simona_virtual
+from imurig.concealed import magnetometer as mag_cases
+from imurig.concealed import tilt_table as tilt_cases
+from imurig.concealed.tilt_table import (WIDE_TILT, accelerometers_recording, cable_recording, crosstalk_recording,
+                                         inverse_k2, inverse_linear, pump_recording, small_tilt)
+from imurig.diagnose.magnetometer import diagnose_magnetometer
+from imurig.diagnose.rate_table import diagnose_rate_rows
+from imurig.diagnose.thermal import diagnose_thermal
+from imurig.diagnose.tilt_table import diagnose_tilt_table
+from imurig.diagnose.turn_table import diagnose_turn_table
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.site import Site
+from imurig.rigs.thermal_chamber import ThermalProfile
+from imurig.rigs.turn_table import TurnTableErrors, TurnTableProtocol
 from imurig.sensors.effects import AdcCrosstalk
+from imurig.sensors.gyro import FOGTriad
+from imurig.sensors.noise import child_rng
+from imurig.sensors.voltmeter import AutoscaleVoltmeter
 
 DEG_PER_H_PER_G = math.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
-SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
-                               settle_s=1.0, slew_rate_deg_s=30.0)
 
 
 @dataclass
@@ -42,90 +58,6 @@ class Case:
     estimate_param: Callable | None = None
 
 
-def _tilt(seed, **kw):
-    from imurig.campaigns.tilt_table import TiltTableCampaign
-
-    return TiltTableCampaign(protocol=SMALL_TILT, seed=seed, **kw).simulate()
-
-
-def _crosstalk(seed, c):
-    """Crosstalk of relative size c: choose f_mux so that exp(-1/(f tau)) = c."""
-    tau = 0.59e-6
-    f = -1.0 / (tau * math.log(c))
-    return _tilt(seed, mux_frequency_hz=f)
-
-
-# the nonlinearity needs a wider spread of g levels per axis than SMALL_TILT gives
-WIDE_TILT = TiltTableProtocol(theta_deg=(0, 15, 30, 45, 60, 75, 90), phi_deg=tuple(range(0, 360, 30)), dwell_s=8.0,
-                              settle_s=1.0, slew_rate_deg_s=30.0)
-
-
-def _tilt_lab(seed, change_lab, protocol=SMALL_TILT, **camp_kw):
-    """A small tilt-table campaign whose sensor chain is edited by ``change_lab(lab) -> lab``
-    (an effect switched on, resized or off) before the measurement."""
-    from imurig.campaigns.tilt_table import TiltTableCampaign
-    from imurig.sensors.noise import child_rng
-
-    camp = TiltTableCampaign(protocol=protocol, seed=seed, **camp_kw)
-    table, lab, ss = camp.build()
-    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    rec = change_lab(lab).measure(rig, np.random.SeedSequence(seed, spawn_key=(1,)))
-    rec.meta["campaign"] = {"name": "tilt-table", **camp.to_dict()}
-    return rec
-
-
-def _pump(seed, rms):
-    from imurig.sensors.disturbances import PumpVibration
-
-    return _tilt_lab(seed, lambda lab: replace(lab, pump=PumpVibration(rms_m_s2=rms, broadband_rms_m_s2=rms / 3)),
-                     start_time="2005-06-14T10:00:00+02:00")
-
-
-def _cable(seed, rate_hz):
-    from imurig.sensors.disturbances import LooseCable
-
-    return _tilt_lab(seed, lambda lab: replace(lab, cable=LooseCable(enabled=True, rate_hz=rate_hz)))
-
-
-# each axis leans towards both others by +-size (rad); the forward model a_S = (I + M) f
-MISALIGNMENT_PATTERN = np.array([[0.0, 1.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 1.0, 0.0]])
-
-
-def _accelerometers(seed, misalignment=None, k2=None, protocol=SMALL_TILT):
-    """Accelerometers with misalignment of size ``misalignment`` (rad, pattern above) and
-    nonlinearity k2 = ``k2`` * (1, -1, 1) (1/(m/s^2)); None keeps the drawn value, 0 removes it."""
-    def change(lab):
-        kw = {}
-        if misalignment is not None:
-            kw["misalignment_rad"] = misalignment * MISALIGNMENT_PATTERN
-        if k2 is not None:
-            kw["k2_per_m_s2"] = k2 * np.array([1.0, -1.0, 1.0])
-        return replace(lab, accelerometers=replace(lab.accelerometers, **kw))
-
-    return _tilt_lab(seed, change, protocol=protocol)
-
-
-def _scale_D(rec):
-    """Effective relative scale D = s_true (1 + scale_tempco dT) / s_nom at the campaign's mean temperature."""
-    acc = rec.truth["sensors"]["accelerometers"]
-    dT = float(np.mean(rec.truth_signals["T_imu"])) - acc["reference_temperature_K"]
-    return (np.asarray(acc["sensitivity_V_per_m_s2"]) * (1 + np.asarray(acc["scale_tempco_per_K"]) * dT)
-            / np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"]))
-
-
-def _inverse_linear(rec):
-    """The inverse model's linear coefficients (I + M)^-1 D^-1, D = diag(s_true / s_nom)."""
-    D = _scale_D(rec)
-    acc = rec.truth["sensors"]["accelerometers"]
-    return np.linalg.inv(np.eye(3) + np.asarray(acc["misalignment_rad"])) / D[None, :]
-
-
-def _inverse_k2(rec, j):
-    """The inverse model's coefficient of u_j^2: f_j ~ u_j / D_j - k2_j (u_j / D_j)^2."""
-    D = _scale_D(rec)[j]
-    return -rec.truth["sensors"]["accelerometers"]["k2_per_m_s2"][j] / D**2
-
-
 # the Earth's rate and the g-sensitivity show as a bias present only while the gyro is on the
 # table axis, against the gyro's bias instability, which is independent from one mounting to
 # the next: many short mountings separate them best. (Upside-down mountings would flip the sign
@@ -136,9 +68,6 @@ TURN_REMOUNTS = {"dial_rates_dps": (20, 100), "mounts": ("p_up", "q_up", "r_up")
 def earth_fraction_site(fraction: float):
     """The default lab moved to the latitude where the Earth's vertical rate Omega sin(lat) is
     ``fraction`` of Delft's (52 deg N); 0 <= fraction <= 1 / sin(52 deg) = 1.27."""
-    from imurig.kernel.errors import ConfigError
-    from imurig.kernel.site import Site
-
     s = fraction * math.sin(math.radians(Site().latitude_deg))
     if not 0.0 <= s <= 1.0:
         raise ConfigError(f"Earth-rate fraction {fraction} needs sin(latitude) = {s:.3f}, outside [0, 1]; "
@@ -151,10 +80,6 @@ def _turn(seed, g_sensitivity=0.0, slip_rings=False, slip_rms_V=None, earth_frac
     ``g_sensitivity`` ((rad/s)/(m/s^2)) times (1, -1, 1). ``slip_rms_V`` (V) resizes the slip rings'
     contact noise (switched on); ``earth_fraction`` moves the lab to the latitude where the Earth's
     vertical rate Omega sin(lat) is that fraction of Delft's (1: Delft, 52 deg N; at most 1.27)."""
-    from imurig.campaigns.turn_table import TurnTableCampaign
-    from imurig.rigs.turn_table import TurnTableProtocol
-    from imurig.sensors.noise import child_rng
-
     kw = {} if earth_fraction == 1.0 else {"site": earth_fraction_site(earth_fraction)}
     camp = TurnTableCampaign(protocol=TurnTableProtocol(**TURN_REMOUNTS), seed=seed,
                              slip_rings=slip_rings or slip_rms_V is not None, **kw)
@@ -182,9 +107,6 @@ SHORT_THERMAL = {"low_C": -40, "high_C": 40, "step_C": 20, "soak_s": 2400, "atti
 def _thermal(seed, bias_hysteresis=None):
     """A short thermal campaign; ``bias_hysteresis`` (m/s^2, all three accelerometers) replaces the
     drawn bias hysteresis (0 removes the hysteresis, scale hysteresis included)."""
-    from imurig.campaigns.thermal import ThermalCampaign
-    from imurig.rigs.thermal_chamber import ThermalProfile
-
     camp = ThermalCampaign(profile=ThermalProfile(**SHORT_THERMAL), seed=seed)
     chamber, lab, _ss = camp.build()
     if bias_hysteresis is not None:
@@ -200,9 +122,6 @@ def _thermal(seed, bias_hysteresis=None):
 def _thermal_gap_truth(rec, axis="x"):
     """The branch gap H the noise-free twin of the same recording gives (the injected hysteresis
     as the six-position bias sees it through the play operator's state)."""
-    from imurig.calibration.thermal import fit_thermal, step_table
-    from imurig.campaigns.thermal import twin_channels
-
     return fit_thermal(step_table(rec, channels=twin_channels(rec))).results[f"acc_bias_{axis}"].coef("hysteresis")
 
 
@@ -214,11 +133,6 @@ def _channel_param(d, channel, effect):
 
 
 def _simona(seed, **setup_kw):
-    from imurig.campaigns.turn_table import SimonaSetup, simona_virtual
-    from imurig.rigs.turn_table import TurnTableErrors
-    from imurig.sensors.gyro import FOGTriad
-    from imurig.sensors.voltmeter import AutoscaleVoltmeter
-
     gain = setup_kw.pop("gain", 1.0)
     table = setup_kw.pop("table", TurnTableErrors(mains_hz=60.0, slip_const=0.0, slip_coeff=0.0))
     setup = SimonaSetup(voltmeter=AutoscaleVoltmeter(gain=(1.0, gain, gain)), table=table, **setup_kw)
@@ -252,14 +166,10 @@ def _range_change(seed, step):
 
 
 def _mains(seed, _size):
-    from imurig.rigs.turn_table import TurnTableErrors
-
     return _simona(seed, table=TurnTableErrors(mains_hz=50.0, slip_const=0.0, slip_coeff=0.0))
 
 
 def _slip(seed, s1):
-    from imurig.rigs.turn_table import TurnTableErrors
-
     return _simona(seed, table=TurnTableErrors(mains_hz=60.0, slip_const=0.0, slip_coeff=s1))
 
 
@@ -271,24 +181,24 @@ def _param(d, axis, effect, k=0):
 
 
 CASES = [
-    Case("adc_crosstalk", "tilt_table", {("y", "adc_crosstalk"), ("z", "adc_crosstalk")}, _crosstalk, 2e-4,
+    Case("adc_crosstalk", "tilt_table", {("y", "adc_crosstalk"), ("z", "adc_crosstalk")}, crosstalk_recording, 2e-4,
          sizes=(1e-5, 2e-5, 5e-5, 1e-4, 2e-4), size_unit="settling residual c (V/V)",
          truth_param=lambda rec: AdcCrosstalk().fitted(rec.truth, "acc_y")["c"],
          found_param=lambda d: _param(d, "y", "adc_crosstalk")),
-    Case("building_vibration", "tilt_table", {(a, "building_vibration") for a in "xyz"}, _pump, 0.03,
+    Case("building_vibration", "tilt_table", {(a, "building_vibration") for a in "xyz"}, pump_recording, 0.03,
          sizes=(0.001, 0.002, 0.005, 0.01, 0.03), size_unit="pump rms (m/s^2)"),
-    Case("cable_fault_spikes", "tilt_table", {("y", "cable_fault_spikes")}, _cable, 0.5,
+    Case("cable_fault_spikes", "tilt_table", {("y", "cable_fault_spikes")}, cable_recording, 0.5,
          sizes=(0.005, 0.02, 0.05, 0.2, 0.5), size_unit="spike rate (1/s)"),
     Case("axis_misalignment", "tilt_table", {(a, "axis_misalignment") for a in "xyz"},
-         lambda seed, m: _accelerometers(seed, misalignment=m), 1e-3,
+         lambda seed, m: accelerometers_recording(seed, misalignment=m), 1e-3,
          sizes=(2e-6, 5e-6, 1e-5, 2e-5, 5e-5), size_unit="misalignment angle (rad)",
-         truth_param=lambda rec: _inverse_linear(rec)[0, 1], found_param=lambda d: _param(d, "x", "axis_misalignment"),
-         twin={"twin_model": "own_axis"}, null=lambda seed: _accelerometers(seed, misalignment=0.0)),
+         truth_param=lambda rec: inverse_linear(rec)[0, 1], found_param=lambda d: _param(d, "x", "axis_misalignment"),
+         twin={"twin_model": "own_axis"}, null=lambda seed: accelerometers_recording(seed, misalignment=0.0)),
     Case("scale_nonlinearity", "tilt_table", {(a, "scale_nonlinearity") for a in "xyz"},
-         lambda seed, k2: _accelerometers(seed, k2=k2, protocol=WIDE_TILT), 48e-6 / 9.80665,
+         lambda seed, k2: accelerometers_recording(seed, k2=k2, protocol=WIDE_TILT), 48e-6 / 9.80665,
          sizes=tuple(x * 1e-6 / 9.80665 for x in (5, 10, 20, 30, 48)), size_unit="k2 (1/(m/s^2))",
-         truth_param=lambda rec: _inverse_k2(rec, 0), found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
-         twin={"twin_model": "linear"}, null=lambda seed: _accelerometers(seed, k2=0.0, protocol=WIDE_TILT)),
+         truth_param=lambda rec: inverse_k2(rec, 0), found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
+         twin={"twin_model": "linear"}, null=lambda seed: accelerometers_recording(seed, k2=0.0, protocol=WIDE_TILT)),
     Case("earth_rate_left_out", "turn_table", {(a, "earth_rate_left_out") for a in "pqr"},
          lambda seed, f: _turn(seed, earth_fraction=f), 1.0, sizes=(0.25, 0.5, 0.75, 1.0, 1.25),
          size_unit="fraction of Delft's vertical Earth rate (latitude moved)",
@@ -336,8 +246,6 @@ def _timer(seed, q):
     varied only by the 3e-4 setting error (1.3 ms at the top rate, below q): every seed got nearly
     the same rounding errors, their variance was not q^2 / 12 (0.56-0.83 of it at q = 0.015 s on
     the informative rows), and the power curve was not monotonic in q."""
-    from imurig.rigs.turn_table import TurnTableErrors
-
     slip = float(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7,))).uniform(*TIMER_SLIP_RANGE))
     rec = _simona(seed, table=TurnTableErrors(**{**TIMER_TABLE, "slip_const": slip}), stopwatch_resolution_s=q,
                   printed_round_decimals=None)
@@ -361,18 +269,12 @@ CASES += [
 ]
 
 
-def _mg():
-    from imurig.diagnose import magnetometer
-
-    return magnetometer
-
-
 def _mag_case(effect, size, sizes, unit, twin_model, expected=None, notes=""):
-    """A magnetometer case (imurig.diagnose.magnetometer): one joint analysis of the three axes ('mag')."""
-    return Case(effect, "magnetometer", expected or {("mag", effect)}, lambda seed, s: _mg().case_recording(effect, seed, s),
-                size, sizes=sizes, size_unit=unit, truth_param=lambda rec: _mg().truth_param(effect, rec),
-                found_param=lambda d: _mg().found_param(effect, d), twin={"twin_model": twin_model},
-                null=lambda seed: _mg().null_recording(seed, twin_model), notes=notes)
+    """A magnetometer case (imurig.concealed.magnetometer): one joint analysis of the three axes ('mag')."""
+    return Case(effect, "magnetometer", expected or {("mag", effect)}, lambda seed, s: mag_cases.case_recording(effect, seed, s),
+                size, sizes=sizes, size_unit=unit, truth_param=lambda rec: mag_cases.truth_param(effect, rec),
+                found_param=lambda d: mag_cases.found_param(effect, d), twin={"twin_model": twin_model},
+                null=lambda seed: mag_cases.null_recording(seed, twin_model), notes=notes)
 
 
 CASES += [
@@ -388,18 +290,12 @@ CASES += [
 ]
 
 
-def _tt():
-    from imurig.diagnose import tilt_table
-
-    return tilt_table
-
-
 def _tilt_case(effect, expected, size, sizes, unit, twin, null_twin=None, notes=""):
-    """A tilt-table case whose recordings come from imurig.diagnose.tilt_table.case_recording."""
-    return Case(effect, "tilt_table", expected, lambda seed, s: _tt().case_recording(effect, seed, s), size,
-                sizes=sizes, size_unit=unit, truth_param=lambda rec: _tt().truth_param(effect, rec),
-                found_param=lambda d: _tt().found_param(effect, d), twin=twin, null_twin=null_twin,
-                null=lambda seed: _tt().null_case_recording(effect, seed), notes=notes)
+    """A tilt-table case whose recordings come from imurig.concealed.tilt_table.case_recording."""
+    return Case(effect, "tilt_table", expected, lambda seed, s: tilt_cases.case_recording(effect, seed, s), size,
+                sizes=sizes, size_unit=unit, truth_param=lambda rec: tilt_cases.truth_param(effect, rec),
+                found_param=lambda d: tilt_cases.found_param(effect, d), twin=twin, null_twin=null_twin,
+                null=lambda seed: tilt_cases.null_case_recording(effect, seed), notes=notes)
 
 
 CASES += [
@@ -423,7 +319,7 @@ CASES += [
 def found_effects(d: dict) -> set:
     """(channel, effect) pairs a diagnosis reports (tilt table or rate-table rows)."""
     if "magnetometer" in d:
-        return _mg().found_effects(d)
+        return mag_cases.found_effects(d)
     out = set()
     if "axes" in d:
         for a, e in d["axes"].items():
@@ -457,21 +353,13 @@ def diagnose_case(case: Case, rec, seed: int, null: bool = False) -> dict:
     rng = np.random.default_rng(seed)
     twin = case.null_twin if null and case.null_twin is not None else case.twin
     if case.rig == "tilt_table":
-        from imurig.diagnose.tilt_table import diagnose_tilt_table
-
         return diagnose_tilt_table(rec, rng, **twin)
     if case.rig == "turn_table":
-        from imurig.diagnose.turn_table import diagnose_turn_table
-
         return diagnose_turn_table(rec, rng, **twin)
     if case.rig == "thermal":
-        from imurig.diagnose.thermal import diagnose_thermal
-
         return diagnose_thermal(rec, rng, **twin)
     if case.rig == "magnetometer":
-        return _mg().diagnose_magnetometer(rec, rng, **twin)
-    from imurig.diagnose.rate_table import diagnose_rate_rows
-
+        return diagnose_magnetometer(rec, rng, **twin)
     return diagnose_rate_rows(rec, rng, n_sim=200)
 
 
@@ -481,7 +369,7 @@ def null_recording(case: Case, seed: int):
         return case.null(seed)
     if case.rig == "thermal":
         return _thermal(seed)
-    return _tilt(seed) if case.rig == "tilt_table" else _simona(seed)
+    return small_tilt(seed) if case.rig == "tilt_table" else _simona(seed)
 
 
 def null_groups() -> dict:

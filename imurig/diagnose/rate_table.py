@@ -29,6 +29,7 @@ with it in two observables, and each mismatch is explained by effects of the lib
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import minimize_scalar, nnls
 
 from imurig.diagnose.engine import Candidate, select_effects, wild_bootstrap_noise
 from imurig.kernel.errors import RecordingError
@@ -252,8 +253,6 @@ def timer_quantisation_test(e: np.ndarray, X: np.ndarray, T_s: np.ndarray, rng: 
     q = sqrt(12) sigma_T of a rounded reading come with standard errors from the expected
     Fisher information of (a, sigma_T^2) (delta method for the square root).
     """
-    from scipy.optimize import minimize_scalar
-
     e = np.asarray(e, float)
     T_s = np.asarray(T_s, float)
     n = e.size
@@ -329,8 +328,6 @@ def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:
     (V per deg/s); a, b >= 0 by non-negative least squares on the rest of the nominal fit's
     squared residuals. Returns var (n,), the ripple coefficient b (V^2 per (deg/s)^2) and the
     display floor q^2/12 (n,)."""
-    from scipy.optimize import nnls
-
     coef = np.linalg.lstsq(X0, V, rcond=None)[0]
     e = V - X0 @ coef
     v_ref = (coef[1] * np.asarray(ref_sigma_dps)) ** 2

@@ -25,6 +25,7 @@ import numpy as np
 
 from imurig.calibration.thermal import _design, step_table, term_names
 from imurig.diagnose.engine import Candidate, ar1_covariance, select_effects
+from imurig.diagnose.steps import effect_steps
 from imurig.kernel.recording import Recording
 
 
@@ -54,8 +55,6 @@ def diagnose_thermal(rec: Recording, rng: np.random.Generator, alpha: float = 0.
         d = select_effects(y, X0, term_names(order, False), lib, rng, alpha=alpha, n_sim=n_sim, cov=cov)
         # for the report: the fit step by step (AR(1)-whitened, the engine's space) and the step-bias
         # residuals before/after in the channel's own unit (y - X b: the engine's residuals are whitened)
-        from imurig.reports.diagnosis import effect_steps
-
         st = effect_steps(y, X0, term_names(order, False), lib, d, cov=cov)
         out["channels"][name] = {**d.to_dict(), "fit_steps": st["steps"], "residuals": {
             "temperature_K": np.asarray(T, float).tolist(), "heating": (s > 0).tolist(), "mid_time_h": mid_h.tolist(),

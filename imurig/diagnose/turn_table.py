@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage, stats
 
+from imurig.calibration.accelerometer import indicated as acc_indicated
 from imurig.calibration.gyro import (
     AXES,
     AXIS_OF_MOUNT,
@@ -42,6 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import Candidate, select_effects
+from imurig.diagnose.steps import effect_steps
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
@@ -74,8 +76,6 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     u, _ = indicated(rw, SPEC, "mean")
     inputs = {n: u[:, k] for k, n in enumerate(INPUTS)}
     if {"acc_x", "acc_y", "acc_z"} <= set(rw.channels):
-        from imurig.calibration.accelerometer import indicated as acc_indicated
-
         f, _ = acc_indicated(rw, "mean")
         f_source = "accelerometer channels (nominal sensitivity)"
     else:
@@ -122,8 +122,6 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
         entry["truth_hint"] = {"Omega_vertical_rad_s": float(omega_v)}
         # the report: the fit step by step (GLS-whitened) and the round-mean residuals in rad/s
         # (residual = the twin's reference - the recording through the calibration)
-        from imurig.reports.diagnosis import effect_steps
-
         st = effect_steps(ref[:, j], X0, list(lib_names.names), lib, d, cov=cov)
         entry["fit_steps"] = st["steps"]
         entry["residuals"] = {"unit": "rad/s", "reference": ref[:, j].tolist(), "before": st["resid_before"].tolist(),
