@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 
 from imurig.calibration.regression import RegressionResult, fit_ols
 from imurig.kernel.errors import UnidentifiableTermsError
@@ -160,9 +161,26 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     are multiplied by sqrt(weights), and all statistics are computed in that whitened space.
     ``cov`` (m, m), relative, does the same for correlated errors (whitening by its Cholesky factor).
     """
-    if cov is not None:
-        import scipy.linalg
+    y, X0, candidates = _whitened(y, X0, candidates, weights, cov)
+    before = _fit(X0, y, list(names0))
+    noise = noise or (lambda r, m: r.standard_normal(m))
+    findings, X, names = _greedy(y, X0, list(names0), candidates, before, rng, alpha, n_sim, cv_blocks, max_effects,
+                                 noise)
+    if len(findings) > 1:
+        findings, X, names = _recheck_jointly(findings, y, X0, names0, candidates, rng, alpha, n_sim, noise)
+    after = _fit(X, y, names)
+    # what is left: is the remaining residual white and at the noise floor?
+    r = after.residuals_
+    lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1]) if r.size > 3 else float("nan")
+    unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1,
+                   "white": bool(abs(lag1) < 2.5 / np.sqrt(max(r.size, 1)))}
+    return Diagnosis(names0, findings, before, after, unexplained)
 
+
+def _whitened(y, X0, candidates, weights, cov):
+    """(y, X0, candidates) in the space whitened by the Cholesky factor L of ``cov`` (L^-1 A) and
+    then by sqrt(``weights``) (rows scaled), as :func:`select_effects` tests in."""
+    if cov is not None:
         L = np.linalg.cholesky(0.5 * (cov + cov.T))
         wt = lambda A: scipy.linalg.solve_triangular(L, A, lower=True)
         candidates = [Candidate(c.name, c.physics, c.param_names,
@@ -175,13 +193,14 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
                                 (lambda th, f=c.columns: sw[:, None] * np.asarray(f(th), float).reshape(sw.size, -1)),
                                 c.scan, c.scan_name) for c in candidates]
         y, X0 = np.asarray(y, float) * sw, np.asarray(X0, float) * sw[:, None]
-    y = np.asarray(y, float)
-    X = np.asarray(X0, float)
-    names = list(names0)
-    before = _fit(X, y, names)
+    return np.asarray(y, float), np.asarray(X0, float), candidates
+
+
+def _greedy(y, X, names, candidates, before, rng, alpha, n_sim, cv_blocks, max_effects, noise):
+    """Add the best candidate while it beats the simulated max-statistic threshold of the whole
+    remaining library, improves blocked cross-validation and lowers BIC; (findings, X, names)."""
     findings: list[Finding] = []
     remaining = list(candidates)
-    noise = noise or (lambda r, m: r.standard_normal(m))
     for _ in range(max_effects):
         cur = _fit(X, y, names)
         scanner = _Scanner(X, remaining)
@@ -224,47 +243,44 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
             cv_before=cv0, cv_after=cv1, bic_before=cur.bic, bic_after=new.bic, runner_up=runner))
         X, names = X1, names + cols
         remaining.remove(best_c)
-    # interactions: re-optimise each accepted effect's scanned parameter given the others, then
-    # drop any effect that no longer beats its own simulated threshold given the others
-    if len(findings) > 1:
-        X0 = np.asarray(X0, float)
-        lookup = {c.name: c for c in candidates}
-        for _ in range(2):
-            for i, f in enumerate(findings):
-                others = [lookup[g.name].design(g.theta) for j, g in enumerate(findings) if j != i]
-                Xo = np.column_stack([X0, *others]) if others else X0
-                F, th = _scan_stats(y, Xo, None, lookup[f.name])
-                if np.isfinite(F):
-                    f.theta, f.statistic = th, float(F)
-        kept = []
+    return findings, X, names
+
+
+def _recheck_jointly(findings, y, X0, names0, candidates, rng, alpha, n_sim, noise):
+    """Interactions: re-optimise each accepted effect's scanned parameter given the others, then
+    drop any effect that no longer beats its own simulated threshold given the others, and refit
+    the survivors jointly; (findings, X, names)."""
+    lookup = {c.name: c for c in candidates}
+    for _ in range(2):
         for i, f in enumerate(findings):
             others = [lookup[g.name].design(g.theta) for j, g in enumerate(findings) if j != i]
             Xo = np.column_stack([X0, *others]) if others else X0
-            fit_o = _fit(Xo, y, [f"c{k}" for k in range(Xo.shape[1])])
-            sc_o = _Scanner(Xo, [lookup[f.name]])
-            sims = np.empty(n_sim)
-            for k in range(n_sim):
-                rs = sc_o.residual(fit_o.sigma_res * noise(rng, y.size))
-                sims[k] = sc_o.best(0, rs, float(rs @ rs))[0]
-            f.threshold = float(np.quantile(sims, 1 - alpha))
-            if f.statistic > f.threshold:
-                kept.append(f)
-        findings = kept
-        X, names = X0, list(names0)
-        for f in findings:
-            C = lookup[f.name].design(f.theta)
-            X = np.column_stack([X, C])
-            names += [f"{f.name}:{p}" for p in lookup[f.name].param_names][: C.shape[1]]
-        final = _fit(X, y, names)
-        for f in findings:
-            f.params = {c: (final.coef(c), final.std_error(c)) for c in names if c.startswith(f.name + ":")}
-    after = _fit(X, y, names)
-    # what is left: is the remaining residual white and at the noise floor?
-    r = after.residuals_
-    lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1]) if r.size > 3 else float("nan")
-    unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1,
-                   "white": bool(abs(lag1) < 2.5 / np.sqrt(max(r.size, 1)))}
-    return Diagnosis(names0, findings, before, after, unexplained)
+            F, th = _scan_stats(y, Xo, None, lookup[f.name])
+            if np.isfinite(F):
+                f.theta, f.statistic = th, float(F)
+    kept = []
+    for i, f in enumerate(findings):
+        others = [lookup[g.name].design(g.theta) for j, g in enumerate(findings) if j != i]
+        Xo = np.column_stack([X0, *others]) if others else X0
+        fit_o = _fit(Xo, y, [f"c{k}" for k in range(Xo.shape[1])])
+        sc_o = _Scanner(Xo, [lookup[f.name]])
+        sims = np.empty(n_sim)
+        for k in range(n_sim):
+            rs = sc_o.residual(fit_o.sigma_res * noise(rng, y.size))
+            sims[k] = sc_o.best(0, rs, float(rs @ rs))[0]
+        f.threshold = float(np.quantile(sims, 1 - alpha))
+        if f.statistic > f.threshold:
+            kept.append(f)
+    findings = kept
+    X, names = X0, list(names0)
+    for f in findings:
+        C = lookup[f.name].design(f.theta)
+        X = np.column_stack([X, C])
+        names += [f"{f.name}:{p}" for p in lookup[f.name].param_names][: C.shape[1]]
+    final = _fit(X, y, names)
+    for f in findings:
+        f.params = {c: (final.coef(c), final.std_error(c)) for c in names if c.startswith(f.name + ":")}
+    return findings, X, names
 
 
 def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | None = None,
@@ -283,8 +299,6 @@ def wild_bootstrap_noise(y: np.ndarray, X: np.ndarray, weights: np.ndarray | Non
     several gyros, which share the reference error) get one sign, applied to the residuals before
     the whitening, so that a correlation the covariance model misses is kept too.
     """
-    import scipy.linalg
-
     y_, X_ = np.asarray(y, float), np.asarray(X, float)
     if cov is not None:
         L = np.linalg.cholesky(0.5 * (cov + cov.T))

@@ -15,7 +15,7 @@ with it in two observables, and each mismatch is explained by effects of the lib
    (q^2/12 for one rounded reading, q^2/6 for a difference of two quantised edges), so the
    relative rate mismatch d_i = T_true/T_i - 1 gets variance sigma_T^2 / T_i^2, which grows
    with rate^2. The residuals e_i of d after the shortfall model are tested for that
-   variance term (:func:`timer_quantisation_test`): a likelihood ratio of
+   variance term (:func:`imurig.diagnose.rate_timer.timer_quantisation_test`): a likelihood ratio of
    var(e_i) = (1 - h_i)(a + sigma_T^2 / T_i^2) against sigma_T = 0, its threshold simulated
    under the homoscedastic noise model with the scan over sigma_T^2/a included
    (max-statistic), plus BIC and blocked cross-validation of the held-out log-likelihood.
@@ -29,9 +29,10 @@ with it in two observables, and each mismatch is explained by effects of the lib
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar, nnls
+from scipy.optimize import nnls
 
 from imurig.diagnose.engine import Candidate, select_effects, wild_bootstrap_noise
+from imurig.diagnose.rate_timer import timer_quantisation_test
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 
@@ -84,58 +85,100 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
     out = {"rows": rows.tolist(), "twin": "table rate = dial; round = 360 deg / dial; V = 6 mV/(deg/s) x rate"}
 
     # --- 1. rate factor ------------------------------------------------------------
-    k_mean = float(np.mean(k))
-    k_se = float(np.std(k, ddof=1) / np.sqrt(k.size))
-    name, f = min(MOTOR_MAINS.items(), key=lambda it: abs(np.log(k_mean / it[1])))
-    out["locate"] = {"round_time_ratio_median": float(np.median(T[timed] * dial[timed] / (2 * np.pi))),
-                     "rate_ratio_mean": k_mean, "rate_ratio_se": k_se}
-    rate_factor = None
-    if abs(k_mean - 1) > 5 * k_se and f != 1.0:
-        rate_factor = {"effect": "mains_rate_factor", "physics": f"synchronous table motor: {name} turns at "
-                       f"{f:.4f} of the dial", "factor": f, "mean_ratio": k_mean, "mean_ratio_se": k_se}
-    out["rate_factor"] = rate_factor
-    f_use = f if rate_factor else 1.0
+    out["locate"], out["rate_factor"] = _rate_factor(k, T[timed], dial[timed])
+    f_use = out["rate_factor"]["factor"] if out["rate_factor"] else 1.0
     d = k / f_use - 1.0
     r_dps = np.degrees(rate)
-    lib = [Candidate("table_slip", "rate-dependent slip of the ball-and-disc integrator: the table turns "
-                     "slower than set, most at low rates", ("s1",), lambda a: r_dps ** (-a),
-                     scan=tuple(np.round(np.arange(0.2, 2.01, 0.1), 2)), scan_name="alpha"),
-           Candidate("rate_proportional_error", "a rate error proportional to the rate (scale of the dial)",
-                     ("c",), lambda _: r_dps)]
-    # the scatter of d is the dial's setting error (homoscedastic), far above the stopwatch's
-    q = reading_resolution(T[timed])
-    # the rows' errors grow with the rate (the timer): threshold from a wild bootstrap of the residuals
-    diag = select_effects(d, np.ones((d.size, 1)), ["shortfall"], lib, rng, alpha=alpha, n_sim=n_sim,
-                          noise=wild_bootstrap_noise(d, np.ones((d.size, 1))))
+    lib, diag = _shortfall(d, r_dps, rng, alpha, n_sim)
     out["shortfall"] = {"mean_shortfall": float(-np.mean(d)), "diagnosis": diag.to_dict(),
                         "note": "d = measured rate / (factor x dial) - 1; negative = slower than set",
                         "residuals": {"rate_dps": r_dps.tolist(), "before": diag.before.residuals_.tolist(),
                                       "after": diag.after.residuals_.tolist()}}
     # --- 2. timer resolution ------------------------------------------------------
+    # the scatter of d is the dial's setting error (homoscedastic), far above the stopwatch's
+    q = reading_resolution(T[timed])
     res_rate = np.degrees(rate) * (q / np.sqrt(12)) / T[timed]
-    resid = diag.after.residuals_ * np.degrees(rate)  # rate residual, deg/s
-    hi = r_dps > np.median(r_dps)
-    out["timer_resolution"] = {"effect": "timer_quantisation", "resolution_s": q,
-                               "physics": f"round times are known to {q:g} s: at {r_dps.max():.0f} deg/s that is "
-                                          f"{res_rate.max():.3f} deg/s (1 sigma) on the rate",
-                               "rate_sigma_dps_at_max_rate": float(res_rate.max()),
-                               "rate_sigma_dps_at_min_rate": float(res_rate.min()),
-                               "rate_residual_rms_dps_high_rates": float(np.sqrt(np.mean(resid[hi] ** 2))),
-                               "rate_residual_rms_dps_low_rates": float(np.sqrt(np.mean(resid[~hi] ** 2)))}
+    out["timer_resolution"] = _timer_resolution(q, res_rate, diag.after.residuals_ * np.degrees(rate), r_dps)
     # --- 3. gyro channels ---------------------------------------------------------
-    gy = {}
-    n = rows.size
-    idx = np.arange(n)
     # locate a range change by the readings' display grid (one voltmeter reads all three gyros)
+    out["range_change_by_resolution"], k_grid = _range_change_by_resolution(rec, timed, rows)
+    scan_k = (k_grid,) if k_grid is not None else tuple(range(3, rows.size - 2))
+    out["gyros"] = _gyro_entries(rec, timed, rows, r_dps, res_rate, scan_k, rng, alpha, n_sim)
+    # the three gyros are read by one voltmeter: test its range change jointly -- one relative gain
+    # step and one offset step for all three, against each gyro's own nonlinearity
+    joint = _voltmeter(rec, timed, rows, r_dps, res_rate, scan_k, rng, alpha, n_sim)
+    if joint is not None:
+        out["voltmeter"] = joint
+    # --- 2 (cont.). the timer's round-time error, tested last (so the draws above do not depend on it)
+    test, finding = _timer_test(lib, diag, T[timed], rng, alpha, n_sim)
+    out["timer_resolution"]["test"] = test
+    if finding is not None:
+        out["timer_resolution"]["finding"] = finding
+    return out
+
+
+def _rate_factor(k: np.ndarray, T: np.ndarray, dial: np.ndarray) -> tuple[dict, dict | None]:
+    """Where the rate mismatch sits, and the mains-frequency factor it matches (None: none far from 1).
+    ``k`` = measured rate / dial, ``T`` round times [s], ``dial`` [rad/s] of the timed rows."""
+    k_mean = float(np.mean(k))
+    k_se = float(np.std(k, ddof=1) / np.sqrt(k.size))
+    name, f = min(MOTOR_MAINS.items(), key=lambda it: abs(np.log(k_mean / it[1])))
+    locate = {"round_time_ratio_median": float(np.median(T * dial / (2 * np.pi))),
+              "rate_ratio_mean": k_mean, "rate_ratio_se": k_se}
+    rate_factor = None
+    if abs(k_mean - 1) > 5 * k_se and f != 1.0:
+        rate_factor = {"effect": "mains_rate_factor", "physics": f"synchronous table motor: {name} turns at "
+                       f"{f:.4f} of the dial", "factor": f, "mean_ratio": k_mean, "mean_ratio_se": k_se}
+    return locate, rate_factor
+
+
+def _shortfall(d: np.ndarray, r_dps: np.ndarray, rng: np.random.Generator, alpha: float, n_sim: int):
+    """The shortfall d against a constant, with slip and a proportional rate error as candidates:
+    (library, diagnosis)."""
+    lib = [Candidate("table_slip", "rate-dependent slip of the ball-and-disc integrator: the table turns "
+                     "slower than set, most at low rates", ("s1",), lambda a: r_dps ** (-a),
+                     scan=tuple(np.round(np.arange(0.2, 2.01, 0.1), 2)), scan_name="alpha"),
+           Candidate("rate_proportional_error", "a rate error proportional to the rate (scale of the dial)",
+                     ("c",), lambda _: r_dps)]
+    # the rows' errors grow with the rate (the timer): threshold from a wild bootstrap of the residuals
+    diag = select_effects(d, np.ones((d.size, 1)), ["shortfall"], lib, rng, alpha=alpha, n_sim=n_sim,
+                          noise=wild_bootstrap_noise(d, np.ones((d.size, 1))))
+    return lib, diag
+
+
+def _timer_resolution(q: float, res_rate: np.ndarray, resid: np.ndarray, r_dps: np.ndarray) -> dict:
+    """The round times' grid q [s] as evidence: the rate sigma it gives [deg/s] and the rate
+    residual ``resid`` [deg/s] at high against low rates."""
+    hi = r_dps > np.median(r_dps)
+    return {"effect": "timer_quantisation", "resolution_s": q,
+            "physics": f"round times are known to {q:g} s: at {r_dps.max():.0f} deg/s that is "
+                       f"{res_rate.max():.3f} deg/s (1 sigma) on the rate",
+            "rate_sigma_dps_at_max_rate": float(res_rate.max()),
+            "rate_sigma_dps_at_min_rate": float(res_rate.min()),
+            "rate_residual_rms_dps_high_rates": float(np.sqrt(np.mean(resid[hi] ** 2))),
+            "rate_residual_rms_dps_low_rates": float(np.sqrt(np.mean(resid[~hi] ** 2)))}
+
+
+def _range_change_by_resolution(rec: Recording, timed: np.ndarray, rows: np.ndarray) -> tuple[dict | None, int | None]:
+    """The row from which every gyro reading sits on a coarser display grid (None: none), and its index."""
+    n = rows.size
     grid_rows = [resolution_change_row(rec.channels[f"gyro_{g}"][timed]) for g in GYROS if f"gyro_{g}" in rec.channels]
     k_grid = max(grid_rows) if grid_rows and all(k is not None for k in grid_rows) else None
-    out["range_change_by_resolution"] = None if k_grid is None else {
+    entry = None if k_grid is None else {
         "first_row": int(rows[k_grid]), "rows_after": int(n - k_grid),
         "resolution_before_V": reading_resolution(np.concatenate([rec.channels[f"gyro_{g}"][timed][:k_grid]
                                                                   for g in GYROS if f"gyro_{g}" in rec.channels])),
         "resolution_after_V": reading_resolution(np.concatenate([rec.channels[f"gyro_{g}"][timed][k_grid:]
                                                                  for g in GYROS if f"gyro_{g}" in rec.channels]))}
-    scan_k = (k_grid,) if k_grid is not None else tuple(range(3, n - 2))
+    return entry, k_grid
+
+
+def _gyro_entries(rec: Recording, timed: np.ndarray, rows: np.ndarray, r_dps: np.ndarray, res_rate: np.ndarray,
+                  scan_k: tuple, rng: np.random.Generator, alpha: float, n_sim: int) -> dict:
+    """Each gyro's voltage against the stopwatch rate (linear nominal model) and its own effects."""
+    gy = {}
+    n = rows.size
+    idx = np.arange(n)
     for g in GYROS:
         ch = f"gyro_{g}"
         if ch not in rec.channels:
@@ -165,9 +208,15 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
                 entry["range_change_row"] = int(rows[kk])
                 entry["rows_after_change"] = int(n - kk)
         gy[g] = entry
-    out["gyros"] = gy
-    # the three gyros are read by one voltmeter: test its range change jointly -- one relative gain
-    # step and one offset step for all three, against each gyro's own nonlinearity
+    return gy
+
+
+def _voltmeter(rec: Recording, timed: np.ndarray, rows: np.ndarray, r_dps: np.ndarray, res_rate: np.ndarray,
+               scan_k: tuple, rng: np.random.Generator, alpha: float, n_sim: int) -> dict | None:
+    """The gyros' voltages jointly (one voltmeter reads them all): its range change as one relative
+    gain step and one offset step for all, against each gyro's own nonlinearity; None for one gyro."""
+    n = rows.size
+    idx = np.arange(n)
     chans = [g for g in GYROS if f"gyro_{g}" in rec.channels]
     if len(chans) > 1:
         Vs, parts, scales = [], [], []
@@ -215,108 +264,27 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
         for fnd in dj.findings:
             if fnd.name == "instrument_range_change":
                 joint["range_change_row"] = int(rows[int(fnd.theta)])
-        out["voltmeter"] = joint
-    # --- 2 (cont.). the timer's round-time error, tested last (so the draws above do not depend on it)
+        return joint
+    return None
+
+
+def _timer_test(lib: list, diag, T_s: np.ndarray, rng: np.random.Generator, alpha: float, n_sim: int):
+    """The timer's round-time error in the shortfall's residual (:func:`timer_quantisation_test`):
+    (test, finding or None)."""
     lookup = {c.name: c for c in lib}
-    X_after = np.column_stack([np.ones(d.size)] + [lookup[f.name].design(f.theta) for f in diag.findings])
-    test = timer_quantisation_test(diag.after.residuals_, X_after, T[timed], rng, alpha=alpha, n_sim=max(n_sim, 1000))
-    out["timer_resolution"]["test"] = test
-    if test["accepted"]:
-        out["timer_resolution"]["finding"] = {
-            "effect": "timer_quantisation",
-            "physics": "the round times carry a timer error (resolution of the stopwatch or of the pulse timing) "
-                       "that the twin, timing rounds exactly, leaves out: rate scatter growing with the rate",
-            "statistic": test["statistic"], "threshold": test["threshold"],
-            "parameters": [{"name": "sigma_T_s", "estimate": test["sigma_T_s"], "std_error": test["sigma_T_se_s"]},
-                           {"name": "resolution_s_if_rounded", "estimate": test["resolution_s"],
-                            "std_error": test["resolution_se_s"]}],
-            "variance_share": test["variance_share"], "indistinguishable_from": None}
-    return out
-
-
-def timer_quantisation_test(e: np.ndarray, X: np.ndarray, T_s: np.ndarray, rng: np.random.Generator,
-                            alpha: float = 0.01, n_sim: int = 1000, folds: int = 4) -> dict:
-    """Is there a round-time error in the rate residuals? (see the module doc, item 2)
-
-    ``e`` (n,): residuals of the relative rate mismatch d (1) after the mean model ``X`` (n, p);
-    ``T_s`` (n,): the measured round times (s). Noise models, Gaussian, with h_i the leverage of
-    row i in X and z_i = 1 / T_i^2 (1/s^2)::
-
-        H0: var(e_i) = (1 - h_i) a                         (table setting error, relative)
-        H1: var(e_i) = (1 - h_i) (a + sigma_T^2 z_i)       (plus the timer's round-time error)
-
-    The statistic is the likelihood ratio LR = 2 (nll0 - min over rho of nll1), rho = sigma_T^2 / a
-    scanned on a log grid (a profiled out). Its threshold is the (1 - alpha) quantile of the same
-    statistic, scan included, on ``n_sim`` residuals simulated under H0 (LR does not depend on a).
-    Accepted when LR beats it, BIC is lower (LR > log n) and blocked cross-validation
-    (``folds``) gives a higher held-out log-likelihood. sigma_T (s) and the resolution
-    q = sqrt(12) sigma_T of a rounded reading come with standard errors from the expected
-    Fisher information of (a, sigma_T^2) (delta method for the square root).
-    """
-    e = np.asarray(e, float)
-    T_s = np.asarray(T_s, float)
-    n = e.size
-    Q, _ = np.linalg.qr(np.asarray(X, float))
-    lev = np.clip(1.0 - np.sum(Q**2, axis=1), 1e-6, None)      # 1 - h_i
-    z = 1.0 / T_s**2
-    rhos = np.concatenate([[0.0], np.logspace(-3, 4, 141) / z.max()])
-
-    def nll(E2, rh, rows=slice(None)):
-        """(s, g) profiled negative log-likelihoods and ML a of squared residuals E2 (s, n)."""
-        W = lev[rows][None, :] * (1.0 + rh[:, None] * z[rows][None, :])
-        m = W.shape[1]
-        a = E2[:, rows] @ (1.0 / W).T / m
-        return 0.5 * m * (np.log(a) + 1.0) + 0.5 * np.sum(np.log(W), axis=1)[None, :], a
-
-    def lr(E2):
-        L, _ = nll(E2, rhos)
-        return 2.0 * (L[:, 0] - L.min(axis=1))
-
-    E2 = (e**2)[None, :]
-    stat = float(lr(E2)[0])
-    N = rng.standard_normal((n_sim, n))
-    Es = N - (N @ Q) @ Q.T
-    thr = float(np.quantile(lr(Es**2), 1 - alpha))
-    # the estimate: refine the best grid point
-    L, _ = nll(E2, rhos)
-    j = int(np.argmin(L[0]))
-    rho = rhos[j]
-    if j > 0:
-        lo, hi = np.log(rhos[max(j - 1, 1)]), np.log(rhos[min(j + 1, rhos.size - 1)])
-        res = minimize_scalar(lambda lr_: float(nll(E2, np.array([np.exp(lr_)]))[0][0, 0]), bounds=(lo, hi),
-                              method="bounded")
-        rho = float(np.exp(res.x))
-    a = float(nll(E2, np.array([rho]))[1][0, 0])
-    s2 = rho * a                                                  # sigma_T^2, s^2
-    v = lev * (a + s2 * z)
-    G = np.column_stack([lev, lev * z])
-    info = 0.5 * (G / v[:, None] ** 2).T @ G
-    se_s2 = float(np.sqrt(np.linalg.inv(info)[1, 1]))
-    sig = float(np.sqrt(s2))
-    se_sig = se_s2 / (2 * sig) if sig > 0 else float(np.sqrt(se_s2))
-    # blocked cross-validation of the held-out log-likelihood (rows dealt round-robin in blocks)
-    L_blk = max(1, n // (4 * folds))
-    fold = (np.arange(n) // L_blk) % folds
-    cv0 = cv1 = 0.0
-    for f in range(folds):
-        tr, te = fold != f, fold == f
-        Ltr, Atr = nll(E2, rhos, tr)
-        k = int(np.argmin(Ltr[0]))
-        for rh, a_, acc in ((0.0, Atr[0, 0], 0), (rhos[k], Atr[0, k], 1)):
-            vt = lev[te] * a_ * (1.0 + rh * z[te])
-            ll = float(-0.5 * np.sum(np.log(2 * np.pi * vt) + e[te] ** 2 / vt))
-            if acc:
-                cv1 += ll
-            else:
-                cv0 += ll
-    accepted = bool(stat > thr and stat > np.log(n) and cv1 > cv0)
-    share = float(np.sum(lev * s2 * z) / np.sum(lev * (a + s2 * z)))
-    return {"statistic": stat, "threshold": thr, "alpha": alpha, "bic_improvement": stat - float(np.log(n)),
-            "cv_loglik_without": cv0, "cv_loglik_with": cv1, "accepted": accepted,
-            "sigma_T_s": sig, "sigma_T_se_s": float(se_sig), "sigma_T2_s2": s2, "sigma_T2_se_s2": se_s2,
-            "resolution_s": float(np.sqrt(12) * sig), "resolution_se_s": float(np.sqrt(12) * se_sig),
-            "setting_sigma": float(np.sqrt(a)), "variance_share": share,
-            "rate_sigma_rel_at_max_rate": float(sig * np.sqrt(z.max()))}
+    X_after = np.column_stack([np.ones(T_s.size)] + [lookup[f.name].design(f.theta) for f in diag.findings])
+    test = timer_quantisation_test(diag.after.residuals_, X_after, T_s, rng, alpha=alpha, n_sim=max(n_sim, 1000))
+    if not test["accepted"]:
+        return test, None
+    return test, {
+        "effect": "timer_quantisation",
+        "physics": "the round times carry a timer error (resolution of the stopwatch or of the pulse timing) "
+                   "that the twin, timing rounds exactly, leaves out: rate scatter growing with the rate",
+        "statistic": test["statistic"], "threshold": test["threshold"],
+        "parameters": [{"name": "sigma_T_s", "estimate": test["sigma_T_s"], "std_error": test["sigma_T_se_s"]},
+                       {"name": "resolution_s_if_rounded", "estimate": test["resolution_s"],
+                        "std_error": test["resolution_se_s"]}],
+        "variance_share": test["variance_share"], "indistinguishable_from": None}
 
 
 def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:
