@@ -118,7 +118,7 @@ def _run_turn_table(a):
 def _run_simona(a):
     from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
     from imurig.campaigns.turn_table import simona_virtual
-    from imurig.reports.common import OutputFolder
+    from imurig.kernel.outputs import OutputFolder
 
     real = read_simona(a.csv)
     virt = simona_virtual(a.seed)
@@ -239,8 +239,8 @@ def _print_summary(s: dict, out):
 
 def _run_calibrate(a):
     from imurig.reports.tilt_table import analyse, make_figures, summary_dict, _report_md
-    from imurig.kernel.recording import load
-    from imurig.reports.common import OutputFolder
+    from imurig.kernel.files import load
+    from imurig.kernel.outputs import OutputFolder
 
     rec = load(a.recording).validate()
     if a.rig != "tilt-table":
@@ -261,7 +261,8 @@ def _run_apply(a):
     from imurig.calibration.accelerometer import AccelerometerCalibration
     from imurig.calibration.gyro import GyroCalibration
     from imurig.kernel.labcsv import write_csv
-    from imurig.kernel.recording import load, save_h5
+    from imurig.kernel.files import load
+    from imurig.kernel.recording import save_h5
 
     try:
         d = json.loads(Path(a.calibration).read_text())
@@ -292,7 +293,7 @@ def _run_diagnose(a):
 
         rec = read_simona(a.recording)
     else:
-        from imurig.kernel.recording import load
+        from imurig.kernel.files import load
 
         rec = load(a.recording).validate()
     # the twin: the recording's own meta["diagnose_twin"] (if any), overridden by the flags given
@@ -315,7 +316,8 @@ def _is_appendix_b(path) -> bool:
 
 def _run_convert(a):
     from imurig.kernel.labcsv import write_csv
-    from imurig.kernel.recording import load, save_h5
+    from imurig.kernel.files import load
+    from imurig.kernel.recording import save_h5
 
     rec = load(a.input)
     dst = Path(a.output)
@@ -329,7 +331,7 @@ def _run_convert(a):
 
 
 def _run_info(a):
-    from imurig.kernel.recording import load
+    from imurig.kernel.files import load
 
     rec = load(a.recording)
     info = {"samples": rec.n, "duration_s": float(rec.time_s[-1] - rec.time_s[0]),

@@ -122,8 +122,10 @@ def run_all(out_dir, seeds: int = 1, overwrite: bool = False, cases: list[str] |
     each through ``imurig diagnose``'s own path, and report the score (module doc)."""
     from imurig.reports.diagnosis import run as diagnose_run
     from imurig.kernel.progress import progress
-    from imurig.kernel.recording import load, save_h5
-    from imurig.reports.common import OutputFolder, md_table
+    from imurig.kernel.files import load
+    from imurig.kernel.recording import save_h5
+    from imurig.kernel.outputs import OutputFolder
+    from imurig.reports.common import md_table
 
     suite = _suite()
     chosen = [find_case(s) for s in cases] if cases else list(suite.CASES)

@@ -11,7 +11,8 @@ from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, save_products
 
 
 def _fig5(out, res) -> str:

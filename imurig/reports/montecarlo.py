@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from imurig.montecarlo.stats import error_matrix, parameter_stats, table_arrays
-from imurig.reports.common import clean_json, fmt, md_table
+from imurig.kernel.outputs import clean_json
+from imurig.reports.common import fmt, md_table
 
 
 def _tmp_for(path: Path) -> Path:

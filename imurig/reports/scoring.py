@@ -5,7 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.reports.common import OutputFolder, clean_json, md_table
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_table
 from imurig.scoring.score import Score
 
 

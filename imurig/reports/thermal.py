@@ -12,7 +12,8 @@ from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, save_products
 
 
 def _figs(out, rec: Recording, res: dict) -> dict:

@@ -20,7 +20,8 @@ from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, 
 from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""

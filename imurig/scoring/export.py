@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from imurig.kernel.errors import ImurigError, OutputExistsError
-from imurig.kernel.recording import Recording, atomic_write, to_json
-from imurig.reports.common import OutputFolder
+from imurig.kernel.outputs import OutputFolder, atomic_write, to_json
+from imurig.kernel.recording import Recording
 from imurig.scoring.campaigns import BenchCampaign, campaign
 
 MAT_LAYOUT = """recording.mat (MATLAB v5, load('recording.mat') or Octave load):

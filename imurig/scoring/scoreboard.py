@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from imurig.kernel.errors import ImurigError
-from imurig.reports.common import OutputFolder, clean_json, md_table
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_table
 from imurig.scoring.baselines import baseline_for
 from imurig.scoring.bench import score_calibrator
 from imurig.scoring.campaigns import QUICK, campaign
