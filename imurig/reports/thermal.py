@@ -17,7 +17,7 @@ from imurig.reports.common import md_figures_and_run, md_table, save_products
 
 
 def _figs(out, rec: Recording, res: dict) -> dict:
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -118,7 +118,7 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
             out.write_json("thermal_calibration.json", thermal_calibration_dict(res))
             files = {"report": "report.md", "summary": "summary.json", "calibration": "thermal_calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            from imurig.reports.thermal_rrd import write_rrd
+            from imurig.reports.thermal_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
             bar.update()
