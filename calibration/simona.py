@@ -49,7 +49,8 @@ import numpy as np
 
 from imurig.calibration.regression import fit_ols
 from imurig.kernel.errors import RecordingError
-from imurig.kernel.recording import Recording, atomic_write
+from imurig.kernel.outputs import atomic_write
+from imurig.kernel.recording import Recording
 from imurig.kernel.units import DEG, split_column, to_si
 
 __all__ = [

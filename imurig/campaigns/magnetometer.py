@@ -107,6 +107,21 @@ def analyse(rec: Recording) -> dict:
     e2 = fit_ellipse_2d(m[circ, 0], m[circ, 1], H)
     e3 = fit_ellipsoid_3d(m[tum], F)
     out["ellipse"], out["ellipsoid"] = e2, e3
+    out["parameters"] = _invariant_rows(rec, e2, e3, circ)
+    # calibrated norm on the tumble
+    cal3 = e3.apply(m[tum])
+    out["norm_std_nT"] = float(np.std(np.linalg.norm(cal3, axis=1)) * 1e9)
+    out["norm_std_manufacturer_nT"] = float(np.std(np.linalg.norm(m[tum], axis=1)) * 1e9)
+    out["noise_nT"] = float(rec.truth["sensors"]["magnetometer"]["noise_T_rms"] * 1e9) if rec.truth else None
+    sw = _headings(rec, m, e2, val, out)
+    out["fig5"] = {"manufacturer": m[val], "calibrated": e3.apply(m[val])}
+    out["swing_mask"] = sw
+    return out
+
+
+def _invariant_rows(rec: Recording, e2, e3, circ) -> list[dict]:
+    """Parameter rows of the 3-D fit (b, A A') and the 2-D fit (b2, A2 A2') with the injected
+    invariants when the recording has its truth."""
     params = []
     truth = true_invariants(rec) if rec.truth else None
     # 3-D: b and the unique entries of A A'
@@ -138,12 +153,12 @@ def analyse(rec: Recording) -> dict:
     for k, n in enumerate(["A2A2t_xx", "A2A2t_xy", "A2A2t_yy", "b2_x", "b2_y"]):
         params.append(_row(f"2d:{n}", "T" if n.startswith("b") else "1", est2[k], se2[k],
                            None if inj2 is None else inj2[k]))
-    out["parameters"] = params
-    # calibrated norm on the tumble
-    cal3 = e3.apply(m[tum])
-    out["norm_std_nT"] = float(np.std(np.linalg.norm(cal3, axis=1)) * 1e9)
-    out["norm_std_manufacturer_nT"] = float(np.std(np.linalg.norm(m[tum], axis=1)) * 1e9)
-    out["noise_nT"] = float(rec.truth["sensors"]["magnetometer"]["noise_T_rms"] * 1e9) if rec.truth else None
+    return params
+
+
+def _headings(rec: Recording, m, e2, val, out: dict):
+    """Headings on the validation circle (manufacturer, two-step 2-D, compass swing, 2-D with one
+    reference heading) and the swing into ``out``; returns the compass-swing mask."""
     # heading: validation circle, true heading from the rig, declination from IGRF
     B_W = np.asarray(rec.meta["igrf_field_W_T"])
     decl = float(np.arctan2(B_W[0], B_W[1]))
@@ -175,9 +190,7 @@ def analyse(rec: Recording) -> dict:
     if psi_true is not None:
         out["heading_error_deg"] = {k: _err_stats(v, psi_true) for k, v in heads.items()}
         out["heading_series"] = {"time_s": rec.time_s[val], "true": psi_true, **heads}
-    out["fig5"] = {"manufacturer": m[val], "calibrated": e3.apply(m[val])}
-    out["swing_mask"] = sw
-    return out
+    return sw
 
 
 def _se_for(order, name, se, k):

@@ -14,7 +14,7 @@ import numpy as np
 from imurig.calibration.thermal import ThermalFit, branch_gap, fit_thermal, step_table
 from imurig.kernel.recording import Recording
 from imurig.rigs.thermal_chamber import ThermalChamber, ThermalProfile
-from imurig.sensors.accelerometer import QFlexTriad
+from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
@@ -78,8 +78,6 @@ def twin_channels(rec: Recording) -> dict:
     vg = gy.ideal_voltage(w, ts["T_gyro"])
     out = {f"acc_{a}": va[:, j] for j, a in enumerate("xyz")}
     out.update({f"gyro_{a}": vg[:, j] for j, a in enumerate("pqr")})
-    from imurig.sensors.accelerometer import CurrentTemperatureSensor
-
     for name, T in (("temp_acc_x", ts["T_acc"]), ("temp_acc_y", ts["T_acc"]), ("temp_acc_z", ts["T_acc"]),
                     ("temp_box", ts["T_box"])):
         sd = dict(t.get("temperature_sensors", {}).get(name, {}))

@@ -21,6 +21,7 @@ from imurig.calibration.gyro import (AXIS_OF_MOUNT, INPUTS, MODELS, GyroCalibrat
                                      timer_difference_sigma)
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
+from imurig.calibration.simona import MANUFACTURER_SENSITIVITY_V_PER_RAD_S
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.triad import delta_cov
 from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
@@ -267,8 +268,6 @@ class SimonaSetup:
 def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Recording:
     """Run the SIMONA experiment on the virtual C181 and return a row-level Recording in the
     format of :func:`imurig.calibration.simona.read_simona` (first row: table at rest)."""
-    from imurig.calibration.simona import MANUFACTURER_SENSITIVITY_V_PER_RAD_S
-
     s = setup or SimonaSetup()
     ss = np.random.SeedSequence(seed, spawn_key=(5,))
     rng = np.random.default_rng(ss)

@@ -43,7 +43,6 @@ import numpy as np
 
 from imurig.kernel.errors import ConfigError
 from imurig.montecarlo.distributions import Source
-from imurig.montecarlo.registry import register
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.noise import child_rng
 
@@ -408,4 +407,4 @@ def budget_report(study, folder) -> dict:
             "figures": figs}
 
 
-FLIGHT = register(FlightMC())
+FLIGHT = FlightMC()

@@ -565,7 +565,7 @@ def summarise(err: dict, res: ekf.FilterResult, settle_s: float = 60.0) -> dict:
 
 def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     """The whole job; writes ``out`` atomically. Returns the summary."""
-    from imurig.reports.common import OutputFolder
+    from imurig.kernel.outputs import OutputFolder
 
     opt.validate()
     folder = OutputFolder(out, overwrite=overwrite)

@@ -11,12 +11,14 @@ from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.rigs.mujoco_rig import load_model
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, save_products
 
 
 def _fig5(out, res) -> str:
     """Paper Fig. 5: X and Y field and the field norm, manufacturer vs our calibration."""
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -43,7 +45,7 @@ def _fig5(out, res) -> str:
 
 
 def _fig_heading(out, res) -> str:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     hs = res["heading_series"]
     fig, ax = plt.subplots(figsize=(8, 3.8))
@@ -60,7 +62,7 @@ def _fig_heading(out, res) -> str:
 
 
 def _fig_ellipse(out, rec, res) -> str:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     m = indicated_field(rec) * 1e9
     circ = manoeuvre_mask(rec, "level_circle")
@@ -151,9 +153,9 @@ def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_rec
 def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
     """The gimbal turning the IMU; the measured field (ellipsoid) against the calibrated one
     (on the IGRF sphere), in uT; X, Y and norm over time."""
-    from imurig.rigs.mujoco_rig import load_model
+    # rerun (reports.viz): heavy, loaded for the .rrd only
     from imurig.reports.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
-                            log_scalars, log_sphere, log_text)
+                                    log_scalars, log_sphere, log_text)
 
     model = load_model("mag_rig.xml")
     k = max(1, int(round(rec.sample_rate_hz / 10)))

@@ -18,7 +18,8 @@ from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -32,7 +33,7 @@ def analyse(rec: Recording, timer: str = "hp6700", model: str = "physical") -> d
 
 
 def _fig_timers(out, ts: dict):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
     hp = ts["timers"]["hp6700"]
@@ -56,7 +57,7 @@ def _fig_timers(out, ts: dict):
 
 
 def _fig_residuals(out, res: dict):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     cal = res["main"]
     rate = np.degrees(res["rate"])
@@ -79,7 +80,7 @@ def _fig_residuals(out, res: dict):
 
 def _fig_slip_ring(out, rec: Recording):
     """Seed Fig. 4.16: a temperature channel at 1 kHz while the table turns; noise periodic in angle."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     seg = rec.segments
     i = int(np.argmax(np.abs(seg["rate_dial"])))
@@ -101,7 +102,7 @@ def _fig_slip_ring(out, rec: Recording):
 
 
 def _fig_arm(out, arm: dict):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     g = np.abs(np.asarray(arm["f_ref_m_s2"])) / 9.81242231
     fig, ax = plt.subplots(figsize=(8, 3.5))
@@ -184,7 +185,7 @@ def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
 
 
 def _fig_z(out, params):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     ps = [p for p in params if p.get("z") is not None]
     fig, ax = plt.subplots(figsize=(8, 3.8))
@@ -203,7 +204,7 @@ def _fig_z(out, params):
 
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
         studies: bool = True) -> dict:
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     out = OutputFolder(out_dir, overwrite=overwrite)
@@ -252,7 +253,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             bar.update()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            from imurig.reports.turn_table_rrd import write_rrd
+            from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
             bar.update(int(save_recording) + int(rrd))

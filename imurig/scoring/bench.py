@@ -10,6 +10,8 @@ import time
 
 import numpy as np
 
+from imurig.calibration.gyro import round_windows
+from imurig.calibration.preprocess import segment_statistic
 from imurig.scoring.campaigns import BenchCampaign, campaign
 from imurig.scoring.score import Score, score_estimates
 
@@ -42,16 +44,12 @@ def score_calibrator(calibrator, camp: BenchCampaign | str, seed: int | None = N
 
 def output_residuals(c: BenchCampaign, calibrated) -> dict:
     """RMS per axis (SI) of the calibrated channels minus the true input, per segment."""
-    from imurig.calibration.preprocess import segment_statistic
-
     d = c.truth(with_bench=False).residuals
     q = np.asarray(d["true_input"])
     if c.kind == "tilt-table":
         names = ["acc_cal_x", "acc_cal_y", "acc_cal_z"]
         out = segment_statistic(calibrated, names, "median")
     else:
-        from imurig.calibration.gyro import round_windows
-
         names = ["gyro_cal_p", "gyro_cal_q", "gyro_cal_r"]
         rw, _ = round_windows(calibrated, "hp6700")
         out = segment_statistic(rw, names, "mean")
