@@ -5,9 +5,22 @@ filter priors find effects here and nowhere else (README, "Adding an effect").
 """
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.adc_quantisation import AdcQuantisation
-from imurig.sensors.effects.base import STAGES, Candidate, ChainContext, Effect, Param, PositionView, ScanSlot
+from imurig.sensors.effects.axis_misalignment import AxisMisalignment
+from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, Param, PositionView, ScanSlot,
+                                         ScatterView, recording_truth)
+from imurig.sensors.effects.building_vibration import PumpVibration
+from imurig.sensors.effects.cable_fault_spikes import LooseCable
+from imurig.sensors.effects.channel_skew import ChannelSkew
+from imurig.sensors.effects.cross_coupling import CrossCoupling
+from imurig.sensors.effects.lever_arm import LeverArm
+from imurig.sensors.effects.people_transients import PeopleTransients
+from imurig.sensors.effects.scale_nonlinearity import ScaleNonlinearity
+from imurig.sensors.effects.temperature_drift import TemperatureDrift
 
-LIBRARY: tuple[type[Effect], ...] = (AdcCrosstalk, AdcQuantisation)
+#: in the order the diagnosis offers their candidates (position means: crosstalk, drift, axes, square, product)
+LIBRARY: tuple[type[Effect], ...] = (AdcCrosstalk, AdcQuantisation, TemperatureDrift, AxisMisalignment,
+                                     ScaleNonlinearity, CrossCoupling, PumpVibration, PeopleTransients, LooseCable,
+                                     ChannelSkew, LeverArm)
 
 
 def by_name(name: str) -> type[Effect]:
@@ -23,5 +36,7 @@ def for_view(kind: str) -> list[type[Effect]]:
     return [cls for cls in LIBRARY if kind in cls.views]
 
 
-__all__ = ["LIBRARY", "STAGES", "AdcCrosstalk", "AdcQuantisation", "Candidate", "ChainContext", "Effect", "Param",
-           "PositionView", "ScanSlot", "by_name", "for_view"]
+__all__ = ["LIBRARY", "STAGES", "AdcCrosstalk", "AdcQuantisation", "AxisMisalignment", "Candidate", "ChainContext",
+           "ChannelSkew", "CrossCoupling", "Effect", "LeverArm", "LooseCable", "Param", "PeopleTransients",
+           "PositionView", "PumpVibration", "ScaleNonlinearity", "ScanSlot", "ScatterView", "TemperatureDrift",
+           "by_name", "for_view", "recording_truth"]
