@@ -17,7 +17,7 @@ A long window mean holds none of it (no power at DC).
 Diagnosis (within-position scatter): the positions' mean Welch spectrum holds a narrow peak more
 than 25 times its median; the positions whose peak power stands out locate it in the day. Refit:
 a sinusoid at the peak frequency (scanned +- one Welch bin) with its own phase and level per
-affected position; the finding gives its frequency, the mean amplitude (V and m/s^2) +- its
+affected position; the finding gives its frequency (to ~df / 400), the mean amplitude (V and m/s^2) +- its
 standard error, and the residual scatter before and after.
 """
 from __future__ import annotations
@@ -136,9 +136,10 @@ class PumpVibration(Effect):
             out["finding"].update(self.refit(view, float(f[k]), fs / nper, np.flatnonzero(loud)))
         return out
 
-    def refit(self, view: ScatterView, f_peak: float, df: float, positions=None, n_scan: int = 81) -> dict:
+    def refit(self, view: ScatterView, f_peak: float, df: float, positions=None, n_scan: int = 41) -> dict:
         """Sinusoid at the peak: per position x_i(t) = c_i + a_i sin(2 pi f t) + b_i cos(2 pi f t),
-        one frequency f scanned over f_peak +- df for the least total residual. Amplitude per
+        one frequency f scanned over f_peak +- df (then +- one step of that scan) for the least
+        total residual. Amplitude per
         position A_i = |(a_i, b_i)|; reported: f, the mean of A_i over the ``positions`` (all if
         none given) +- its standard error (the A_i's spread / sqrt(m), or the fit's own with one
         position), in V and through the nominal sensitivity in SI, and the rms residual about
@@ -157,9 +158,11 @@ class PumpVibration(Effect):
                 res.append((coef, cov, r))
             return res
 
-        grid = f_peak + np.linspace(-df, df, n_scan)
-        ss = [sum(float(r @ r) for _, _, r in fit(fr)) for fr in grid]
-        f_best = float(grid[int(np.argmin(ss))])
+        f_best, step = f_peak, df
+        for _ in range(2):  # a coarse scan over the Welch bin, then a fine one about its best step
+            grid = f_best + np.linspace(-step, step, n_scan)
+            ss = [sum(float(r @ r) for _, _, r in fit(fr)) for fr in grid]
+            f_best, step = float(grid[int(np.argmin(ss))]), 2 * step / (n_scan - 1)
         fits = fit(f_best)
         A = np.array([np.hypot(c[1], c[2]) for c, _, _ in fits])
         if A.size > 1:

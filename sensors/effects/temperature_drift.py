@@ -8,8 +8,9 @@ its own to a signal (tests), the temperature from the context's truth signals (T
 
 Diagnosis (static positions): the first recorded temperature channel's per-position median, less
 its mean (V; the Q-Flex's sensor gives 1 uA/K over 10 kohm = 10 mV/K), is the column, offered only
-where the temperature moved by more than 0.2 K. Truth map: the inverse model f = u / D - kb dT / D,
-dT = dV / (10 mV/K), so the coefficient per volt is -kb_j / (D_j 0.01 V/K).
+where the temperature moved by more than 0.2 K. Truth map: the readings u_j = D_j (a_j + b_j +
+kb_j dT) (D the relative scale, without a scale tempco) invert to f_j = u_j / D_j - b_j - kb_j dT
+exactly, dT = dV / (10 mV/K): the coefficient per volt is -kb_j / (0.01 V/K), whatever D.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.kernel.units import T_REF_K
-from imurig.sensors.effects._qflex import accelerometers, axis_index, relative_scale
+from imurig.sensors.effects._qflex import accelerometers, axis_index
 from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param, PositionView
 
 G = 9.80665  # m/s^2 per g, for the datasheet's ug/C only
@@ -42,7 +43,7 @@ class TemperatureDrift(Effect):
                                 "+70 ug/C maximum")
     params: ClassVar[tuple] = (Param("drift", "m/s^2/V", datasheet=70e-6 * G,
                                      note="inverse-model coefficient of the temperature reading (10 mV/K), "
-                                          "-kb / (D 0.01); datasheet bound on kb in m/s^2/K"),)
+                                          "-kb / 0.01; datasheet bound on kb in m/s^2/K"),)
     views: ClassVar[tuple] = ("positions",)
 
     #: the temperature channels the diagnosis looks for, in this order (the first recorded is used)
@@ -69,8 +70,6 @@ class TemperatureDrift(Effect):
         return [Candidate(self.name, self.physics, ("drift",), lambda _, t=volts - np.mean(volts): t)]
 
     def fitted(self, truth: Mapping, channel: str | None = None) -> dict[str, float]:
-        """{drift: -kb_j / (D_j 0.01)} (m/s^2 per volt of the temperature reading) on ``channel``;
-        ``truth`` from ``recording_truth``."""
-        j = axis_index(channel)
-        kb = accelerometers(truth)["bias_tempco_m_s2_per_K"][j]
-        return {"drift": float(-kb / relative_scale(truth)[j] / self.volts_per_K)}
+        """{drift: -kb_j / 0.01} (m/s^2 per volt of the temperature reading) on ``channel``."""
+        kb = accelerometers(truth)["bias_tempco_m_s2_per_K"][axis_index(channel)]
+        return {"drift": float(-kb / self.volts_per_K)}
