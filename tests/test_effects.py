@@ -290,7 +290,8 @@ def test_pump_harmonic_amplitudes_and_variance():
          for k in range(12)]
     assert abs(np.mean(p) - 3 * pump.noise_variance(day)) < 4.5 * np.std(p, ddof=1) / math.sqrt(len(p))
     night = replace(day, hour_of_day=np.full(n, 20.0))
-    assert pump.noise_variance(night) == 0.0 and not np.any(pump.inject(np.zeros((n, 3)), night, np.random.default_rng(7)))
+    assert pump.noise_variance(night) == 0.0
+    assert not np.any(pump.inject(np.zeros((n, 3)), night, np.random.default_rng(7)))
     assert pump.noise_variance(replace(day, window_samples=1500)) == 0.0
 
 
@@ -332,7 +333,8 @@ def test_people_transients_variance_is_shot_noise():
     N = 2000  # 20 s windows, 65 decay times: the long-window limit holds to ~tau fs / N = 1.5 %
     w = f[: n // N * N].reshape(-1, N, 3).mean(axis=1)
     s2 = np.sum(w**2, axis=1)
-    assert abs(s2.mean() - 3 * people.noise_variance(replace(ctx, window_samples=N))) < 4.5 * s2.std(ddof=1) / math.sqrt(s2.size)
+    expect = 3 * people.noise_variance(replace(ctx, window_samples=N))
+    assert abs(s2.mean() - expect) < 4.5 * s2.std(ddof=1) / math.sqrt(s2.size)
     assert people.impulsive and people.noise_variance(replace(ctx, sample_rate_hz=20.0)) == 0.0
 
 
