@@ -26,8 +26,9 @@ from imurig.calibration.regression import fit_ols
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
+from imurig.kernel.units import T_REF_K
 
-T0 = 298.15
+T0 = T_REF_K  # K, dT = T - T0
 ACC = ("acc_x", "acc_y", "acc_z")
 GYRO = ("gyro_p", "gyro_q", "gyro_r")
 TEMP_ACC = ("temp_acc_x", "temp_acc_y", "temp_acc_z")

@@ -52,6 +52,8 @@ from imurig.flights import earth as E
 from imurig.flights import ins
 
 from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.units import T_REF_K
+from imurig.sensors.noise import sampled_bands
 
 BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d",
                "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
@@ -102,20 +104,12 @@ class ImuNoise:
         smallest of the three axes). Divided by the current scale factor K1; the gyro's ARW and
         bias instability as given."""
         fs = float(sample_rate_hz)
-        nyq = fs / 2
         if averaged is None:
             averaged = adc is not None and int(getattr(adc, "averaging", 1)) > 1
         dens2 = 0.0
-        for lo, hi, rms in accelerometers.noise_bands:
-            if rms <= 0:
-                continue
-            if lo >= nyq:
-                if not averaged:
-                    dens2 += rms ** 2 / fs
-            elif lo <= 0:
-                # band-limited to [0, min(hi, f_s/2)]; sampled directly the whole rms folds into it
-                b = min(hi, nyq) if not averaged else hi
-                dens2 += rms ** 2 / (2 * b)
+        for lo, hi, rms in sampled_bands(accelerometers.noise_bands, fs, averaged):
+            if lo <= 0:  # a band reaching DC (aliased bands arrive as white, 0..f_s/2)
+                dens2 += rms ** 2 / (2 * hi)
         k1 = float(np.min(accelerometers.k1_A_per_m_s2))
         vrw2 = dens2 / k1 ** 2
         arw2 = float(gyros.arw_rad_s_per_sqrt_hz) ** 2
@@ -195,7 +189,7 @@ class FilterConfig:
     temp_rate_hz: float = 1.0
     temp_sigma_K: float = 0.05
     thermal_slope_m_s2_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    reference_temperature_K: float = 298.15
+    reference_temperature_K: float = T_REF_K
     sigma0_pos_m: float = 5.0
     sigma0_vel_m_s: float = 0.5
     sigma0_tilt_rad: float = 1.0 * math.pi / 180
@@ -1123,7 +1117,7 @@ class SimpleGps:
 def synthetic_sensors(truth, noise: ImuNoise, rng: np.random.Generator, *, acc_bias_m_s2=None,
                       gyro_bias_rad_s=None, gps_rate_hz=1.0, gps_sigma_pos_m=(0.5, 0.5, 1.0),
                       gps_sigma_vel_m_s=(0.05, 0.05, 0.1), lever_gps_B=(0.0, 0.0, 0.0), mag_sigma_rad=0.0,
-                      T_acc_K=298.15, temp_sigma_K=0.05, outages=()):
+                      T_acc_K=T_REF_K, temp_sigma_K=0.05, outages=()):
     """IMU, GPS, magnetometer and temperature data drawn from exactly the filter's error model.
 
     w = w_IB_B + b_g + GM(σ, τ) + ARW;  f = f_B + b_a + VRW  (white, per sample σ = density √fs);

@@ -44,6 +44,7 @@ from imurig.flights import earth
 
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.site import decimal_year, parse_time
+from imurig.kernel.units import T_REF_K
 
 DEG = np.pi / 180.0
 
@@ -318,7 +319,7 @@ def static_tests_truth(attitudes_deg=((0.0, 0.0), (-30.0, 0.0), (0.0, -30.0)), d
                        transition_s: float = 10.0, rate_hz: float = 100.0, heading_deg: float = 234.0,
                        origin_deg: tuple = (52.31, 4.76, 43.0), start_time: str = "2005-06-26T08:00:00+02:00",
                        lever_gps_B=(0.5, 0.3, -1.1), lever_mag_B=(0.4, 0.0, 0.0),
-                       T_imu_K: float = 298.15) -> FlightTruth:
+                       T_imu_K: float = T_REF_K) -> FlightTruth:
     """The static attitude tests of the paper's section 4.2: the IMU on a fixture, parked, at
     (roll, pitch) = 0/0, −30/0, 0/−30 deg for ``dwell_s`` each, turned between them about its
     own centre by a minimum-jerk profile of ``transition_s`` (analytic kinematics, exact):

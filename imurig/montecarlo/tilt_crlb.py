@@ -7,14 +7,12 @@ parameters (:data:`PARAM_NAMES`) and the table errors as nuisance.
 """
 from __future__ import annotations
 
-from functools import lru_cache
 
 import numpy as np
-from scipy import signal
 
 from imurig.calibration.accelerometer import AXES
 from imurig.kernel.recording import Recording
-from imurig.kernel.site import Site
+from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCSEC
 from imurig.montecarlo.crlb import (
     crlb_covariance,
@@ -26,6 +24,8 @@ from imurig.rigs.tilt_table import specific_force_C
 from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
+from imurig.sensors.disturbances import PeopleTransients, PumpVibration
+from imurig.sensors.effects import ChainContext
 
 PARAM_NAMES = ([f"sensitivity_{a}" for a in AXES]
                + [f"misalignment_{AXES[i]}{AXES[j]}" for i in range(3) for j in range(3) if i != j]
@@ -53,51 +53,38 @@ def forward_volts(theta_p: np.ndarray, psi: np.ndarray, p: dict, mounts: list[st
     return S * (a + b + k2 * a**2)
 
 
-def window_noise_cov(p: dict, lab: ImuLab, n_window: int) -> np.ndarray:
+def window_noise_cov(p: dict, lab: ImuLab, n_window: int, hour_of_day: np.ndarray | None = None) -> np.ndarray:
     """Covariance (3, 3) V^2 of the mean of one window of ``n_window`` logged samples of the
-    three accelerometer channels, from the chain's noise model:
+    three accelerometer channels, asking the chain's noise models:
 
-    - Q-Flex current noise x R_L in its three bands: a band reaching DC (0-10 Hz) contributes
-      rms^2 / (g_f^2 N) with g_f^2 the mean power gain of its shaping filter (|H(0)| = 1); bands
-      above DC (band-pass/high-pass, |H(0)| = 0) average out; with direct logging the bands
-      above fs/2 alias as white noise (rms^2 / N); with averaged logging they average out.
-    - ADC common-mode noise (same on every channel, off the diagonal too) sigma_cm^2 / N
-      (not with DIFF wiring); converter input noise and quantisation (q^2/12 + (e q)^2) / N,
-      divided by the averaging count with averaged logging.
-    Left out: people transients (rare, non-Gaussian; the median rejects most) and the pump
-    (off in the evening).
+    - the Q-Flex current noise x R_L (:meth:`QFlexTriad.window_mean_variance_A2`: its bands as
+      sampled, the long-window limit);
+    - the converter: rounding and input noise :meth:`DAQ6036E.sample_variance_V2` / N, and the
+      common-mode noise sigma_cm^2 / N (same on every channel, off the diagonal too; not with
+      DIFF wiring);
+    - the lab's Gaussian disturbance effects (specific-force stage: the pump ...): each one's
+      ``noise_variance`` of a window mean (m/s^2)^2 times the true sensitivity squared, at the
+      schedule's hours ``hour_of_day`` (default: the start time's). Impulsive effects (people
+      transients, a loose cable: rare, non-Gaussian, the median rejects most) are left out.
     """
     acc, adc = lab.accelerometers, lab.adc
     fs = float(p["sample_rate_hz"])
     averaged = p["logging"] == "averaged"
-    var_i = np.zeros(3)
-    for lo, hi, rms in acc.noise_bands:
-        if rms <= 0:
-            continue
-        if averaged:
-            if lo >= fs / 2:
-                continue
-            rms = rms * np.sqrt((min(hi, fs / 2) - lo) / (hi - lo))
-            hi = min(hi, fs / 2)
-        if lo >= fs / 2 or (lo <= 0 and hi >= fs / 2):
-            var_i += rms**2 / n_window
-        elif lo <= 0:
-            var_i += rms**2 / (_power_gain(fs, hi) * n_window)
-        # band-pass above DC: zero mean power at DC, nothing left in a long window mean
+    var_i = acc.window_mean_variance_A2(fs, n_window, averaged)
     cov = np.diag(var_i * acc.load_resistor_ohm**2)
-    q = adc.lsb_V
-    cov += np.eye(3) * (q**2 / 12 + (adc.input_noise_lsb_rms * q) ** 2) / max(adc.averaging, 1) / n_window
+    cov += np.eye(3) * adc.sample_variance_V2() / n_window
     if adc.grounding != "DIFF":
         cov += adc.common_mode_noise_V_rms**2 / n_window
+    if hour_of_day is None:
+        start = parse_time(p["start_time"])
+        hour_of_day = np.array([start.hour + start.minute / 60 + start.second / 3600])
+    ctx = ChainContext(time_s=np.zeros(1), sample_rate_hz=fs, hour_of_day=hour_of_day, adc=adc,
+                       window_samples=n_window)
+    s_true = acc.k1_A_per_m_s2 * acc.load_resistor_ohm
+    for eff in lab.stage_effects("specific_force"):
+        if not eff.impulsive:
+            cov += np.diag(eff.noise_variance(ctx) * s_true**2)
     return cov
-
-
-@lru_cache(maxsize=32)
-def _power_gain(fs: float, hi: float) -> float:
-    """Mean power gain of band_noise's low-pass shaping filter (unit DC gain)."""
-    sos = signal.butter(4, hi / (fs / 2), "lowpass", output="sos")
-    _, h = signal.sosfreqz(sos, worN=8192)
-    return float(np.mean(np.abs(h) ** 2))
 
 
 def crlb(p: dict, rec: Recording) -> dict[str, float]:
@@ -143,9 +130,12 @@ def crlb(p: dict, rec: Recording) -> dict[str, float]:
     lab_stub = ImuLab(accelerometers=triad_from_truth(acc),
                       adc=DAQ6036E(**{k: v for k, v in rec.meta["adc"].items()
                                        if k in DAQ6036E.__dataclass_fields__ and k != "scan_list"},
-                                   scan_list=tuple(rec.meta["adc"]["scan_list"])))
+                                   scan_list=tuple(rec.meta["adc"]["scan_list"])),
+                      pump=PumpVibration(enabled=bool(p["pump"])), people=PeopleTransients(enabled=bool(p["people"])))
     n_window = round(p["dwell_s"] * p["sample_rate_hz"])
-    Sv = window_noise_cov(p, lab_stub, n_window)
+    start = parse_time(rec.meta.get("start_time", p["start_time"]))
+    hours = (start.hour + start.minute / 60 + start.second / 3600 + (rec.time_s - rec.time_s[0]) / 3600.0) % 24.0
+    Sv = window_noise_cov(p, lab_stub, n_window, hours)
     res = float(table["setting_resolution_rad"])
     C = Sv + (res**2 / 12) * np.einsum("nia,nja->nij", A, A)
     F = fisher_information(J, C)

@@ -21,6 +21,7 @@ from imurig.sensors.noise import child_rng
 
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.progress import progress
+from imurig.kernel.units import T_REF_K
 
 DEG = math.pi / 180
 
@@ -286,7 +287,7 @@ def thermal_calibration(seed: int) -> dict:
     rec = ThermalCampaign(seed=seed).simulate()
     return {"fit": fit_thermal(step_table(rec)), "width_K": float(rec.truth["sensors"]["accelerometers"]
                                                                   .get("hysteresis_width_K", 4.0)),
-            "T_ref_K": 298.15}
+            "T_ref_K": T_REF_K}
 
 
 def thermal_terms(th: dict, T_K: np.ndarray, fs: float):

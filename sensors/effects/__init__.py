@@ -12,11 +12,12 @@ import importlib
 import pkgutil
 
 from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, Param, PositionView,  # noqa: F401
-                                         ScanSlot)
+                                         ScanSlot, ScatterView, recording_truth)
 
 
 def _discover() -> tuple[type[Effect], ...]:
-    """Every named Effect subclass defined in a module of this package, in name order."""
+    """Every named Effect subclass defined in a module of this package, by (``order``, name): the
+    diagnosis offers candidates in that order (position means: crosstalk, drift, axes, square, product)."""
     found = {}
     for info in pkgutil.iter_modules(__path__):
         if info.name == "base" or info.name.startswith("_"):
@@ -28,7 +29,7 @@ def _discover() -> tuple[type[Effect], ...]:
                     raise TypeError(f"two effects are called '{obj.name}': {found[obj.name].__module__} and "
                                     f"{module.__name__}; an effect's name is its identity, rename one")
                 found[obj.name] = obj
-    return tuple(found[k] for k in sorted(found))
+    return tuple(sorted(found.values(), key=lambda c: (c.order, c.name)))
 
 
 LIBRARY: tuple[type[Effect], ...] = _discover()
