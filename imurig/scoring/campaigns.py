@@ -184,9 +184,9 @@ class BenchCampaign:
                                    notes=notes)
         if with_bench and self._truth.bench is None:
             from imurig.scoring.baselines import baseline_for
-            from imurig.scoring.interface import normalise_estimates
+            from imurig.scoring.interface import fitted_estimates, normalise_estimates
 
-            est = normalise_estimates(baseline_for(self.kind).fit(self.recording()), self._truth.units)
+            est = normalise_estimates(fitted_estimates(baseline_for(self.kind), self.recording()), self._truth.units)
             self._truth.bench = [{"name": e.name, "unit": e.unit, "estimate": e.value, "std_error": e.std_error}
                                  for e in est]
         return self._truth
@@ -229,13 +229,13 @@ def _turn_truth(rec: Recording):
 
 
 def _thermal_truth(rec: Recording):
-    from imurig.calibration.thermal import fit_thermal, step_table
+    from imurig.calibration.thermal import ThermalCalibration, step_table
     from imurig.campaigns.thermal import twin_channels
 
-    twin = fit_thermal(step_table(rec, channels=twin_channels(rec)))
+    twin = ThermalCalibration().fit(step_table(rec, channels=twin_channels(rec)))
     unit = {"acc_bias": "m/s^2", "acc_scale": "1", "gyro_bias": "rad/s"}
     params = []
-    for key, r in twin.results.items():
+    for key, r in twin.results_.items():
         kind = key.rsplit("_", 1)[0]
         for n, c in zip(r.names, r.coef_):
             k = 0 if n in ("1", "hysteresis") else (1 if n == "dT" else int(n.split("^")[1]))

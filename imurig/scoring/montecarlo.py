@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from imurig.scoring.interface import normalise_estimates
+from imurig.scoring.interface import fitted_estimates, normalise_estimates
 from imurig.scoring.score import TruthSet, check_estimates
 
 
@@ -47,7 +47,7 @@ class CalibratorEstimator:
         units = _template_units(self.kind)
         truth = TruthSet(self.kind, 0, [{"name": n, "unit": u, "injected": 0.0} for n, u in units.items()])
         cal = copy.deepcopy(self.calibrator)
-        est = check_estimates(truth, normalise_estimates(cal.fit(recording), units),
+        est = check_estimates(truth, normalise_estimates(fitted_estimates(cal, recording), units),
                               f"{type(self.calibrator).__name__}.fit()")
         return [{"name": n, "unit": units[n], "estimate": est[n].value, "std_error": est[n].std_error} for n in units]
 
