@@ -127,6 +127,41 @@ def _ellipse_residuals(theta: np.ndarray, m: np.ndarray):
     return nrm - 1.0, J
 
 
+def _conic_start(m: np.ndarray, H: float, min_coverage_deg: float, scale_bounds) -> tuple[np.ndarray, float]:
+    """Step 1 of the ellipse fit (see :func:`_fit_ellipse_2d`): the conic by linear least squares, its
+    centre and the upper Cholesky factor of its shape. Returns (theta0 = (sx, sy, rho, bx/H, by/H),
+    the heading coverage around the centre)."""
+    n = m.shape[0]
+    x, c0, L = normalise(m)
+    X = np.column_stack([x[:, 0] ** 2, x[:, 0] * x[:, 1], x[:, 1] ** 2, x[:, 0], x[:, 1]])
+    try:
+        conic = fit_ols(X, np.ones(n), ["a", "b", "c", "d", "e"])
+    except UnidentifiableTermsError as exc:
+        raise ScheduleError(_NOT_ELLIPSE.format(cov=min_coverage_deg)
+                            + f" (the conic is not identifiable from these samples: {exc})") from exc
+    a, b, c, d, e = conic.coef_
+    if b * b - 4.0 * a * c >= 0.0:
+        raise ScheduleError(_NOT_ELLIPSE.format(cov=min_coverage_deg) + f" (b^2 - 4ac = {b * b - 4 * a * c:.3g} >= 0)")
+    Q = np.array([[a, b / 2.0], [b / 2.0, c]])
+    x0 = -0.5 * np.linalg.solve(Q, np.array([d, e]))
+    g = 1.0 + float(x0 @ Q @ x0)
+    P = Q / g
+    if not np.all(np.linalg.eigvalsh(P) > 0):
+        raise ScheduleError(_NOT_ELLIPSE.format(cov=min_coverage_deg) + " (the fitted ellipse is imaginary)")
+    centre = c0 + L * x0
+    coverage = coverage_deg(m - centre)
+    if coverage < min_coverage_deg:
+        raise ScheduleError(
+            f"the swing covers only {coverage:.1f} deg of heading (need >= {min_coverage_deg:g} deg): an arc "
+            f"does not determine the ellipse; swing the level sensor through a full 360 deg turn of heading")
+    # shape in normalised units (m/H): |T (m/H - b/H)|^2 = 1 with T'T = (H/L)^2 P
+    T0 = np.linalg.cholesky((H / L) ** 2 * P).T                # upper triangular, positive diagonal
+    A0 = scipy.linalg.solve_triangular(T0, np.eye(2))
+    check_semi_axes(A0, scale_bounds, H, "H", "swing the level sensor through a full 360 deg turn of heading")
+    theta0 = np.array([A0[0, 0], A0[1, 1], A0[0, 1], centre[0] / H, centre[1] / H])
+    return theta0, coverage
+
+
 def _fit_ellipse_2d(mx, my, field_horizontal_T: float, *, min_coverage_deg: float = 180.0,
                     scale_bounds: tuple[float, float] = (0.5, 2.0), max_iter: int = 50,
                     rtol: float = 1e-10) -> dict:
@@ -177,36 +212,8 @@ def _fit_ellipse_2d(mx, my, field_horizontal_T: float, *, min_coverage_deg: floa
                             f"record more samples while swinging through the full heading circle")
     m = np.column_stack([mx, my])
 
-    # --- step 1: algebraic conic fit -----------------------------------------------------
-    x, c0, L = normalise(m)
-    X = np.column_stack([x[:, 0] ** 2, x[:, 0] * x[:, 1], x[:, 1] ** 2, x[:, 0], x[:, 1]])
-    try:
-        conic = fit_ols(X, np.ones(n), ["a", "b", "c", "d", "e"])
-    except UnidentifiableTermsError as exc:
-        raise ScheduleError(_NOT_ELLIPSE.format(cov=min_coverage_deg)
-                            + f" (the conic is not identifiable from these samples: {exc})") from exc
-    a, b, c, d, e = conic.coef_
-    if b * b - 4.0 * a * c >= 0.0:
-        raise ScheduleError(_NOT_ELLIPSE.format(cov=min_coverage_deg) + f" (b^2 - 4ac = {b * b - 4 * a * c:.3g} >= 0)")
-    Q = np.array([[a, b / 2.0], [b / 2.0, c]])
-    x0 = -0.5 * np.linalg.solve(Q, np.array([d, e]))
-    g = 1.0 + float(x0 @ Q @ x0)
-    P = Q / g
-    if not np.all(np.linalg.eigvalsh(P) > 0):
-        raise ScheduleError(_NOT_ELLIPSE.format(cov=min_coverage_deg) + " (the fitted ellipse is imaginary)")
-    centre = c0 + L * x0
-    coverage = coverage_deg(m - centre)
-    if coverage < min_coverage_deg:
-        raise ScheduleError(
-            f"the swing covers only {coverage:.1f} deg of heading (need >= {min_coverage_deg:g} deg): an arc "
-            f"does not determine the ellipse; swing the level sensor through a full 360 deg turn of heading")
-    # shape in normalised units (m/H): |T (m/H - b/H)|^2 = 1 with T'T = (H/L)^2 P
-    T0 = np.linalg.cholesky((H / L) ** 2 * P).T                # upper triangular, positive diagonal
-    A0 = scipy.linalg.solve_triangular(T0, np.eye(2))
-    check_semi_axes(A0, scale_bounds, H, "H", "swing the level sensor through a full 360 deg turn of heading")
-    theta0 = np.array([A0[0, 0], A0[1, 1], A0[0, 1], centre[0] / H, centre[1] / H])
+    theta0, coverage = _conic_start(m, H, min_coverage_deg, scale_bounds)
 
-    # --- step 2: Gauss-Newton on the physical parameters ------------------------------------
     mn = m / H
     theta, r, J, it, conv = gauss_newton(theta0, lambda t: _ellipse_residuals(t, mn), max_iter, rtol)
     dof = n - 5

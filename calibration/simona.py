@@ -97,39 +97,9 @@ def _read_text(path) -> tuple[str, str]:
     return p.read_text(encoding="utf-8"), str(p)
 
 
-def read_simona(path=None) -> Recording:
-    """Import the SIMONA gyro table (seed Table B.1) as a row-level Recording.
-
-    Parameters
-    ----------
-    path : CSV file, or ``None`` for the packaged copy ``imurig.assets/simona_gyro_table_b1.csv``.
-        ``#`` lines are free-text comments (kept in ``meta["notes"]``); the header must hold
-        ``rate_dial_dps, rate_nominal_dps, expected_round_s, measured_round_s, p_V, q_V, r_V``
-        (extra columns are ignored).
-
-    Returns
-    -------
-    Recording with one sample per row (the table has no clock):
-
-    * ``time_s`` = 0, 1, 2, ... (row index, s); segment ``i`` = ``[i, i + 1)`` s with
-      set-points ``rate_dial`` (rad/s) and ``row`` (index);
-    * channels (SI): ``rate_dial``, ``rate_nominal`` (rad/s; nominal = dial * 5/6 because the
-      table's 60 Hz synchronous motor runs on 50 Hz mains), ``expected_round``,
-      ``measured_round`` (s; ``expected = 2*pi / rate_nominal``), ``gyro_p``, ``gyro_q``,
-      ``gyro_r`` (V), and ``round_measured`` (1 = the round was timed, 0 = not timed);
-    * the table's first row (at rest) prints round times 0, meaning "not measured"; it is
-      kept with ``expected_round = measured_round = 0`` s and ``round_measured = 0`` (NaN
-      would not pass :meth:`Recording.validate`);
-    * ``meta``: rig ``turn_table``, source, direction ``clockwise``, ``row_recording``,
-      instrument, ``notes`` (the CSV comments) and
-      ``gyro_nominal_sensitivity_V_per_rad_s`` (manufacturer: 6 mV/(deg/s) for p, q, r).
-
-    Raises
-    ------
-    RecordingError : missing file, missing column (named), non-numeric or non-finite value
-        (row and column named), a negative round time, or fewer than two rows.
-    """
-    text, source = _read_text(path)
+def _parse_table(text: str, source: str) -> tuple[list[str], np.ndarray]:
+    """The CSV's ``#`` comments and its table (n, 7) of the :data:`_COLUMNS`, in lab units; refuses
+    missing columns and non-numeric, non-finite or short rows (RecordingError naming the line)."""
     notes, body = [], []
     for line in text.splitlines():
         s = line.strip()
@@ -168,7 +138,43 @@ def read_simona(path=None) -> Recording:
         rows.append(vals)
     if len(rows) < 2:
         raise RecordingError(f"{source}: {len(rows)} data row(s); at least two are needed")
-    table = np.array(rows, dtype=float)  # (n, 7) in lab units
+    return notes, np.array(rows, dtype=float)  # (n, 7) in lab units
+
+
+def read_simona(path=None) -> Recording:
+    """Import the SIMONA gyro table (seed Table B.1) as a row-level Recording.
+
+    Parameters
+    ----------
+    path : CSV file, or ``None`` for the packaged copy ``imurig.assets/simona_gyro_table_b1.csv``.
+        ``#`` lines are free-text comments (kept in ``meta["notes"]``); the header must hold
+        ``rate_dial_dps, rate_nominal_dps, expected_round_s, measured_round_s, p_V, q_V, r_V``
+        (extra columns are ignored).
+
+    Returns
+    -------
+    Recording with one sample per row (the table has no clock):
+
+    * ``time_s`` = 0, 1, 2, ... (row index, s); segment ``i`` = ``[i, i + 1)`` s with
+      set-points ``rate_dial`` (rad/s) and ``row`` (index);
+    * channels (SI): ``rate_dial``, ``rate_nominal`` (rad/s; nominal = dial * 5/6 because the
+      table's 60 Hz synchronous motor runs on 50 Hz mains), ``expected_round``,
+      ``measured_round`` (s; ``expected = 2*pi / rate_nominal``), ``gyro_p``, ``gyro_q``,
+      ``gyro_r`` (V), and ``round_measured`` (1 = the round was timed, 0 = not timed);
+    * the table's first row (at rest) prints round times 0, meaning "not measured"; it is
+      kept with ``expected_round = measured_round = 0`` s and ``round_measured = 0`` (NaN
+      would not pass :meth:`Recording.validate`);
+    * ``meta``: rig ``turn_table``, source, direction ``clockwise``, ``row_recording``,
+      instrument, ``notes`` (the CSV comments) and
+      ``gyro_nominal_sensitivity_V_per_rad_s`` (manufacturer: 6 mV/(deg/s) for p, q, r).
+
+    Raises
+    ------
+    RecordingError : missing file, missing column (named), non-numeric or non-finite value
+        (row and column named), a negative round time, or fewer than two rows.
+    """
+    text, source = _read_text(path)
+    notes, table = _parse_table(text, source)
     channels, units = {}, {}
     for j, (col, name) in enumerate(_COLUMNS.items()):
         _, spec = split_column(col)

@@ -31,11 +31,20 @@ from imurig.calibration.magnetometer import MagnetometerCalibration
 from imurig.calibration.simona import SimonaCalibration, read_simona
 from imurig.calibration.thermal import ThermalCalibration
 from imurig.calibration.triad import TriadCalibration
+from imurig.campaigns.magnetometer import MagnetometerCampaign
+from imurig.campaigns.thermal import ThermalCampaign
+from imurig.campaigns.turn_table import TurnTableCampaign
 from imurig.flights import ekf, ins
 from imurig.flights.synthetic import synthetic_sensors
+from imurig.flights.truth import static_tests_truth
 from imurig.kernel.errors import NotFittedError
 from imurig.kernel.estimator import Estimator
 from imurig.kernel.recording import Recording
+from imurig.rigs.mag_rig import CompassSwing, LevelCircle, Tumble
+from imurig.rigs.thermal_chamber import ThermalProfile
+from imurig.rigs.turn_table import TurnTableProtocol
+from imurig.scoring.baselines import MagnetometerCalibrator, ThermalCalibrator, TiltTableCalibrator, TurnTableCalibrator
+from imurig.scoring.flight import AttitudeOffset, ProjectEKF, flight_streams
 
 D = math.pi / 180
 
@@ -155,26 +164,17 @@ def no_args(est, data):
 # ------------------------------------------------------------------------------------ campaigns (small)
 @pytest.fixture(scope="session")
 def small_turn_recording():
-    from imurig.campaigns.turn_table import TurnTableCampaign
-    from imurig.rigs.turn_table import TurnTableProtocol
-
     return TurnTableCampaign(protocol=TurnTableProtocol(dial_rates_dps=(20, 100), min_window_s=3.0), seed=3).simulate()
 
 
 @pytest.fixture(scope="session")
 def small_thermal_recording():
-    from imurig.campaigns.thermal import ThermalCampaign
-    from imurig.rigs.thermal_chamber import ThermalProfile
-
     profile = ThermalProfile(low_C=-40, high_C=40, step_C=20, soak_s=2400, attitude_dwell_s=40)
     return ThermalCampaign(profile=profile, seed=1).simulate()
 
 
 @pytest.fixture(scope="session")
 def small_mag_recording():
-    from imurig.campaigns.magnetometer import MagnetometerCampaign
-    from imurig.rigs.mag_rig import CompassSwing, LevelCircle, Tumble
-
     camp = MagnetometerCampaign(seed=1, circle=LevelCircle(turns=1, rate_dps=30, wobble_deg=0.0),
                                 tumble=Tumble(duration_s=60.0), swing=CompassSwing(dwell_s=3.0),
                                 validation=LevelCircle(turns=1, rate_dps=30, start_heading_deg=17, wobble_deg=0.0,
@@ -184,9 +184,6 @@ def small_mag_recording():
 
 @pytest.fixture(scope="session")
 def static_flight_streams():
-    from imurig.flights.truth import static_tests_truth
-    from imurig.scoring.flight import flight_streams
-
     return flight_streams(2005, truth=static_tests_truth(attitudes_deg=((0.0, 0.0),), dwell_s=30.0))[0]
 
 
@@ -204,9 +201,6 @@ class Case:
 
 
 def _scoring_cases():
-    from imurig.scoring.baselines import MagnetometerCalibrator, ThermalCalibrator, TiltTableCalibrator, TurnTableCalibrator
-    from imurig.scoring.flight import AttitudeOffset, ProjectEKF
-
     return [
         Case("TiltTableCalibrator", TiltTableCalibrator, {"model": "physical"}, "small_recording"),
         Case("TurnTableCalibrator", TurnTableCalibrator, {"timer": "hp6700"}, "small_turn_recording"),
