@@ -45,6 +45,7 @@ from imurig.rigs.thermal_chamber import ThermalProfile
 from imurig.rigs.turn_table import TurnTableProtocol
 from imurig.scoring.baselines import MagnetometerCalibrator, ThermalCalibrator, TiltTableCalibrator, TurnTableCalibrator
 from imurig.scoring.flight import AttitudeOffset, ProjectEKF, flight_streams
+from imurig.scoring.interface import EstimatesError, fitted_estimates, fitted_solution
 
 D = math.pi / 180
 
@@ -346,3 +347,20 @@ def test_every_estimator_is_checked():
     """Every estimator class of the project (but the triad base, which needs a sensor's SPEC) has a case."""
     missing = _estimator_classes() - {c.cls for c in CASES} - {TriadCalibration}
     assert not missing, f"estimators without a contract case: {sorted(k.__qualname__ for k in missing)}"
+
+
+def test_the_scorer_holds_user_estimators_to_the_contract():
+    """A user's calibrator or filter whose fit does not return itself, or leaves no results, is refused
+    with a message that states the contract."""
+    class ReturnsRows:
+        def fit(self, recording):
+            return [{"name": "bias_x", "unit": "m/s^2", "estimate": 0.0, "std_error": 1.0}]
+
+    class LeavesNothing:
+        def fit(self, streams):
+            return self
+
+    with pytest.raises(EstimatesError, match="must return the estimator itself"):
+        fitted_estimates(ReturnsRows(), None)
+    with pytest.raises(EstimatesError, match="left no 'solution_'"):
+        fitted_solution(LeavesNothing(), None)
