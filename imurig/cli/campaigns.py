@@ -174,7 +174,8 @@ def _run_turn_table(a):
 
 def _run_simona(a):
     # heavy (MuJoCo rigs, matplotlib): loaded when the command runs, not for --help
-    from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
+    from imurig.calibration.simona import SimonaCalibration, read_simona
+    from imurig.calibration.simona_report import plot_fig_4_19, simona_markdown
     from imurig.campaigns.turn_table import simona_virtual
 
     real = read_simona(a.csv)
@@ -182,7 +183,7 @@ def _run_simona(a):
     with OutputFolder(a.out, overwrite=a.overwrite) as out:
         plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt, gyro=a.gyro)
         md = "# SIMONA gyro calibration: real (appendix B) and virtual\n\n" + simona_markdown(
-            fit_simona(real), fit_simona(virt)) + "\n![fig](fig_4_19_simona.png)\n"
+            SimonaCalibration().fit(real).summary_, SimonaCalibration().fit(virt).summary_) + "\n![fig](fig_4_19_simona.png)\n"
         out.write_text("report.md", md)
     print(md)
 

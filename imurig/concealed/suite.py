@@ -176,10 +176,11 @@ def _thermal(seed, bias_hysteresis=None):
 def _thermal_gap_truth(rec, axis="x"):
     """The branch gap H the noise-free twin of the same recording gives (the injected hysteresis
     as the six-position bias sees it through the play operator's state)."""
-    from imurig.calibration.thermal import fit_thermal, step_table
+    from imurig.calibration.thermal import ThermalCalibration, step_table
     from imurig.campaigns.thermal import twin_channels
 
-    return fit_thermal(step_table(rec, channels=twin_channels(rec))).results[f"acc_bias_{axis}"].coef("hysteresis")
+    twin = ThermalCalibration().fit(step_table(rec, channels=twin_channels(rec)))
+    return twin.results_[f"acc_bias_{axis}"].coef("hysteresis")
 
 
 def _channel_param(d, channel, effect):

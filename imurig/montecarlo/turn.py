@@ -6,7 +6,7 @@ One run, from one SeedSequence:
       -> the Genisco C181 in MuJoCo (TurnTable.simulate: mains factor, slip, dial setting error,
          ripple, wobble, index pulses) -> ImuLab sensor chain (FOG, slip rings, DAQ, timers)
       -> whole-round windows by the timer -> GLS inverse-model fit
-         (imurig.campaigns.turn_table.calibrate_gyros, the campaign's own calibration)
+         (imurig.calibration.gyro.GyroCalibration, the campaign's own calibration)
       -> parameter rows {name, unit, injected, estimate, std_error, z, within_bound, crlb}
 
 Protocols. ``quick`` (the default, ~1 s per run): dial rates (10, 20, 40, 80, 100) deg/s,
@@ -30,12 +30,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from imurig.calibration.gyro import injected_parameters, round_windows
+from imurig.calibration.gyro import GyroCalibration, injected_parameters, round_windows
 from imurig.campaigns.turn_table import (
     TIMERS,
     Z_BOUND,
     TurnTableCampaign,
-    calibrate_gyros,
     gyro_parameters,
 )
 from imurig.kernel.errors import ConfigError, ScheduleError
@@ -229,7 +228,8 @@ class TurnTableMC:
         rec = self.simulate(p, ss, distributions)
         t1 = time.perf_counter()
         if estimator is None:
-            cal, rw, rate, _ = calibrate_gyros(rec, p["timer"], p["model"], gls=bool(p["gls"]))
+            cal = GyroCalibration(model=p["model"], timer=p["timer"], gls=bool(p["gls"])).fit(rec)
+            rw, rate = cal.windows_, cal.table_rate_
             rows = gyro_parameters(cal, rec)
         else:
             rw, rate = round_windows(rec, p["timer"])

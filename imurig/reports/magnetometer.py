@@ -66,7 +66,7 @@ def _fig_ellipse(out, rec, res) -> str:
 
     m = indicated_field(rec) * 1e9
     circ = manoeuvre_mask(rec, "level_circle")
-    hx, hy = res["ellipse"].apply(m[circ, 0] / 1e9, m[circ, 1] / 1e9)
+    hx, hy = res["ellipse"].apply(m[circ, :2] / 1e9).T
     fig, ax = plt.subplots(figsize=(5.5, 5.5))
     ax.plot(m[circ, 0], m[circ, 1], ",", label="measured (manufacturer)")
     ax.plot(hx * 1e9, hy * 1e9, ",", label="two-step 2-D")
@@ -115,9 +115,9 @@ def calibration_dict(res) -> dict:
     e2, e3 = res["ellipse"], res["ellipsoid"]
     return {"kind": "imurig.magnetometer_calibration", "version": 1,
             "equation": "B_cal = T (m - b), m = volts / nominal sensitivity [T]",
-            "three_d": {"T": e3.T.tolist(), "b_T": e3.b.tolist()},
-            "two_d": {"T2": e2.T2.tolist(), "b2_T": e2.b2.tolist(), "heading_offset_deg": res["heading_offset_2d_deg"]},
-            "swing": {"terms": list(res["swing"].names), "coef_rad": res["swing"].coef_.tolist()}}
+            "three_d": {"T": e3.T_.tolist(), "b_T": e3.b_.tolist()},
+            "two_d": {"T2": e2.T_.tolist(), "b2_T": e2.b_.tolist(), "heading_offset_deg": res["heading_offset_2d_deg"]},
+            "swing": {"terms": list(res["swing"].names_), "coef_rad": res["swing"].coef_.tolist()}}
 
 
 def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:

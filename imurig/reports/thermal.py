@@ -101,7 +101,7 @@ def thermal_calibration_dict(res: dict) -> dict:
             "equation": "q(T) = sum_k coef_k dT^k + coef_h h, dT = T_sensor - T0, h = +1/2 heating, -1/2 cooling",
             "models": {k: {"terms": r.names, "coef": r.coef_.tolist(), "std_error": r.std_error_.tolist(),
                            "temperature_sensor": "temp_box" if k.startswith("gyro") else f"temp_acc_{k[-1]}"}
-                       for k, r in res["fit"].results.items()}}
+                       for k, r in res["fit"].results_.items()}}
 
 
 def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:

@@ -11,10 +11,11 @@ import time
 import numpy as np
 
 import imurig
-from imurig.calibration.gyro import AXES
-from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
+from imurig.calibration.gyro import AXES, GyroCalibration
+from imurig.calibration.simona import SimonaCalibration, read_simona
+from imurig.calibration.simona_report import plot_fig_4_19, simona_markdown
 from imurig.reports.tilt_table import peak_rss_bytes
-from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros,
+from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study,
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
@@ -26,10 +27,10 @@ TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark i
 
 
 def analyse(rec: Recording, timer: str = "hp6700", model: str = "physical") -> dict:
-    cal, rw, rate, ref = calibrate_gyros(rec, timer, model)
-    return {"main": cal, "windows": rw, "rate": rate, "reference": ref,
+    cal = GyroCalibration(model=model, timer=timer).fit(rec)
+    return {"main": cal, "windows": cal.windows_, "rate": cal.table_rate_, "reference": cal.reference_,
             "parameters": gyro_parameters(cal, rec),
-            "seed_final": calibrate_gyros(rec, timer, "seed_final", gls=False)[0]}
+            "seed_final": GyroCalibration(model="seed_final", timer=timer, gls=False).fit(rec)}
 
 
 def _fig_timers(out, ts: dict):
@@ -235,7 +236,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 stage("SIMONA")
                 real = read_simona()
                 virt = simona_virtual(camp.seed)
-                simona = {"real": fit_simona(real), "virtual": fit_simona(virt),
+                simona = {"real": SimonaCalibration().fit(real).summary_, "virtual": SimonaCalibration().fit(virt).summary_,
                           "real_rounds": real.channels["measured_round"].tolist(),
                           "virtual_rounds": virt.channels["measured_round"].tolist()}
                 plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from imurig.kernel.recording import Recording
 from imurig.scoring.baselines import baseline_for
-from imurig.scoring.interface import normalise_estimates
+from imurig.scoring.interface import fitted_estimates, normalise_estimates
 from imurig.scoring.score import TruthSet
 from imurig.scoring.specs import CAMPAIGNS, QUICK, get_spec
 from imurig.scoring.truth import RESIDUALS, TRUTH
@@ -91,7 +91,7 @@ class BenchCampaign:
             self._truth = TruthSet(self.name, self.seed, params, RESIDUALS.get(self.kind, lambda r: None)(rec),
                                    notes=notes)
         if with_bench and self._truth.bench is None:
-            est = normalise_estimates(baseline_for(self.kind).fit(self.recording()), self._truth.units)
+            est = normalise_estimates(fitted_estimates(baseline_for(self.kind), self.recording()), self._truth.units)
             self._truth.bench = [{"name": e.name, "unit": e.unit, "estimate": e.value, "std_error": e.std_error}
                                  for e in est]
         return self._truth

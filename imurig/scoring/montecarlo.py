@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from imurig.kernel.errors import ImurigError
 from imurig.montecarlo.engine import run_study
-from imurig.scoring.interface import normalise_estimates
+from imurig.scoring.interface import fitted_estimates, normalise_estimates
 from imurig.scoring.score import TruthSet, check_estimates
 from imurig.scoring.specs import ACC_UNITS, triad_names
 
@@ -45,7 +45,7 @@ class CalibratorEstimator:
         units = _template_units(self.kind)
         truth = TruthSet(self.kind, 0, [{"name": n, "unit": u, "injected": 0.0} for n, u in units.items()])
         cal = copy.deepcopy(self.calibrator)
-        est = check_estimates(truth, normalise_estimates(cal.fit(recording), units),
+        est = check_estimates(truth, normalise_estimates(fitted_estimates(cal, recording), units),
                               f"{type(self.calibrator).__name__}.fit()")
         return [{"name": n, "unit": units[n], "estimate": est[n].value, "std_error": est[n].std_error} for n in units]
 

@@ -17,7 +17,7 @@ from imurig.calibration.gyro import AXES as GYRO_AXES
 from imurig.calibration.gyro import AXIS_OF_MOUNT, GYRO, round_windows
 from imurig.calibration.gyro import injected_parameters as gyro_injected_parameters
 from imurig.calibration.preprocess import segment_statistic
-from imurig.calibration.thermal import fit_thermal, step_table
+from imurig.calibration.thermal import ThermalCalibration, step_table
 from imurig.campaigns.magnetometer import indicated_field, manoeuvre_mask, true_invariants
 from imurig.campaigns.thermal import twin_channels
 from imurig.kernel.recording import Recording
@@ -41,10 +41,10 @@ def _turn_truth(rec: Recording):
 
 
 def _thermal_truth(rec: Recording):
-    twin = fit_thermal(step_table(rec, channels=twin_channels(rec)))
+    twin = ThermalCalibration().fit(step_table(rec, channels=twin_channels(rec)))
     unit = {"acc_bias": "m/s^2", "acc_scale": "1", "gyro_bias": "rad/s"}
     params = []
-    for key, r in twin.results.items():
+    for key, r in twin.results_.items():
         kind = key.rsplit("_", 1)[0]
         for n, c in zip(r.names, r.coef_):
             k = 0 if n in ("1", "hysteresis") else (1 if n == "dT" else int(n.split("^")[1]))
