@@ -40,9 +40,10 @@ from imurig.flights.aircraft import (
     Cmd,
     isa_density,
 )
-from imurig.flights.truth import FlightTruth, cabin_temperature_K, truth_from_kinematics
+from imurig.flights.truth import cabin_temperature_K, truth_from_kinematics
 
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import FlightTruth
 
 DEG = math.pi / 180.0
 SCHIPHOL = (52.31, 4.76, 43.0)          # lat deg, lon deg, ellipsoidal height m (−3 m MSL + geoid ~46 m)

@@ -284,7 +284,7 @@ def drive(plan: VanPlan | None = None, substeps: int = 1):
 
 
 def simulate_van(plan: VanPlan | None = None, substeps: int = 1):
-    """The van's ground test as a :class:`imurig.flights.truth.FlightTruth` (vehicle "van")."""
+    """The van's ground test as a :class:`imurig.kernel.navdata.FlightTruth` (vehicle "van")."""
     from imurig.flights.truth import cabin_temperature_K, truth_from_kinematics
 
     plan = plan or VanPlan()

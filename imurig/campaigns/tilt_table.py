@@ -12,12 +12,15 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.accelerometer import (AXES, INPUTS, MODELS, AccelerometerCalibration, injected_parameters)
-from imurig.calibration.regression import check_identifiable
+from imurig.calibration.preprocess import segment_statistic
+from imurig.calibration.regression import check_identifiable, fit_ols
+from imurig.calibration.terms import TermLibrary
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
 from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, specific_force_C
+from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
@@ -134,11 +137,6 @@ def coefficient_table(cal: AccelerometerCalibration, rec100: Recording) -> list[
     each position (truth-signal medians), regressed on the same reference. It is None for
     a recording without truth.
     """
-    from imurig.calibration.preprocess import segment_statistic
-    from imurig.calibration.regression import fit_ols
-    from imurig.calibration.terms import TermLibrary
-    from imurig.sensors.accelerometer import QFlexTriad
-
     twin = None
     if rec100.truth and "f_C_x" in rec100.truth_signals:
         t = rec100.truth["sensors"]["accelerometers"]

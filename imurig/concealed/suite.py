@@ -13,13 +13,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from imurig.calibration.thermal import fit_thermal, step_table
+from imurig.calibration.thermal import ThermalCalibration, step_table
 from imurig.campaigns.thermal import ThermalCampaign, twin_channels
 from imurig.campaigns.turn_table import SimonaSetup, TurnTableCampaign, simona_virtual
 from imurig.concealed import magnetometer as mag_cases
 from imurig.concealed import tilt_table as tilt_cases
 from imurig.concealed.tilt_table import (WIDE_TILT, accelerometers_recording, cable_recording, crosstalk_recording,
-                                         inverse_k2, inverse_linear, pump_recording, small_tilt)
+                                         pump_recording, small_tilt)
 from imurig.diagnose.magnetometer import diagnose_magnetometer
 from imurig.diagnose.rate_table import diagnose_rate_rows
 from imurig.diagnose.thermal import diagnose_thermal
@@ -29,7 +29,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.site import Site
 from imurig.rigs.thermal_chamber import ThermalProfile
 from imurig.rigs.turn_table import TurnTableErrors, TurnTableProtocol
-from imurig.sensors.effects import AdcCrosstalk
+from imurig.sensors.effects import AdcCrosstalk, AxisMisalignment, ScaleNonlinearity, recording_truth
 from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.noise import child_rng
 from imurig.sensors.voltmeter import AutoscaleVoltmeter
@@ -122,7 +122,8 @@ def _thermal(seed, bias_hysteresis=None):
 def _thermal_gap_truth(rec, axis="x"):
     """The branch gap H the noise-free twin of the same recording gives (the injected hysteresis
     as the six-position bias sees it through the play operator's state)."""
-    return fit_thermal(step_table(rec, channels=twin_channels(rec))).results[f"acc_bias_{axis}"].coef("hysteresis")
+    twin = ThermalCalibration().fit(step_table(rec, channels=twin_channels(rec)))
+    return twin.results_[f"acc_bias_{axis}"].coef("hysteresis")
 
 
 def _channel_param(d, channel, effect):
@@ -192,12 +193,14 @@ CASES = [
     Case("axis_misalignment", "tilt_table", {(a, "axis_misalignment") for a in "xyz"},
          lambda seed, m: accelerometers_recording(seed, misalignment=m), 1e-3,
          sizes=(2e-6, 5e-6, 1e-5, 2e-5, 5e-5), size_unit="misalignment angle (rad)",
-         truth_param=lambda rec: inverse_linear(rec)[0, 1], found_param=lambda d: _param(d, "x", "axis_misalignment"),
+         truth_param=lambda rec: AxisMisalignment().fitted(recording_truth(rec), "acc_x")["m_xy"],
+         found_param=lambda d: _param(d, "x", "axis_misalignment"),
          twin={"twin_model": "own_axis"}, null=lambda seed: accelerometers_recording(seed, misalignment=0.0)),
     Case("scale_nonlinearity", "tilt_table", {(a, "scale_nonlinearity") for a in "xyz"},
          lambda seed, k2: accelerometers_recording(seed, k2=k2, protocol=WIDE_TILT), 48e-6 / 9.80665,
          sizes=tuple(x * 1e-6 / 9.80665 for x in (5, 10, 20, 30, 48)), size_unit="k2 (1/(m/s^2))",
-         truth_param=lambda rec: inverse_k2(rec, 0), found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
+         truth_param=lambda rec: ScaleNonlinearity().fitted(recording_truth(rec), "acc_x")["k2"],
+         found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
          twin={"twin_model": "linear"}, null=lambda seed: accelerometers_recording(seed, k2=0.0, protocol=WIDE_TILT)),
     Case("earth_rate_left_out", "turn_table", {(a, "earth_rate_left_out") for a in "pqr"},
          lambda seed, f: _turn(seed, earth_fraction=f), 1.0, sizes=(0.25, 0.5, 0.75, 1.0, 1.25),

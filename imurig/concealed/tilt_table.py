@@ -2,9 +2,9 @@
 
 Each builder runs a small tilt-table campaign (:class:`imurig.campaigns.tilt_table.TiltTableCampaign`)
 with one effect of the sensor chain or of the site switched on, resized or off; the truth maps
-give the value of the effect's parameter the diagnosis should report (in the inverse model's
-terms: f = sum_k c_k t_k(u), u = V / s_nom the indicated specific force), and ``found_param``
-reads the estimate back from a diagnosis. The cases themselves are in :mod:`imurig.concealed.suite`.
+give the value of the effect's parameter the diagnosis should report (the effect's own
+``fitted`` map, in the inverse model's terms), and ``found_param`` reads the estimate back from
+a diagnosis. The cases themselves are in :mod:`imurig.concealed.suite`.
 """
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.sensors.chain import LabClimate
-from imurig.sensors.disturbances import LooseCable, PumpVibration
+from imurig.sensors.effects import AdcCrosstalk, ChannelSkew, LeverArm, LooseCable, PumpVibration, TemperatureDrift
 from imurig.sensors.noise import child_rng
 
 SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
@@ -37,7 +37,7 @@ def small_tilt(seed, **kw):
 
 def crosstalk_recording(seed, c):
     """Crosstalk of relative size c: choose f_mux so that exp(-1/(f tau)) = c."""
-    tau = 0.59e-6
+    tau = AdcCrosstalk().settling_tau_s
     f = -1.0 / (tau * math.log(c))
     return small_tilt(seed, mux_frequency_hz=f)
 
@@ -76,27 +76,6 @@ def accelerometers_recording(seed, misalignment=None, k2=None, protocol=SMALL_TI
         return replace(lab, accelerometers=replace(lab.accelerometers, **kw))
 
     return tilt_lab(seed, change, protocol=protocol)
-
-
-def scale_D(rec):
-    """Effective relative scale D = s_true (1 + scale_tempco dT) / s_nom at the campaign's mean temperature."""
-    acc = rec.truth["sensors"]["accelerometers"]
-    dT = float(np.mean(rec.truth_signals["T_imu"])) - acc["reference_temperature_K"]
-    return (np.asarray(acc["sensitivity_V_per_m_s2"]) * (1 + np.asarray(acc["scale_tempco_per_K"]) * dT)
-            / np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"]))
-
-
-def inverse_linear(rec):
-    """The inverse model's linear coefficients (I + M)^-1 D^-1, D = diag(s_true / s_nom)."""
-    D = scale_D(rec)
-    acc = rec.truth["sensors"]["accelerometers"]
-    return np.linalg.inv(np.eye(3) + np.asarray(acc["misalignment_rad"])) / D[None, :]
-
-
-def inverse_k2(rec, j):
-    """The inverse model's coefficient of u_j^2: f_j ~ u_j / D_j - k2_j (u_j / D_j)^2."""
-    D = scale_D(rec)[j]
-    return -rec.truth["sensors"]["accelerometers"]["k2_per_m_s2"][j] / D**2
 
 
 # ------------------------------------------------------------------ the slews' cases (dynamic twin)
@@ -157,17 +136,16 @@ def null_case_recording(effect: str, seed: int) -> Recording:
 
 
 def truth_param(effect: str, rec: Recording) -> float:
-    acc = rec.truth["sensors"]["accelerometers"]
-    if effect == "time_delay":
-        adc = rec.truth["chain"]["adc"]
-        return list(adc["scan_list"]).index("acc_y") / adc["mux_frequency_hz"]
+    """The injected parameter the case's finding estimates, from the effect's own truth map."""
+    if effect == "time_delay":  # acc_y's multiplexer skew
+        return ChannelSkew().fitted(rec.truth, "acc_y")["tau_s"]
     if effect == "lever_arm":
-        return float(acc["position_C_m"][0])
+        return LeverArm().fitted(rec.truth)["dr_x_m"]
     if effect == "wrong_local_gravity":
         return rec.meta["site"]["gravity_m_s2"] / rec.truth["site_gravity_m_s2"] - 1.0
     if effect == "temperature_drift":
-        # inverse model: f = ... - kb dT / D_x, the column being the temp_acc_x volts (10 mV/K)
-        return -acc["bias_tempco_m_s2_per_K"][0] / scale_D(rec)[0] / 0.01
+        # inverse model: f = u / D - b - kb dT, the column being the temp_acc_x volts (10 mV/K)
+        return TemperatureDrift().fitted(rec.truth, "acc_x")["drift"]
     raise ConfigError(f"no truth for '{effect}'")
 
 

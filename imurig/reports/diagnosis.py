@@ -12,7 +12,8 @@ import numpy as np
 from imurig.diagnose.dispatch import TWIN_OPTIONS, diagnose, record_kind, twin_options  # noqa: F401
 from imurig.diagnose.rate_table import SEED_SAYS
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_table
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_table
 from imurig.reports.diagnosis_figures import figure_fit_before_after
 from imurig.reports.diagnosis_figures_tilt import figure_tilt_positions, figure_tilt_slews
 from imurig.reports.diagnosis_figures_turn import figure_rows, figure_thermal_residuals, figure_turn

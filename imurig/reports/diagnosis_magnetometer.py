@@ -7,7 +7,8 @@ import numpy as np
 
 from imurig.diagnose.magnetometer import AXES, diagnose_magnetometer
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_table
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_table
 from imurig.reports.diagnosis_figures import pyplot
 from imurig.reports.diagnosis_tables import fit_tables
 

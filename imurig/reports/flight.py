@@ -20,7 +20,9 @@ from imurig.sensors.chain import ImuLab
 from imurig.sensors.noise import child_rng
 
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import GpsFixes, ImuStream
 from imurig.kernel.progress import progress
+from imurig.kernel.units import T_REF_K
 
 DEG = math.pi / 180
 
@@ -121,8 +123,9 @@ def gps_fixes(truth, opt: FlightOptions, seed: int):
         dti = 1.0 / truth.rate_hz if rx.quantise_to_imu else 0.0
         opt.gps_latency_s = float(rx.latency_s + dti / 2)   # time_offset_s is an unknown error: not removed
         opt.gps_time_sigma_s = math.sqrt((dti / 2) ** 2 + rx.time_jitter_s ** 2)
-        return ekf.SimpleGps(fx.time_s - opt.gps_latency_s, fx.lat_rad, fx.lon_rad, fx.h_m, fx.v_N, fx.sigma_pos_N,
-                             fx.sigma_vel_N, mode=fx.mode, valid=np.asarray(fx.valid, bool), meta=fx.meta)
+        return GpsFixes(time_s=fx.time_s - opt.gps_latency_s, lat_rad=fx.lat_rad, lon_rad=fx.lon_rad, h_m=fx.h_m,
+                        v_N=fx.v_N, sigma_pos_N=fx.sigma_pos_N, sigma_vel_N=fx.sigma_vel_N, mode=fx.mode,
+                        valid=np.asarray(fx.valid, bool), meta=fx.meta)
     step = max(1, round(truth.rate_hz / opt.gps_rate_hz))
     gi = np.arange(0, truth.n, step)
     C = E.C_from_q(truth.q_NB[gi])
@@ -132,7 +135,8 @@ def gps_fixes(truth, opt: FlightOptions, seed: int):
     lat, lon, h = E.geodetic_from_ned(Cl + rng.standard_normal((gi.size, 3)) * sp,
                                       truth.lat_rad[gi], truth.lon_rad[gi], truth.h_m[gi])
     v = truth.v_N[gi] + rng.standard_normal((gi.size, 3)) * sv
-    return ekf.SimpleGps(truth.time_s[gi].copy(), lat, lon, h, v, sp, sv, mode="white-noise fallback")
+    return GpsFixes(time_s=truth.time_s[gi].copy(), lat_rad=lat, lon_rad=lon, h_m=h, v_N=v, sigma_pos_N=sp,
+                    sigma_vel_N=sv, mode="white-noise fallback")
 
 
 def calibrations(seed: int, quick: bool = True) -> dict:
@@ -143,7 +147,8 @@ def calibrations(seed: int, quick: bool = True) -> dict:
 
     from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.campaigns.tilt_table import calibrate as cal_acc
-    from imurig.campaigns.turn_table import TurnTableCampaign, calibrate_gyros
+    from imurig.calibration.gyro import GyroCalibration
+    from imurig.campaigns.turn_table import TurnTableCampaign
 
     if quick:
         tp = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 90, 180, 270), dwell_s=3, settle_s=1,
@@ -153,8 +158,7 @@ def calibrations(seed: int, quick: bool = True) -> dict:
     else:
         tp, rp = TiltTableProtocol(), TurnTableProtocol()
     acc = cal_acc(TiltTableCampaign(protocol=tp, seed=seed, pump=False, people=False).simulate())
-    gyro = calibrate_gyros(TurnTableCampaign(protocol=rp, seed=seed).simulate())
-    gyro = gyro[0] if isinstance(gyro, tuple) else gyro
+    gyro = GyroCalibration().fit(TurnTableCampaign(protocol=rp, seed=seed).simulate())
     return {"accelerometers": acc, "gyros": gyro}
 
 
@@ -162,7 +166,7 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
     """Calibration of the flight's magnetometer (the very fluxgate and installation iron of ``lab``)
     on the virtual magnetometer rig: a tumble on the MuJoCo gimbal (:class:`imurig.rigs.mag_rig.Tumble`,
     ``tumble_s`` s), measured through the lab's chain, then the two-step ellipsoid fit
-    (:func:`imurig.calibration.magnetometer.fit_ellipsoid_3d`, [Elk01], paper 3.2 / Fig. 5):
+    (:class:`imurig.calibration.magnetometer.MagnetometerCalibration`, [Elk01], paper 3.2 / Fig. 5):
 
         m_k = A B_C,k + b + e_k,   |B_C,k| = F (IGRF total intensity at the rig)      [T]
         calibrated field  B̂ = T (m − b),  T = A⁻¹ up to a rotation
@@ -176,7 +180,7 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
     leaves the vertical hard iron, which leaks ~5 deg into the heading at 60 deg of bank."""
     from dataclasses import replace
 
-    from imurig.calibration.magnetometer import fit_ellipsoid_3d
+    from imurig.calibration.magnetometer import MagnetometerCalibration
     from imurig.rigs.mag_rig import MagRig, Tumble
     from imurig.sensors.adc import DAQ6036E
     from imurig.sensors.disturbances import PeopleTransients, PumpVibration
@@ -188,7 +192,7 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
                                 averaging=10))
     rec = mlab.measure(rig, np.random.SeedSequence(seed, spawn_key=(9,)))
     m = rec.stack(("mag_x", "mag_y", "mag_z")) / 4.0e4
-    e3 = fit_ellipsoid_3d(m, float(rec.meta["igrf_total_T"]))
+    e3 = MagnetometerCalibration("ellipsoid").fit(m, float(rec.meta["igrf_total_T"]))
     # the rotation left free by the fit: Wahba's problem between the calibrated field and the field
     # the lab predicts in the sensor frame from what it knows: the IGRF field at the site (W = ENU)
     # and the gimbal's angle encoders, B_ref = R_WCᵀ B_W, R_WC = Rz(yaw) Ry(pitch) Rx(roll)
@@ -219,7 +223,7 @@ def gimbal_field_C(rec) -> np.ndarray:
     return np.einsum("nji,j->ni", R, B_W)
 
 
-def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStream:
+def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ImuStream:
     """SI samples for the filter: datasheet-nominal conversions (``cals`` None) or the campaign
     calibrations (inverse models on the indicated values V / nominal sensitivity)."""
     Va = np.stack([volts[f"acc_{a}"] for a in "xyz"], 1)
@@ -247,7 +251,7 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
         c, s_ = math.cos(mc["heading_offset_rad"]), math.sin(mc["heading_offset_rad"])
         # rotate about body z by the reference-heading offset (FRD: psi = atan2(-h_y, h_x))
         B = np.column_stack([c * B[:, 0] - s_ * B[:, 1], s_ * B[:, 0] + c * B[:, 1], B[:, 2]])
-    return ekf.ImuStream(truth.time_s, w, f, B, Tk, samples=ins.sample_semantics(truth))
+    return ImuStream(time_s=truth.time_s, f_B=f, w_IB_B=w, B_B=B, T_acc_K=Tk, samples=ins.sample_semantics(truth))
 
 
 def flight_declination(truth) -> float:
@@ -279,14 +283,14 @@ def thermal_calibration(seed: int) -> dict:
     default profile −50…+50 C, two cycles, six attitudes per step; ~5 s): the six-position bias
     B(T, h) and scale S(T, h) of each accelerometer against its temperature channel T (K) and the
     hysteresis state h (paper section 3.1; :mod:`imurig.calibration.thermal`)."""
-    from imurig.calibration.thermal import fit_thermal, step_table
+    from imurig.calibration.thermal import ThermalCalibration, step_table
 
     from imurig.campaigns.thermal import ThermalCampaign
 
     rec = ThermalCampaign(seed=seed).simulate()
-    return {"fit": fit_thermal(step_table(rec)), "width_K": float(rec.truth["sensors"]["accelerometers"]
+    return {"fit": ThermalCalibration().fit(step_table(rec)), "width_K": float(rec.truth["sensors"]["accelerometers"]
                                                                   .get("hysteresis_width_K", 4.0)),
-            "T_ref_K": 298.15}
+            "T_ref_K": T_REF_K}
 
 
 def thermal_terms(th: dict, T_K: np.ndarray, fs: float):
@@ -298,24 +302,12 @@ def thermal_terms(th: dict, T_K: np.ndarray, fs: float):
     h from the measured temperature by the play operator of the sensor's hysteresis width
     (:func:`imurig.sensors.thermal.hysteresis_state`; at switch-on the mid-branch state h = 0, the
     tilt table's). Returns (ΔB, ρ, σ_ΔB): σ_ΔB (n, 3) the fit's standard error of ΔB (delta method
-    on the coefficient covariance)."""
-    from imurig.calibration.thermal import _design
+    on the coefficient covariance; :meth:`imurig.calibration.thermal.ThermalCalibration.compensation`)."""
     from imurig.sensors.thermal import hysteresis_state
 
-    fit = th["fit"]
     T_K = np.asarray(T_K, float)
-    dB, rho, sdB = (np.empty_like(T_K) for _ in range(3))
-    for j, a in enumerate("xyz"):
-        h = hysteresis_state(T_K[:, j], th["width_K"], fs)
-        kb, ks = f"acc_bias_{a}", f"acc_scale_{a}"
-        S0 = float(fit.predict(ks, np.array([th["T_ref_K"]]), 0.0)[0])
-        rho[:, j] = fit.predict(ks, T_K[:, j], h) / S0
-        B0 = float(fit.predict(kb, np.array([th["T_ref_K"]]), 0.0)[0])
-        dB[:, j] = fit.predict(kb, T_K[:, j], h) - rho[:, j] * B0
-        r = fit.results[kb]
-        X = _design(T_K[:, j], fit.order[kb], h) - _design(np.array([th["T_ref_K"]]), fit.order[kb], np.zeros(1))
-        sdB[:, j] = np.sqrt(np.einsum("ni,ij,nj->n", X, r.cov_, X))
-    return dB, rho, sdB
+    h = np.stack([hysteresis_state(T_K[:, j], th["width_K"], fs) for j in range(3)], 1)
+    return th["fit"].compensation(T_K, h, th["T_ref_K"])
 
 
 def datasheet_values(cls, name: str) -> float:
@@ -456,7 +448,7 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     mc = cals.get("magnetometer")
     if mc is not None:
         e3 = mc["ellipsoid"]
-        out["mag_heading_sigma_rad"] = float(e3.rms_residual_T / mc["H_T"])
+        out["mag_heading_sigma_rad"] = float(e3.rms_residual_T_ / mc["H_T"])
     return out
 
 
@@ -491,7 +483,7 @@ def run_filter(truth, stream, gps, opt: FlightOptions, lab: ImuLab, pbar=None, c
             pbar.update(k - last[0])
         last[0] = k
 
-    return f.run(stream, gps, x0, P0=P0, progress=cb)
+    return f.fit(stream, gps, x0, P0=P0, progress=cb).solution_
 
 
 ALIGN_WINDOW_S = 5.0
@@ -565,7 +557,7 @@ def summarise(err: dict, res: ekf.FilterResult, settle_s: float = 60.0) -> dict:
 
 def run(out, opt: FlightOptions, overwrite: bool = False) -> dict:
     """The whole job; writes ``out`` atomically. Returns the summary."""
-    from imurig.reports.common import OutputFolder
+    from imurig.kernel.outputs import OutputFolder
 
     opt.validate()
     folder = OutputFolder(out, overwrite=overwrite)
