@@ -125,7 +125,7 @@ class ImuLab:
             used.append("accelerometers")
         if wanted("mag", AXES):
             B_C = np.stack([ts[f"B_C_{a}"] for a in AXES], axis=1)
-            v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
+            v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"), T_box)
             d = np.gradient(v, t, axis=0)  # fluxgate noise is small: no separate noise-free path
             for j, a in enumerate(AXES):
                 analog[f"mag_{a}"], slope[f"mag_{a}"] = v[:, j], d[:, j]

@@ -5,6 +5,8 @@
 - :class:`PeopleTransients`: doors and chairs: damped building-mode oscillations at
   random times, more often during working hours.
 - :class:`LooseCable`: a faulty connector spikes one analog channel (volts).
+- :class:`SlipRingNoise`: the turn table's slip rings (seed Fig. 4.16), an effect of
+  :mod:`imurig.sensors.effects` (``slip_ring_noise``), re-exported here for the lab's set-up.
 
 Each takes local clock times (hours of day, (n,)) so working hours are respected.
 """
@@ -15,7 +17,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import signal
 
+from imurig.sensors.effects.slip_rings import SlipRingNoise
 from imurig.sensors.noise import band_noise
+
+__all__ = ["LooseCable", "PeopleTransients", "PumpVibration", "SlipRingNoise", "settings", "working_mask"]
 
 
 def working_mask(hour_of_day: np.ndarray, start_h: float, stop_h: float) -> np.ndarray:
@@ -132,30 +137,3 @@ class LooseCable:
 
 def settings(obj) -> dict:
     return asdict(obj)
-
-
-@dataclass
-class SlipRingNoise:
-    """Slip-ring contact noise on lines that cross the turn table's 16 rings (seed Fig. 4.16).
-
-    v_noise(t) = rms * (1 + depth * p(theta(t))) * n(t),  n ~ N(0, 1) white   [V]
-    p(theta) = sum over rough spots of exp(kappa (cos(theta - theta_s) - 1)): the noise
-    rises whenever a brush passes a rough spot of its ring, so it is periodic in the
-    table angle theta. The spots are drawn once per table (``rng`` of the rig).
-    """
-
-    enabled: bool = True
-    rms_V: float = 20e-6
-    depth: float = 8.0
-    n_spots: int = 3
-    kappa: float = 40.0
-    spots_rad: tuple = (0.7, 2.9, 4.4)
-
-    def profile(self, angle_rad: np.ndarray) -> np.ndarray:
-        a = np.asarray(angle_rad)[:, None] - np.asarray(self.spots_rad)[None, :]
-        return 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
-
-    def voltage(self, angle_rad: np.ndarray, rng) -> np.ndarray:
-        if not self.enabled:
-            return np.zeros_like(angle_rad)
-        return self.rms_V * self.profile(angle_rad) * rng.standard_normal(angle_rad.shape)
