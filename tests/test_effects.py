@@ -109,7 +109,8 @@ from imurig.sensors.effects import (EarthRateLeftOut, GSensitivity, GyroRowDrift
                                     MainsRateFactor, RateProportionalError, RateRowView, RateShortfallView,
                                     SlipRingNoise, SoftIron, TableSlip, TemperatureHysteresis, ThermalView,
                                     TimerQuantisation, TurnSampleView, TurnView, VoltmeterRowView, for_view)
-from imurig.sensors.effects.base import ChainContext, across_field  # noqa: E402
+from imurig.sensors.effects.base import ChainContext  # noqa: E402
+from imurig.sensors.effects.views import across_field  # noqa: E402
 from imurig.sensors.gyro import FOGTriad  # noqa: E402
 
 

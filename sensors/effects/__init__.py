@@ -5,9 +5,7 @@ filter priors find effects here and nowhere else (README, "Adding an effect").
 """
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.adc_quantisation import AdcQuantisation
-from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, MagView, Param, PositionView,
-                                         RateRowView, RateShortfallView, ScanSlot, ThermalView, TurnSampleView,
-                                         TurnView, VoltmeterRowView)
+from imurig.sensors.effects.base import STAGES, Candidate, ChainContext, Effect, Param, PositionView, ScanSlot
 from imurig.sensors.effects.earth_rate import EarthRateLeftOut
 from imurig.sensors.effects.g_sensitivity import GSensitivity
 from imurig.sensors.effects.gyro_row_drift import GyroRowDrift
@@ -27,6 +25,8 @@ from imurig.sensors.effects.soft_iron import SoftIron
 from imurig.sensors.effects.table_slip import TableSlip
 from imurig.sensors.effects.temperature_hysteresis import TemperatureHysteresis
 from imurig.sensors.effects.timer_quantisation import TimerQuantisation
+from imurig.sensors.effects.views import (MagView, RateRowView, RateShortfallView, ThermalView, TurnSampleView,
+                                          TurnView, VoltmeterRowView)
 
 #: the turn-table, rate-row, thermal and magnetometer effects in the order each view offers their
 #: candidates (turn windows: Earth rate, g-sensitivity; rate rows: range change, nonlinearity,

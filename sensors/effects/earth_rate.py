@@ -21,7 +21,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.kernel.site import EARTH_RATE_RAD_S
-from imurig.sensors.effects.base import Candidate, Effect, Param, TurnView
+from imurig.sensors.effects.base import Candidate, Effect, Param
+from imurig.sensors.effects.views import TurnView
 
 
 @dataclass

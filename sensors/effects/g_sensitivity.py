@@ -19,7 +19,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param, TurnView
+from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param
+from imurig.sensors.effects.views import TurnView
 
 DEG_PER_H_PER_G = np.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
 

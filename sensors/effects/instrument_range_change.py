@@ -21,7 +21,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from imurig.sensors.effects.base import Candidate, Effect, Param, RateRowView, VoltmeterRowView
+from imurig.sensors.effects.base import Candidate, Effect, Param
+from imurig.sensors.effects.views import RateRowView, VoltmeterRowView
 
 
 @dataclass

@@ -21,7 +21,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.sensors.effects._fluxgate import NT, case_truth
-from imurig.sensors.effects.base import Candidate, Effect, MagView, Param, across_field
+from imurig.sensors.effects.base import Candidate, Effect, Param
+from imurig.sensors.effects.views import MagView, across_field
 
 
 @dataclass

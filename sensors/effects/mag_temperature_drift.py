@@ -21,7 +21,8 @@ import numpy as np
 
 from imurig.kernel.units import T_REF_K
 from imurig.sensors.effects._fluxgate import AXES, NT, fluxgate, gain
-from imurig.sensors.effects.base import Candidate, ChainContext, Effect, MagView, Param
+from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param
+from imurig.sensors.effects.views import MagView
 
 
 @dataclass

@@ -20,7 +20,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.sensors.effects._fluxgate import case_truth
-from imurig.sensors.effects.base import Candidate, ChainContext, Effect, MagView, Param
+from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param
+from imurig.sensors.effects.views import MagView
 
 
 @dataclass

@@ -15,7 +15,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.sensors.effects._fluxgate import AXES
-from imurig.sensors.effects.base import Candidate, ChainContext, Effect, MagView, Param
+from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param
+from imurig.sensors.effects.views import MagView
 
 
 @dataclass

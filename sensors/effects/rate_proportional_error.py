@@ -15,7 +15,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from imurig.sensors.effects.base import Candidate, Effect, Param, RateShortfallView
+from imurig.sensors.effects.base import Candidate, Effect, Param
+from imurig.sensors.effects.views import RateShortfallView
 
 
 @dataclass

@@ -34,7 +34,8 @@ from typing import ClassVar
 import numpy as np
 from scipy import stats
 
-from imurig.sensors.effects.base import ChainContext, Effect, Param, TurnSampleView
+from imurig.sensors.effects.base import ChainContext, Effect, Param
+from imurig.sensors.effects.views import TurnSampleView
 
 
 @dataclass

@@ -17,7 +17,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.sensors.effects._fluxgate import AXES, PAIRS, fluxgate
-from imurig.sensors.effects.base import Candidate, Effect, MagView, Param
+from imurig.sensors.effects.base import Candidate, Effect, Param
+from imurig.sensors.effects.views import MagView
 
 
 @dataclass

@@ -21,7 +21,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.sensors.effects._turn_table import table_errors
-from imurig.sensors.effects.base import Candidate, Effect, Param, RateShortfallView
+from imurig.sensors.effects.base import Candidate, Effect, Param
+from imurig.sensors.effects.views import RateShortfallView
 
 
 @dataclass

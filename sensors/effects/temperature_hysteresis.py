@@ -29,7 +29,8 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.kernel.units import G_STANDARD, T_REF_K
-from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param, ThermalView
+from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param
+from imurig.sensors.effects.views import ThermalView
 
 #: the Q-Flex's nominal current scale factor, 1.33 mA/g (A per m/s^2)
 K1_NOMINAL_A_PER_M_S2 = 1.33e-3 / G_STANDARD
