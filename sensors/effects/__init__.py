@@ -14,6 +14,8 @@ import pkgutil
 
 from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, Param, PositionView,  # noqa: F401
                                          ScanSlot, ScatterView, recording_truth)
+from imurig.sensors.effects.views import (MagView, RateRowView, RateShortfallView, ThermalView,  # noqa: F401
+                                          TurnSampleView, TurnView, VoltmeterRowView)
 
 
 def _discover() -> tuple[type[Effect], ...]:
@@ -21,7 +23,7 @@ def _discover() -> tuple[type[Effect], ...]:
     diagnosis offers candidates in that order (position means: crosstalk, drift, axes, square, product)."""
     found = {}
     for info in pkgutil.iter_modules(__path__):
-        if info.name == "base" or info.name.startswith("_"):
+        if info.name in ("base", "views") or info.name.startswith("_"):
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         for obj in vars(module).values():
