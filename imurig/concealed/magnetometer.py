@@ -3,11 +3,12 @@
 :func:`magnetometer_recording` runs the magnetometer campaign
 (:class:`imurig.campaigns.magnetometer.MagnetometerCampaign`) with its fluxgate, the local field,
 the fluxgate's temperature offset or its output delay changed by the same mechanisms the
-diagnosis' candidates fit (:mod:`imurig.diagnose.magnetometer`): a local anomaly dB fixed in the
-lab (B_W = B_IGRF + dB, :class:`AnomalousSite`), an offset b(T) = c (T - T_ref)
-(:func:`fluxgate_temperature_offset`), V(t) = V_ideal(t - tau). The metadata carry the IGRF field
-(what a lab writes down), the truth the change. ``truth_param`` gives the value of the parameter
-the diagnosis should report, ``found_param`` reads it back from a diagnosis.
+diagnosis' candidates fit (the effect library, :mod:`imurig.sensors.effects`): a local anomaly dB
+fixed in the lab (B_W = B_IGRF + dB, :class:`AnomalousSite`), the fluxgate's offset tempco
+(injected by the chain), V(t) = V_ideal(t - tau). The metadata carry the IGRF field (what a lab
+writes down), the truth the change. ``truth_param`` gives the value of the parameter the
+diagnosis should report (the effect's own truth map), ``found_param`` reads it back from a
+diagnosis.
 """
 from __future__ import annotations
 
@@ -21,18 +22,17 @@ import numpy as np
 from imurig.campaigns.magnetometer import MAG as MAGC
 from imurig.campaigns.magnetometer import MagnetometerCampaign
 from imurig.diagnose.magnetometer import PAIRS
-from imurig.diagnose.magnetometer_twin import AXES, NT, twin_key, twin_rig
+from imurig.diagnose.magnetometer_twin import AXES, twin_key, twin_rig
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site, parse_time
-from imurig.kernel.units import T_REF_K
 from imurig.rigs.mag_rig import MagRig
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
+from imurig.sensors.effects import ChainContext, LocalFieldAnomaly, MagTimeDelay, by_name
 from imurig.sensors.magnetometer import FluxgateTriad
 from imurig.sensors.noise import child_rng
-from imurig.sensors.thermal import first_order_lag
 
 
 # ---------------------------------------------------------------------------------------------
@@ -47,12 +47,7 @@ class AnomalousSite(Site):
     anomaly_W_T: tuple = (0.0, 0.0, 0.0)
 
     def magnetic_field_W(self, when):
-        return super().magnetic_field_W(when) + np.asarray(self.anomaly_W_T, float)
-
-
-def fluxgate_temperature_offset(T_K: np.ndarray, tempco_T_per_K, T_ref_K: float) -> np.ndarray:
-    """Offset drift of the fluxgate (n, 3) [T]: b(T) = c (T - T_ref), c (3,) [T/K], T (n,) [K]."""
-    return (np.asarray(T_K, float) - T_ref_K)[:, None] * np.asarray(tempco_T_per_K, float)[None, :]
+        return LocalFieldAnomaly(self.anomaly_W_T).inject(super().magnetic_field_W(when))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -77,15 +72,19 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     """The magnetometer campaign (:class:`imurig.campaigns.magnetometer.MagnetometerCampaign`) with
     its fluxgate replaced by ``magnetometer`` (None: the campaign's drawn installation), a local
     field anomaly ``anomaly_W_T`` (ENU, T) in the lab, and a fluxgate offset tempco
-    ``tempco_T_per_K`` (3,) [T/K] while the lab air warms by ``air_warming_K`` (1 - exp(-t/tau)),
-    and a delay ``delay_s`` of the sensor's output (e.g. its output filter): V(t) = V_ideal(t - tau).
-    The metadata carry the IGRF field (what a lab writes down); the truth carries the anomaly."""
+    ``tempco_T_per_K`` (3,) [T/K] (the fluxgate's own, injected by the chain at the box
+    temperature) while the lab air warms by ``air_warming_K`` (1 - exp(-t/tau)), and a delay
+    ``delay_s`` of the sensor's output (e.g. its output filter): V(t) = V_ideal(t - tau).
+    The metadata carry the IGRF field (what a lab writes down); the truth carries the anomaly
+    and the IGRF field it was added to."""
     camp = MagnetometerCampaign(seed=seed)
     ss = np.random.SeedSequence(seed)
     mag = FluxgateTriad.from_datasheet(child_rng(ss, "magnetometer_install"), hard_iron_max_nT=camp.hard_iron_max_nT,
                                        soft_iron_max=camp.soft_iron_max, noise_nT_rms=camp.noise_nT)
     if magnetometer is not None:
         mag = magnetometer(mag) if callable(magnetometer) else magnetometer
+    if tempco_T_per_K is not None:
+        mag = replace(mag, tempco_T_per_K=np.asarray(tempco_T_per_K, float))
     lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
                   adc=DAQ6036E(scan_list=MAGC + ("temp_box",), sample_rate_hz=100.0, averaging=10))
     if any(getattr(m, "wobble_deg", 0.0) for m in (camp.circle, camp.validation)):
@@ -98,25 +97,18 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     truth_extra = {}
     B_true = {c: rig.truth_signals[f"B_C_{c}"].copy() for c in AXES}
     if delay_s:
+        delay = MagTimeDelay(delay_s)
         for c in AXES:
             x = rig.truth_signals[f"B_C_{c}"]
             for b in rig.blocks():  # the field the sensor puts out at t is the field at t - tau
-                x[b] = np.interp(rig.time_s[b] - delay_s, rig.time_s[b], x[b])
+                x[b] = delay.inject(x[b], ChainContext(time_s=rig.time_s[b], sample_rate_hz=rig.sample_rate_hz))
         truth_extra["delay_s"] = float(delay_s)
     rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(7,)))
     for c in AXES:
         rec.truth_signals[f"B_C_{c}"] = B_true[c]
-    if tempco_T_per_K is not None:
-        T_mag = first_order_lag(rig.truth_signals["T_air"], rig.time_s, lab.thermal_lags.box_sensor_s) \
-            if "T_air" in rig.truth_signals else lab.climate.imu_temperature_K(rig.time_s)
-        T_ref = T_REF_K
-        off = fluxgate_temperature_offset(T_mag, tempco_T_per_K, T_ref)
-        for j, c in enumerate(MAGC):
-            rec.channels[c] = rec.channels[c] + off[:, j] * mag.sensitivity_V_per_T[j]
-        truth_extra["tempco_T_per_K"] = list(map(float, tempco_T_per_K))
-        truth_extra["tempco_reference_K"] = T_ref
     site_igrf = Site.from_dict(camp.site.to_dict())
     B_W = site_igrf.magnetic_field_W(parse_time(camp.start_time))
+    truth_extra["igrf_field_W_T"] = B_W.tolist()
     rec.meta["site"] = site_igrf.to_dict()
     rec.meta["igrf_field_W_T"] = B_W.tolist()
     rec.meta["igrf_horizontal_T"] = float(math.hypot(B_W[0], B_W[1]))
@@ -177,33 +169,18 @@ def null_recording(seed: int, twin_model: str) -> Recording:
     return magnetometer_recording(seed, _ideal if twin_model == "nominal" else None)
 
 
-def _gain(rec):
-    t = rec.truth["sensors"]["magnetometer"]
-    return np.asarray(t["sensitivity_V_per_T"]) / np.asarray(rec.meta["mag_nominal_sensitivity_V_per_T"])
+#: the effect of the library behind each magnetometer case ("installation": its hard iron)
+CASE_EFFECT = {"hard_iron": "hard_iron", "installation": "hard_iron", "soft_iron": "soft_iron",
+               "misalignment": "mag_misalignment", "local_field_anomaly": "local_field_anomaly",
+               "temperature_drift": "mag_temperature_drift", "time_delay": "mag_time_delay"}
 
 
 def truth_param(effect: str, rec: Recording) -> float:
-    """The injected value of the first parameter the diagnosis reports for ``effect``."""
-    t = rec.truth["sensors"]["magnetometer"]
-    if effect in ("hard_iron", "installation"):
-        return float(_gain(rec)[0] * t["hard_iron_T"][0] * NT)
-    if effect == "soft_iron":
-        return float(t["soft_iron"][0][1])
-    if effect == "misalignment":
-        return float(t["misalignment_rad"][0][1])
-    if effect == "local_field_anomaly":
-        B_W = Site.from_dict(rec.meta["site"]).magnetic_field_W(parse_time(rec.meta["start_time"]))
-        dB = np.asarray(rec.truth["magnetometer_diagnosis"]["anomaly_W_T"])
-        Bhat = B_W / np.linalg.norm(B_W)
-        u1 = np.cross([0.0, 0.0, 1.0], Bhat)
-        u1 /= np.linalg.norm(u1)
-        # the component along the field is absorbed by the gains, which rescales the rest
-        return float(dB @ u1 * NT / (1 + dB @ Bhat / np.linalg.norm(B_W)))
-    if effect == "temperature_drift":
-        return float(_gain(rec)[0] * rec.truth["magnetometer_diagnosis"]["tempco_T_per_K"][0] * NT)
-    if effect == "time_delay":
-        return float(rec.truth["magnetometer_diagnosis"]["delay_s"])
-    raise ConfigError(f"no magnetometer case '{effect}'")
+    """The injected value of the first parameter the diagnosis reports for ``effect``: the
+    effect's own truth map (:meth:`imurig.sensors.effects.base.Effect.fitted`) on the recording."""
+    if effect not in CASE_EFFECT:
+        raise ConfigError(f"no magnetometer case '{effect}'")
+    return next(iter(by_name(CASE_EFFECT[effect])().fitted(rec.truth, "mag").values()))
 
 
 def found_param(effect: str, d: dict):

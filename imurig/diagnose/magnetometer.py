@@ -43,17 +43,18 @@ manoeuvre) and its signature (spectral peak, correlation with heading, time, tem
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import signal, stats
 
 from imurig.calibration.thermal import sensor_temperature_K
-from imurig.diagnose.engine import Candidate, select_effects
+from imurig.diagnose.engine import select_effects
 from imurig.diagnose.magnetometer_twin import AXES, MAG, NT, Twin, build_twin
 from imurig.diagnose.steps import effect_steps
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.recording import Recording
+from imurig.sensors.effects import MagView, for_view
 
 TWIN_MODELS = ("nominal", "calibrated")
 PAIRS = ((0, 1), (0, 2), (1, 2))
@@ -171,62 +172,6 @@ def _nominal_design(twin_model: str, Bb: np.ndarray, nb: int, blk) -> tuple[np.n
     return X0, names0
 
 
-def _library_factory(tw: Twin, twin_model: str, ob: _Blocks, blk):
-    """library(A_fit): the candidate effects, linearised about the calibration A_fit (3, 3)."""
-    nb, Bb, dBb, Rb, Tb, tb = ob.nb, ob.Bb, ob.dBb, ob.Rb, ob.Tb, ob.tb
-
-    def library(A_fit):
-        """The candidates, linearised about the current calibration A_fit (3, 3)."""
-        g = np.diag(A_fit).copy()
-        P = Bb @ A_fit.T                                       # the twin's fitted field per axis (nT)
-        dP = dBb @ A_fit.T
-
-        def stacked(M):                                        # (nb, 3) -> (3 nb,)
-            return M.T.reshape(-1)
-
-        # two directions perpendicular to the IGRF field, in W
-        up = np.array([0.0, 0.0, 1.0])
-        Bhat = tw.B_W / np.linalg.norm(tw.B_W)
-        u1 = np.cross(up, Bhat)
-        u1 /= np.linalg.norm(u1)
-        u2 = np.cross(Bhat, u1)
-        lib = []
-        if twin_model == "nominal":
-            lib += [Candidate("hard_iron", "hard iron: a constant field of the magnetised vehicle or rack adds to "
-                              "every axis (nT)", tuple(f"b_{a}_nT" for a in AXES),
-                              lambda _: np.column_stack([blk(j, np.ones(nb)) for j in range(3)])),
-                    Candidate("soft_iron", "soft iron: induced magnetisation couples the axes symmetrically "
-                              "(s_jk = s_kj; a symmetric non-orthogonality of the sensor axes looks the same)",
-                              tuple(f"s_{AXES[j]}{AXES[k]}" for j, k in PAIRS),
-                              lambda _: np.column_stack([blk(j, g[j] * Bb[:, k]) + blk(k, g[k] * Bb[:, j]) for j, k in PAIRS])),
-                    Candidate("misalignment", "misalignment: the sensor axes are rotated against the rig's (IMU) frame "
-                              "(antisymmetric cross-coupling w_jk = -w_kj, rad)",
-                              tuple(f"w_{AXES[j]}{AXES[k]}_rad" for j, k in PAIRS),
-                              lambda _: np.column_stack([blk(j, g[j] * Bb[:, k]) - blk(k, g[k] * Bb[:, j]) for j, k in PAIRS]))]
-        lib.append(Candidate("local_field_anomaly", "the local field differs from the IGRF model at the site (a "
-                             "local anomaly fixed in the lab, e.g. steel in the building): its components across the "
-                             "IGRF field (nT; u1 horizontal = declination error, u2 = inclination error)",
-                             ("dB_u1_nT", "dB_u2_nT"),
-                             lambda _: np.column_stack([stacked(np.einsum("ij,njk,k->ni", A_fit, Rb, u)) for u in (u1, u2)])))
-        if Tb is not None and np.ptp(Tb) > 0.2:  # a drift with temperature needs the temperature to move
-            dT = Tb - Tb.mean()
-            lib.append(Candidate("temperature_drift", "the fluxgate's offsets drift with its temperature "
-                                 "(nT/K per axis)", tuple(f"c_{a}_nT_per_K" for a in AXES),
-                                 lambda _: np.column_stack([blk(j, dT) for j in range(3)])))
-        th = (tb - tb.mean()) / 3600.0
-        lib += [Candidate("time_drift", "the offsets drift in time, independently of the temperature (nT/h per axis)",
-                          tuple(f"d_{a}_nT_per_h" for a in AXES),
-                          lambda _: np.column_stack([blk(j, th) for j in range(3)])),
-                Candidate("scale_nonlinearity", "second-order scale nonlinearity of each axis (1/nT)",
-                          tuple(f"k2_{a}_per_nT" for a in AXES),
-                          lambda _: np.column_stack([blk(j, P[:, j] ** 2) for j in range(3)])),
-                Candidate("time_delay", "the magnetometer samples lag the rig's attitude (a delay against the "
-                          "set-points beyond the DAQ's known channel skew, s)", ("tau_s",),
-                          lambda _: -stacked(dP))]
-        return lib
-    return library
-
-
 def diagnose_magnetometer(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
                           twin_model: str = "nominal", block_s: float = 1.0) -> dict:
     """Diagnose a magnetometer-calibration recording against the twin ``twin_model`` (module doc)."""
@@ -238,7 +183,13 @@ def diagnose_magnetometer(rec: Recording, rng: np.random.Generator, alpha: float
     X0, names0 = _nominal_design(twin_model, ob.Bb, ob.nb, _axis_blocks(ob.nb))
     coef0 = np.linalg.lstsq(X0, y, rcond=None)[0]
     A_fit = np.diag(coef0[:3]) if twin_model == "nominal" else coef0[:9].reshape(3, 3)
-    library = _library_factory(tw, twin_model, ob, _axis_blocks(ob.nb))
+    view0 = MagView(twin_model=twin_model, field_nT=ob.Bb, rate_nT_s=ob.dBb, R_CW=ob.Rb, time_s=ob.tb,
+                    igrf_W_nT=tw.B_W, calibration=A_fit, temperature_K=ob.Tb)
+
+    def library(A_fit):
+        """The candidates of the effect library, linearised about the current calibration A_fit (3, 3)."""
+        view = replace(view0, calibration=A_fit)
+        return [c for cls in for_view(MagView.kind) for c in cls().candidates(view)]
 
     # the candidates depend on the calibration (gains): re-linearise about the fit with the
     # effects found until the gains settle (Gauss-Newton on the nonlinear installation model)
