@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from imurig.kernel import random_streams
 from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.sensors.effects import AdcCrosstalk
 
@@ -64,12 +65,11 @@ def _tilt_lab(seed, change_lab, protocol=SMALL_TILT, **camp_kw):
     """A small tilt-table campaign whose sensor chain is edited by ``change_lab(lab) -> lab``
     (an effect switched on, resized or off) before the measurement."""
     from imurig.campaigns.tilt_table import TiltTableCampaign
-    from imurig.sensors.noise import child_rng
 
     camp = TiltTableCampaign(protocol=protocol, seed=seed, **camp_kw)
     table, lab, ss = camp.build()
-    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    rec = change_lab(lab).measure(rig, np.random.SeedSequence(seed, spawn_key=(1,)))
+    rig = table.simulate(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", seed))
+    rec = change_lab(lab).measure(rig, ss)
     rec.meta["campaign"] = {"name": "tilt-table", **camp.to_dict()}
     return rec
 
@@ -153,7 +153,6 @@ def _turn(seed, g_sensitivity=0.0, slip_rings=False, slip_rms_V=None, earth_frac
     vertical rate Omega sin(lat) is that fraction of Delft's (1: Delft, 52 deg N; at most 1.27)."""
     from imurig.campaigns.turn_table import TurnTableCampaign
     from imurig.rigs.turn_table import TurnTableProtocol
-    from imurig.sensors.noise import child_rng
 
     kw = {} if earth_fraction == 1.0 else {"site": earth_fraction_site(earth_fraction)}
     camp = TurnTableCampaign(protocol=TurnTableProtocol(**TURN_REMOUNTS), seed=seed,
@@ -163,8 +162,8 @@ def _turn(seed, g_sensitivity=0.0, slip_rings=False, slip_rms_V=None, earth_frac
     gyros = replace(lab.gyros, g_sensitivity_rad_s_per_m_s2=np.diag([1.0, -1.0, 1.0]) * g_sensitivity)
     if slip_rms_V is not None:
         lab = replace(lab, slip_rings=replace(lab.slip_rings, rms_V=float(slip_rms_V)))
-    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    rec = replace(lab, gyros=gyros).measure(rig, np.random.SeedSequence(seed, spawn_key=(2,)))
+    rig = table.simulate(camp.protocol, camp.start_time, random_streams.generator("campaign/turn-table/rig", seed))
+    rec = replace(lab, gyros=gyros).measure(rig, ss)
     rec.meta["campaign"] = {"name": "turn-table", **camp.to_dict()}
     return rec
 
@@ -186,13 +185,13 @@ def _thermal(seed, bias_hysteresis=None):
     from imurig.rigs.thermal_chamber import ThermalProfile
 
     camp = ThermalCampaign(profile=ThermalProfile(**SHORT_THERMAL), seed=seed)
-    chamber, lab, _ss = camp.build()
+    chamber, lab, ss = camp.build()
     if bias_hysteresis is not None:
         acc = replace(lab.accelerometers, bias_hysteresis_m_s2=np.full(3, float(bias_hysteresis)),
                       scale_hysteresis=lab.accelerometers.scale_hysteresis * (bias_hysteresis != 0))
         lab = replace(lab, accelerometers=acc)
     rig = chamber.simulate(camp.profile, camp.start_time)
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(6,)))
+    rec = lab.measure(rig, ss)
     rec.meta["campaign"] = {"name": "thermal", **camp.to_dict()}
     return rec
 
@@ -338,7 +337,7 @@ def _timer(seed, q):
     the informative rows), and the power curve was not monotonic in q."""
     from imurig.rigs.turn_table import TurnTableErrors
 
-    slip = float(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7,))).uniform(*TIMER_SLIP_RANGE))
+    slip = float(random_streams.generator("concealed/timer/table-slip", seed).uniform(*TIMER_SLIP_RANGE))
     rec = _simona(seed, table=TurnTableErrors(**{**TIMER_TABLE, "slip_const": slip}), stopwatch_resolution_s=q,
                   printed_round_decimals=None)
     rec.truth["timer"] = {"resolution_s": q, "sigma_T_s": q / math.sqrt(12), "table_slip_const": slip}

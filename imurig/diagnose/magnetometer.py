@@ -51,6 +51,7 @@ import numpy as np
 from scipy import stats
 
 from imurig.diagnose.engine import Candidate, select_effects
+from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
@@ -573,13 +574,12 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     from imurig.sensors.chain import ImuLab
     from imurig.sensors.disturbances import PeopleTransients, PumpVibration
     from imurig.sensors.magnetometer import FluxgateTriad
-    from imurig.sensors.noise import child_rng
     from imurig.sensors.thermal import first_order_lag
     from imurig.kernel.site import parse_time
 
     camp = MagnetometerCampaign(seed=seed)
-    ss = np.random.SeedSequence(seed)
-    mag = FluxgateTriad.from_datasheet(child_rng(ss, "magnetometer_install"), hard_iron_max_nT=camp.hard_iron_max_nT,
+    mag = FluxgateTriad.from_datasheet(random_streams.generator("campaign/magnetometer/installation", seed),
+                                       hard_iron_max_nT=camp.hard_iron_max_nT,
                                        soft_iron_max=camp.soft_iron_max, noise_nT_rms=camp.noise_nT)
     if magnetometer is not None:
         mag = magnetometer(mag) if callable(magnetometer) else magnetometer
@@ -600,7 +600,7 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
             for b in rig.blocks():  # the field the sensor puts out at t is the field at t - tau
                 x[b] = np.interp(rig.time_s[b] - delay_s, rig.time_s[b], x[b])
         truth_extra["delay_s"] = float(delay_s)
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(7,)))
+    rec = lab.measure(rig, random_streams.seed_sequence("campaign/magnetometer/sensor-chain", seed))
     for c in AXES:
         rec.truth_signals[f"B_C_{c}"] = B_true[c]
     if tempco_T_per_K is not None:

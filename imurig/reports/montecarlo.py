@@ -3,7 +3,7 @@ figures, study.rrd. Every file is written to a temporary name and renamed when c
 
 results.h5 (the project's binary format, h5py; one row per run, one column per parameter):
 
-    /run                (N,)      run index i (its seed: SeedSequence(master_seed, spawn_key=(i,)))
+    /run                (N,)      run index i (its seed: the stream "montecarlo/run" of (master_seed, i))
     /parameters         (P,)      parameter names;  attrs units (P,)
     /estimate, /std_error, /injected, /crlb, /z   (N, P) float64 (NaN where absent)
     /info/<key>         (N,)      per-run wall time, samples, ...
@@ -20,6 +20,11 @@ import numpy as np
 
 from imurig.montecarlo.stats import error_matrix, parameter_stats, table_arrays
 from imurig.reports.common import clean_json, fmt, md_table
+from imurig.reports.flight_budget import budget_report
+
+
+#: a campaign's own report section: name -> (study, folder, save_fig) -> {markdown, summary, figures}
+EXTRA_REPORTS = {"flight": budget_report}
 
 
 def _tmp_for(path: Path) -> Path:
@@ -184,7 +189,9 @@ def write_study_outputs(study, campaign) -> dict:
     stats = parameter_stats(study.rows)
     write_results_h5(folder / "results.h5", study)
     figs = figures(study, stats, folder) if getattr(campaign, "generic_figures", True) else {}
-    extra = campaign.extra_report(study, folder) if hasattr(campaign, "extra_report") else None
+    own = EXTRA_REPORTS.get(campaign.name)
+    extra = (own(study, folder, _save_fig) if own
+             else campaign.extra_report(study, folder) if hasattr(campaign, "extra_report") else None)
     if extra:
         figs.update(extra.get("figures", {}))
     lab = campaign.lab_time(study.config["params"]) if hasattr(campaign, "lab_time") else {}
@@ -217,7 +224,7 @@ def render_report(study, stats, figs, lab, per_run, extra_md: str = "", lab_note
     ov = summary_lines(stats)
     t = study.timing or {}
     lines = [f"# Monte-Carlo study: {cfg['campaign']}, {len(study.runs)} runs\n",
-             (f"Master seed {cfg['master_seed']}; run i uses `SeedSequence({cfg['master_seed']}, spawn_key=(i,))` "
+             (f"Master seed {cfg['master_seed']}; run i uses the stream `montecarlo/run` of ({cfg['master_seed']}, i) "
              "and is reproduced alone by `imurig montecarlo ... --only-run i`. "
              f"Estimator: {cfg.get('estimator') or 'the campaign calibration'}. "
              f"User-set distributions: {', '.join(cfg['distributions']) or 'none (datasheet draws)'}.\n"),
