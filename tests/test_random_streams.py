@@ -32,6 +32,14 @@ def test_key_is_the_crc32_of_each_word_of_the_name():
     np.testing.assert_array_equal(child_rng(ss, "pump").random(4), np.random.default_rng(pump).random(4))
 
 
+def test_the_lab_draws_keep_their_keys():
+    """One seed's IMU, tilt table, survey, fluxgate installation and gyro tempcos are the draws they
+    were before the registry: children crc32(word) of SeedSequence(seed)."""
+    for w in ("sensor_errors", "table", "survey", "magnetometer_install", "gyro_thermal"):
+        old = np.random.SeedSequence(entropy=2005, spawn_key=(zlib.crc32(w.encode()),))
+        np.testing.assert_array_equal(R.generator(w, 2005).random(3), np.random.default_rng(old).random(3))
+
+
 def test_registered_streams_are_pairwise_distinct():
     keys = [R.key(n, run=0 if n in R.RUN_INDEXED else None) for n in R.STREAMS]
     assert len(set(keys)) == len(keys)
@@ -59,10 +67,10 @@ def test_all_streams_of_a_flight_run_are_distinct(flight_run_streams):
     log = flight_run_streams
     names = log.by_name()
     # every stage ran: the IMU, its flight, its GPS and every calibration campaign the job runs
-    for n in ("imu/sensor-errors", "flight/sensor-chain", "flight/gps", "flight/mag-rig/rig",
-              "flight/mag-rig/sensor-chain", "campaign/tilt-table/table", "campaign/tilt-table/survey",
+    for n in ("sensor_errors", "flight/sensor-chain", "flight/gps", "flight/mag-rig/rig",
+              "flight/mag-rig/sensor-chain", "table", "survey",
               "campaign/tilt-table/rig", "campaign/tilt-table/sensor-chain", "campaign/turn-table/rig",
-              "campaign/turn-table/sensor-chain", "campaign/thermal/gyro-thermal", "campaign/thermal/sensor-chain",
+              "campaign/turn-table/sensor-chain", "gyro_thermal", "campaign/thermal/sensor-chain",
               "flight/sensor-chain/gyros", "campaign/thermal/sensor-chain/gyros",
               "campaign/turn-table/sensor-chain/slip_gyro_p", "campaign/turn-table/sensor-chain/hp6700"):
         assert n in names, n

@@ -8,7 +8,7 @@ calibrations estimated on the virtual rigs (the report: :mod:`imurig.reports.fli
       -> SI samples, nominal or calibrated -> LooseEKF (datasheet or calibrated priors)
       -> errors against the truth, summary
 
-The IMU is the lab drawn from ``seed`` on the stream ``imu/sensor-errors`` (exactly as the
+The IMU is the lab drawn from ``seed`` on the stream ``sensor_errors`` (exactly as the
 campaigns draw it, :mod:`imurig.kernel.random_streams`), so the tilt-table, turn-table and
 thermal campaigns run with the same seed calibrate the very sensors that fly. The flight's own
 noise comes from the streams ``flight/sensor-chain`` and ``flight/gps``, distinct from every
@@ -120,7 +120,7 @@ def flight_truth(opt: FlightOptions):
 
 def flight_lab(seed: int) -> ImuLab:
     """The IMU that flies: the lab drawn from ``seed`` as every campaign of that seed draws it."""
-    return ImuLab.draw(random_streams.generator("imu/sensor-errors", seed))
+    return ImuLab.draw(random_streams.generator("sensor_errors", seed))
 
 
 def measure_volts(truth, lab: ImuLab, seed: int) -> dict:

@@ -1,6 +1,6 @@
 """The flight's IMU calibrated on the virtual rigs, and those calibrations applied to its samples.
 
-The IMU that flies is the lab drawn from the seed (stream ``imu/sensor-errors``,
+The IMU that flies is the lab drawn from the seed (stream ``sensor_errors``,
 :mod:`imurig.kernel.random_streams`): the same unit the tilt-table, turn-table and thermal
 campaigns of that seed draw. So :func:`calibrations` and :func:`thermal_calibration` calibrate
 the very sensors that fly, and :func:`mag_calibration` tumbles the flight's own fluxgate on the

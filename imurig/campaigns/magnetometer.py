@@ -55,7 +55,7 @@ class MagnetometerCampaign:
         return asdict(self)
 
     def simulate(self) -> Recording:
-        install_rng = random_streams.generator("campaign/magnetometer/installation", self.seed)
+        install_rng = random_streams.generator("magnetometer_install", self.seed)
         mag = FluxgateTriad.from_datasheet(install_rng, hard_iron_max_nT=self.hard_iron_max_nT,
                                            soft_iron_max=self.soft_iron_max, noise_nT_rms=self.noise_nT)
         lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),

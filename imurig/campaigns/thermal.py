@@ -48,8 +48,8 @@ class ThermalCampaign:
     def build(self):
         """Chamber and sensor chain with their (seeded) errors, and the chain's stream
         (``campaign/thermal/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
-        base = ImuLab.draw(random_streams.generator("imu/sensor-errors", self.seed))
-        rng = random_streams.generator("campaign/thermal/gyro-thermal", self.seed)
+        base = ImuLab.draw(random_streams.generator("sensor_errors", self.seed))
+        rng = random_streams.generator("gyro_thermal", self.seed)
         # the VG941-3AM datasheet: scale factor varies 5 % over -30..+71 C; bias drifts with temperature
         gy = replace(base.gyros,
                      bias_tempco_rad_s_per_K=rng.uniform(-1, 1, 3) * self.gyro_bias_tempco_dps_per_C * np.pi / 180,

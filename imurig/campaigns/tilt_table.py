@@ -60,14 +60,14 @@ class TiltTableCampaign:
     def build(self) -> tuple[TiltTable, ImuLab, np.random.SeedSequence]:
         """Rig and sensor chain with their (seeded) errors, and the chain's stream
         (``campaign/tilt-table/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
-        table_rng = random_streams.generator("campaign/tilt-table/table", self.seed)
+        table_rng = random_streams.generator("table", self.seed)
         errors = (TiltTableErrors.draw(table_rng, self.protocol.runs) if self.draw_table_errors
                   else TiltTableErrors(phi_zero_rad={r: 0.0 for r in self.protocol.runs}, theta_zero_rad=0.0,
                                        level_x_rad=0.0))
-        survey = TableSurvey.measure(errors, random_streams.generator("campaign/tilt-table/survey", self.seed),
+        survey = TableSurvey.measure(errors, random_streams.generator("survey", self.seed),
                                      self.survey_accuracy_arcsec * ARCSEC)
         table = TiltTable(errors=errors, survey=survey, site=self.site)
-        sensor_rng = random_streams.generator("imu/sensor-errors", self.seed)
+        sensor_rng = random_streams.generator("sensor_errors", self.seed)
         base = ImuLab.draw(sensor_rng) if self.draw_sensor_errors else ImuLab()
         lab = replace(base,
                       adc=DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,

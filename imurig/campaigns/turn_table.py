@@ -62,7 +62,7 @@ class TurnTableCampaign:
         """Rig and sensor chain with their (seeded) errors, and the chain's stream
         (``campaign/turn-table/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
         table = TurnTable(errors=TurnTableErrors(mains_hz=self.mains_hz), site=self.site)
-        base = (ImuLab.draw(random_streams.generator("imu/sensor-errors", self.seed)) if self.draw_sensor_errors
+        base = (ImuLab.draw(random_streams.generator("sensor_errors", self.seed)) if self.draw_sensor_errors
                 else ImuLab())
         lab = replace(base, adc=DAQ6036E(scan_list=TURN_TABLE_SCAN), slip_rings=SlipRingNoise(enabled=self.slip_rings))
         return table, lab, random_streams.seed_sequence("campaign/turn-table/sensor-chain", self.seed)

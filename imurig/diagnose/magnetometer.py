@@ -578,7 +578,7 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     from imurig.kernel.site import parse_time
 
     camp = MagnetometerCampaign(seed=seed)
-    mag = FluxgateTriad.from_datasheet(random_streams.generator("campaign/magnetometer/installation", seed),
+    mag = FluxgateTriad.from_datasheet(random_streams.generator("magnetometer_install", seed),
                                        hard_iron_max_nT=camp.hard_iron_max_nT,
                                        soft_iron_max=camp.soft_iron_max, noise_nT_rms=camp.noise_nT)
     if magnetometer is not None:

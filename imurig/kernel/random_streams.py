@@ -22,9 +22,15 @@ Every name must be registered below (:data:`STREAMS` for streams of a master see
 name raises :class:`UnknownStreamError`. A new effect that needs its own stream registers it
 with :func:`register`. :func:`recording` logs every stream handed out while it is open.
 
-One name is one stream: ``"imu/sensor-errors"`` (the IMU unit's manufacturing errors) is
+One name is one stream: ``"sensor_errors"`` (the IMU unit's manufacturing errors) is
 deliberately the same stream in every campaign and in the flight of one seed, so the rigs
 calibrate the very sensors that fly.
+
+The draws that make up one seed's lab (the IMU, the tilt table and its survey, the fluxgate's
+installation, the gyros' temperature coefficients) keep the one-word names they had as children
+of ``SeedSequence(seed)`` before the registry existed: their keys, and so every seed's IMU, table
+and installation, are the same as before. Everything else (rig runs, sensor chains, the flight,
+Monte-Carlo runs) has a path name.
 """
 from __future__ import annotations
 
@@ -42,16 +48,19 @@ MIN_WORD = 2**20
 
 #: streams of a master seed (and, for RUN_INDEXED names, a run index): name -> description
 STREAMS: dict[str, str] = {
-    # the IMU unit
-    "imu/sensor-errors": "the IMU's manufacturing errors (ImuLab.draw): one unit per seed, shared by the "
-                         "campaigns and the flight of that seed",
+    # the lab of one seed (one-word names: the same draws as before the registry, see the module doc)
+    "sensor_errors": "the IMU's manufacturing errors (ImuLab.draw): one unit per seed, shared by the "
+                     "campaigns and the flight of that seed",
+    "table": "the tilt table's mechanical errors (TiltTableErrors.draw)",
+    "survey": "the survey of the tilt table's errors (TableSurvey.measure)",
+    "magnetometer_install": "the magnetometer campaign's fluxgate and its installation iron "
+                            "(FluxgateTriad.from_datasheet)",
+    "gyro_thermal": "the gyros' temperature coefficients drawn for the thermal campaign",
     # tilt table (accelerometers)
-    "campaign/tilt-table/table": "the tilt table's mechanical errors (TiltTableErrors.draw)",
-    "campaign/tilt-table/survey": "the survey of the table's errors (TableSurvey.measure)",
-    "campaign/tilt-table/rig": "the tilt table's run in MuJoCo (setting errors, servo noise)",
+    "campaign/tilt-table/rig": "the tilt table's run in MuJoCo (per-position setting errors)",
     "campaign/tilt-table/sensor-chain": "the tilt-table campaign's sensor chain (parent of its stages)",
     # turn table (gyros), its studies and SIMONA
-    "campaign/turn-table/rig": "the turn table's run (rate ripple, wobble, pulses)",
+    "campaign/turn-table/rig": "the turn table's run (dial setting errors, arm radius measurement)",
     "campaign/turn-table/sensor-chain": "the turn-table campaign's sensor chain",
     "campaign/timer-study/rig": "the timer study's turn-table run (r gyro up, section 4.4.3)",
     "campaign/timer-study/sensor-chain": "the timer study's sensor chain",
@@ -59,11 +68,9 @@ STREAMS: dict[str, str] = {
     "campaign/arm-study/sensor-chain": "the arm study's sensor chain",
     "campaign/simona/lab": "the virtual SIMONA experiment: table, FOG draw and noise, voltmeter",
     # thermal chamber
-    "campaign/thermal/gyro-thermal": "the gyros' temperature coefficients drawn for the thermal campaign",
     "campaign/thermal/sensor-chain": "the thermal campaign's sensor chain",
     # magnetometer rig
-    "campaign/magnetometer/installation": "the fluxgate and its installation iron (FluxgateTriad.from_datasheet)",
-    "campaign/magnetometer/rig": "the magnetometer rig's gimbal run",
+    "campaign/magnetometer/rig": "the magnetometer rig's gimbal run (wobble of the hand-turned manoeuvres)",
     "campaign/magnetometer/sensor-chain": "the magnetometer campaign's sensor chain",
     # the flight (imurig flight, imurig.scoring.flight)
     "flight/sensor-chain": "the flight's IMU measurement (flights.imu.measure_flight)",
