@@ -144,8 +144,8 @@ def key(name: str, run: int | None = None) -> tuple[int, ...]:
     words = tuple(word_key(w) for w in name.split("/"))
     if run is None:
         return words
-    if int(run) < 0:
-        raise ConfigError(f"run index must be >= 0, got {run}")
+    if not 0 <= int(run) < MIN_WORD:
+        raise ConfigError(f"run index must be in [0, {MIN_WORD}), got {run}")
     return (*words, int(run))
 
 
