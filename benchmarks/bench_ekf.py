@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 from imurig.flights import ekf, ins
+from imurig.flights.synthetic import synthetic_sensors
 from imurig.flights.truth import static_tests_truth
 
 
@@ -38,7 +39,7 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
     tr = static_tests_truth(dwell_s=60.0 * a.repeat)
     noise = ekf.ImuNoise()
-    imu, gps, _ = ekf.synthetic_sensors(tr, noise, np.random.default_rng(a.seed), lever_gps_B=tr.lever_gps_B,
+    imu, gps, _ = synthetic_sensors(tr, noise, np.random.default_rng(a.seed), lever_gps_B=tr.lever_gps_B,
                                         mag_sigma_rad=np.radians(0.5))
     n = tr.n
     K = max(1, round(tr.rate_hz / a.nav_rate))
@@ -61,7 +62,7 @@ def main(argv=None) -> dict:
     cfg = ekf.FilterConfig(nav_rate_hz=a.nav_rate, mag_heading_sigma_rad=np.radians(0.5), **extra)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=tr.lever_gps_B)
     t0 = time.perf_counter()
-    res = f.run(imu, gps, x0)
+    res = f.fit(imu, gps, x0).solution_
     t_filt = time.perf_counter() - t0
     dur = float(tr.time_s[-1] - tr.time_s[0])
     out = {"states": cfg.n_states, "duration_s": dur, "imu_samples": n, "imu_rate_hz": tr.rate_hz, "nav_rate_hz": a.nav_rate,

@@ -13,8 +13,14 @@ noise average out; the Earth's vertical rate adds along the table axis:
     w_ref,C = e_axis * (Omega_table + Omega_E sin(latitude))         [rad/s, (3,)]
 
 where e_axis is the IMU axis on the table (+-p, q or r, from the mounting).
+
+:class:`GyroCalibration` fits the inverse model on these references (``fit(rec)``: whole-round
+windows from a timer, the reference rates, and generalised least squares with the gyro's noise
+model, :func:`segment_covariance`), or on references given (``fit(rec, reference)``).
 """
 from __future__ import annotations
+
+from typing import Self
 
 import numpy as np
 
@@ -23,6 +29,7 @@ from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parame
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
+from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
 
 AXES = ("p", "q", "r")
 GYRO = tuple(f"gyro_{a}" for a in AXES)
@@ -45,9 +52,43 @@ AXIS_OF_MOUNT = {f"{a}_{d}": ("pqr".index(a), 1.0 if d == "up" else -1.0) for a 
 
 class GyroCalibration(TriadCalibration):
     """Inverse-model calibration of the gyro triad (models: 'linear', 'physical',
-    'seed_final' (eq. 4.39-4.41), 'stepwise', 'backward')."""
+    'seed_final' (eq. 4.39-4.41), 'stepwise', 'backward').
+
+    Settings as :class:`~imurig.calibration.triad.TriadCalibration` (``statistic`` defaults to the
+    window mean), plus the turn table's reference: ``timer`` ('adc', 'gps_mark', 'hp6700') times the
+    whole rounds, and ``gls`` fits by generalised least squares with the gyro's noise model when the
+    recording carries one (``gyro_noise_model`` metadata; fixed models only).
+
+    ``fit(rec)`` derives the references from a turn-table recording (module doc) and adds the fitted
+    ``windows_`` (the recording with segments narrowed to whole rounds), ``table_rate_`` (n_seg,)
+    rad/s and ``reference_`` (n_seg, 3) rad/s; ``fit(rec, reference, ...)`` uses the given ones.
+    """
 
     SPEC = SPEC
+
+    def __init__(self, model: str | dict = "physical", statistic: str = "mean", stepwise_criterion: str = "bic",
+                 stepwise_library_degree: int = 2, timer: str = "hp6700", gls: bool = True):
+        super().__init__(model, statistic, stepwise_criterion, stepwise_library_degree)
+        self.timer = timer
+        self.gls = gls
+
+    def fit(self, rec: Recording, reference: np.ndarray | None = None, reference_jacobian: np.ndarray | None = None,
+            reference_sigma: np.ndarray | None = None, response_cov: np.ndarray | None = None,
+            segment_cov: np.ndarray | None = None) -> Self:
+        """The triad fit (:meth:`TriadCalibration.fit`) on ``reference`` (n_seg, 3) rad/s, or, when it is
+        None, on the turn table's whole rounds timed by ``timer`` with the reference rates
+        w_ref,C = e_axis (Omega_table + Omega_E sin(latitude)) and, with ``gls``, the per-segment error
+        covariance of :func:`segment_covariance`."""
+        if reference is not None:
+            return super().fit(rec, reference, reference_jacobian, reference_sigma, response_cov, segment_cov)
+        rw, rate = round_windows(rec, self.timer)
+        ref = reference_rates(rw, rate)
+        cov = None
+        if self.gls and self.model not in ("stepwise", "backward") and "gyro_noise_model" in rec.meta:
+            cov = segment_covariance(rw, rate, rec.meta["gyro_noise_model"], timer_difference_sigma(rec, self.timer))
+        super().fit(rw, ref, response_cov=cov)
+        self.windows_, self.table_rate_, self.reference_ = rw, rate, ref
+        return self
 
 
 def pulse_edges(rec: Recording, channel: str = "pulse", threshold: float | None = None) -> np.ndarray:
@@ -133,8 +174,6 @@ def injected_parameters(truth: dict, mounts=None) -> dict:
     with w the spin axis in the platform frame tilted by the wobble. Pass the mountings used
     to get those effective values (one mounting per axis; otherwise the sensor's own M).
     """
-    from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
-
     g = truth["sensors"]["gyros"]
     M = np.asarray(g["misalignment_rad"], float).copy()
     if mounts:

@@ -26,13 +26,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from imurig.kernel.errors import UnidentifiableTermsError
+from imurig.calibration.identifiability import (RELATIVE_SUPPORT_TOL, as_float_array, check_identifiable,
+                                              unidentifiable_error)
 
 __all__ = ["RegressionResult", "fit_ols", "check_identifiable", "RELATIVE_SUPPORT_TOL"]
 
-#: A term takes part in a linear dependency if its component in a null-space
-#: vector exceeds this fraction of the vector's largest component.
-RELATIVE_SUPPORT_TOL = 1e-6
 
 
 def _json_float(v: float) -> float | None:
@@ -139,19 +137,12 @@ class RegressionResult:
 # validation helpers
 
 
-def _as_float_array(a, what: str) -> np.ndarray:
-    arr = np.asarray(a)
-    if arr.dtype.kind not in "biuf":
-        raise ValueError(f"{what} must be a real numeric array, got dtype {arr.dtype}")
-    return arr.astype(np.float64, copy=False)
-
-
 def _validate(X, y, names, weights):
-    X = _as_float_array(X, "X")
+    X = as_float_array(X, "X")
     if X.ndim != 2:
         raise ValueError(f"X must be a 2-D (n, p) design matrix, got shape {X.shape}")
     n, p = X.shape
-    y = _as_float_array(y, "y")
+    y = as_float_array(y, "y")
     if y.ndim != 1:
         raise ValueError(f"y must be a 1-D array of length n={n}, got shape {y.shape} (use y.ravel() for a column vector)")
     if y.shape[0] != n:
@@ -172,7 +163,7 @@ def _validate(X, y, names, weights):
             kinds = " and ".join(k for k, m in (("NaN", np.isnan(arr).any()), ("inf", np.isinf(arr).any())) if m)
             problems.append(f"{label} contains {kinds} in {rows.size} of {n} rows (first rows: {rows[:5].tolist()})")
     if weights is not None:
-        weights = _as_float_array(weights, "weights")
+        weights = as_float_array(weights, "weights")
         if weights.shape != (n,):
             raise ValueError(f"weights must have shape ({n},) like y, got {weights.shape}")
         bad = ~np.isfinite(weights) | (weights <= 0)
@@ -189,115 +180,6 @@ def _validate(X, y, names, weights):
             f"observation(s) are needed (more for meaningful statistics), or drop terms"
         )
     return X, y, names, weights
-
-
-def _rref_rows(M: np.ndarray, tol: float) -> np.ndarray:
-    """Reduced row echelon form of ``M`` (k, p) with partial pivoting (small matrices)."""
-    A = M.astype(np.float64, copy=True)
-    k, p = A.shape
-    r = 0
-    for c in range(p):
-        if r == k:
-            break
-        piv = r + int(np.argmax(np.abs(A[r:, c])))
-        if abs(A[piv, c]) <= tol:
-            continue
-        A[[r, piv]] = A[[piv, r]]
-        A[r] /= A[r, c]
-        others = np.arange(k) != r
-        A[others] -= np.outer(A[others, c], A[r])
-        r += 1
-    return A[:r]
-
-
-def _format_relation(names: list[str], c: np.ndarray, support: np.ndarray) -> tuple[str, str]:
-    """Express ``sum_j c_j X_j = 0`` as ``last = sum(...)``; returns (relation, dependent term)."""
-    idx = np.flatnonzero(support)
-    k = idx[-1]
-    if idx.size == 1:
-        return f"column of '{names[k]}' is identically zero (the term is never excited)", names[k]
-    parts = []
-    for j in idx[:-1]:
-        a = -c[j] / c[k]
-        mag = f"{abs(a):.6g}"
-        if names[j] == "1":
-            body = mag
-        else:
-            body = names[j] if mag == "1" else f"{mag}*{names[j]}"
-        sign = "-" if a < 0 else "+"
-        parts.append((sign, body))
-    rhs = ("-" if parts[0][0] == "-" else "") + parts[0][1]
-    for sign, body in parts[1:]:
-        rhs += f" {sign} {body}"
-    return f"{names[k]} = {rhs}", names[k]
-
-
-def _unidentifiable(names: list[str], Vt: np.ndarray, sv: np.ndarray, tol: float, scale: np.ndarray) -> UnidentifiableTermsError:
-    p = len(names)
-    rank = int(np.sum(sv > tol))
-    null = Vt[rank:]  # (k, p) orthonormal basis of the null space (scaled coordinates)
-    # echelon form with pivots taken from the *last* columns: each row then expresses
-    # one distinct later term through earlier ones (and disjoint dependencies separate)
-    rows = _rref_rows(null[:, ::-1], 1e-9)[:, ::-1]
-    supports = np.abs(rows) > RELATIVE_SUPPORT_TOL * np.max(np.abs(rows), axis=1, keepdims=True)
-    # merge dependencies that share terms into groups
-    parent = list(range(len(rows)))
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i in range(len(rows)):
-        for j in range(i + 1, len(rows)):
-            if np.any(supports[i] & supports[j]):
-                parent[find(i)] = find(j)
-    groups: dict[int, list[int]] = {}
-    for i in range(len(rows)):
-        groups.setdefault(find(i), []).append(i)
-    involved = np.any(supports, axis=0)
-    terms = [names[j] for j in range(p) if involved[j]]
-    lines = []
-    drop = []
-    for members in groups.values():
-        gsupport = np.any(supports[members], axis=0)
-        gnames = [names[j] for j in range(p) if gsupport[j]]
-        rels = []
-        members = sorted(members, key=lambda i: np.flatnonzero(supports[i])[-1])
-        for i in members:
-            rel, dep = _format_relation(names, rows[i] / scale, supports[i])
-            rels.append(rel)
-            drop.append(dep)
-        lines.append(f"  - {{{', '.join(gnames)}}}: " + "; ".join(rels))
-    msg = (
-        f"design matrix is rank deficient (numerical rank {rank} of {p} columns, "
-        f"{p - rank} linear dependenc{'y' if p - rank == 1 else 'ies'}): these terms cannot be separated "
-        f"by the data:\n" + "\n".join(lines) + "\n"
-        "Fix: add positions/observations that excite these terms independently of each other, "
-        f"or drop terms (e.g. drop {', '.join(repr(d) for d in sorted(drop, key=names.index))})."
-    )
-    return UnidentifiableTermsError(msg, terms)
-
-
-def check_identifiable(X: np.ndarray, names: Sequence[str]) -> None:
-    """Raise :class:`UnidentifiableTermsError` if the (n, p) design ``X`` is rank deficient.
-
-    Same test as :func:`fit_ols` (column-scaled SVD, tolerance
-    ``max(n, p) * eps * s_max``), but also usable when n <= p and without y.
-    """
-    X = _as_float_array(X, "X")
-    if X.ndim != 2 or X.shape[1] != len(names) or X.shape[1] == 0:
-        raise ValueError(f"X must be (n, {len(names)}) with one column per name, got {X.shape}")
-    if not np.isfinite(X).all():
-        raise ValueError("X contains NaN or inf")
-    n, p = X.shape
-    scale = np.linalg.norm(X, axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
-    _, sv, Vt = np.linalg.svd(X / scale, full_matrices=True)
-    tol = max(n, p) * np.finfo(np.float64).eps * (sv[0] if sv.size else 0.0)
-    if sv.size < p or sv[-1] <= tol:
-        raise _unidentifiable(list(names), Vt, sv, tol, scale)
 
 
 # ---------------------------------------------------------------------------
@@ -345,14 +227,21 @@ def fit_ols(
     _, sv, Vt = np.linalg.svd(R)
     tol = max(n, p) * np.finfo(np.float64).eps * sv[0]
     if sv[-1] <= tol:
-        raise _unidentifiable(names, Vt, sv, tol, scale)
+        raise unidentifiable_error(names, Vt, sv, tol, scale)
     qty = Q.T @ yw
     coef_s = scipy.linalg.solve_triangular(R, qty, check_finite=False)
     coef = coef_s / scale
+    Rinv = scipy.linalg.solve_triangular(R, np.eye(p), check_finite=False)
+    cov_unscaled = (Rinv @ Rinv.T) / np.outer(scale, scale)  # (X'WX)^-1
+    return _ols_result(X, y, names, weights, coef, cov_unscaled, float(sv[0] / sv[-1]))
 
+
+def _ols_result(X, y, names, weights, coef, cov_unscaled, condition_number: float) -> RegressionResult:
+    """The statistics of a (weighted) least-squares fit with coefficients ``coef`` and (X'WX)^-1 (module doc)."""
+    n, p = X.shape
     fitted = X @ coef
     resid = y - fitted
-    wres = resid if weights is None else resid * sw
+    wres = resid if weights is None else resid * np.sqrt(weights)
     ss_res = float(wres @ wres)
     dof = n - p
     ms_res = ss_res / dof
@@ -364,9 +253,6 @@ def fit_ols(
         ybar = float(np.sum(weights * y) / np.sum(weights))
         dev = y - ybar
         ss_t = float(np.sum(weights * dev * dev))
-
-    Rinv = scipy.linalg.solve_triangular(R, np.eye(p), check_finite=False)
-    cov_unscaled = (Rinv @ Rinv.T) / np.outer(scale, scale)  # (X'WX)^-1
     cov = ms_res * cov_unscaled
     cov = 0.5 * (cov + cov.T)
     std_err = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -374,39 +260,17 @@ def fit_ols(
         t_val = coef / std_err
         r2 = 1.0 - ss_res / ss_t if ss_t > 0 else float("nan")
         r2_adj = 1.0 - (ss_res / dof) / (ss_t / (n - 1)) if ss_t > 0 else float("nan")
-    R_seed = math.sqrt(r2) if r2 >= 0 else float("nan")
-    R_adj = math.sqrt(r2_adj) if r2_adj >= 0 else float("nan")
-    sigma_res = float(np.std(resid, ddof=1))
     sum_log_w = 0.0 if weights is None else float(np.sum(np.log(weights)))
     if ss_res > 0:
         loglik = -0.5 * n * (math.log(2.0 * math.pi * ss_res / n) + 1.0) + 0.5 * sum_log_w
     else:
         loglik = float("inf")
-    aic = -2.0 * loglik + 2.0 * p
-    bic = -2.0 * loglik + p * math.log(n)
-
     return RegressionResult(
-        names=list(names),
-        coef_=coef,
-        cov_=cov,
-        std_error_=std_err,
-        t_value_=t_val,
-        residuals_=resid,
-        fitted_=fitted,
-        n=n,
-        p=p,
-        ss_res=ss_res,
-        ms_res=ms_res,
-        ss_t=ss_t,
-        r2=float(r2),
-        r2_adj=float(r2_adj),
-        R=R_seed,
-        R_adj=R_adj,
-        sigma_res=sigma_res,
-        loglik=loglik,
-        aic=aic,
-        bic=bic,
-        condition_number=float(sv[0] / sv[-1]),
+        names=list(names), coef_=coef, cov_=cov, std_error_=std_err, t_value_=t_val, residuals_=resid,
+        fitted_=fitted, n=n, p=p, ss_res=ss_res, ms_res=ms_res, ss_t=ss_t, r2=float(r2), r2_adj=float(r2_adj),
+        R=math.sqrt(r2) if r2 >= 0 else float("nan"), R_adj=math.sqrt(r2_adj) if r2_adj >= 0 else float("nan"),
+        sigma_res=float(np.std(resid, ddof=1)), loglik=loglik, aic=-2.0 * loglik + 2.0 * p,
+        bic=-2.0 * loglik + p * math.log(n), condition_number=condition_number,
         weights_=None if weights is None else weights.copy(),
     )
 

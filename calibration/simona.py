@@ -14,7 +14,8 @@ Reference rate from the stopwatch, per row ``i`` whose round was timed::
 
 and ``omega_ref_i = 0`` for the row at rest (``rate_dial = 0``, round not timed).
 
-Own linear calibration of each gyro ``k`` in {p, q, r} (least squares over the chosen rows)::
+Own linear calibration of each gyro ``k`` in {p, q, r} (least squares over the chosen rows;
+:class:`SimonaCalibration`)::
 
     omega_ref_i [deg/s] = beta0_k [deg/s] + beta1_k [(deg/s)/V] * V_k,i [V] + e_i
 
@@ -44,12 +45,14 @@ import io
 import math
 from importlib import resources
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 
 from imurig.calibration.regression import fit_ols
 from imurig.kernel.errors import RecordingError
-from imurig.kernel.recording import Recording, atomic_write
+from imurig.kernel.estimator import Estimator
+from imurig.kernel.recording import Recording
 from imurig.kernel.units import DEG, split_column, to_si
 
 __all__ = [
@@ -60,9 +63,7 @@ __all__ = [
     "SEED_CONCLUSION",
     "read_simona",
     "measured_rate",
-    "fit_simona",
-    "plot_fig_4_19",
-    "simona_markdown",
+    "SimonaCalibration",
 ]
 
 ASSET_NAME = "simona_gyro_table_b1.csv"
@@ -96,39 +97,9 @@ def _read_text(path) -> tuple[str, str]:
     return p.read_text(encoding="utf-8"), str(p)
 
 
-def read_simona(path=None) -> Recording:
-    """Import the SIMONA gyro table (seed Table B.1) as a row-level Recording.
-
-    Parameters
-    ----------
-    path : CSV file, or ``None`` for the packaged copy ``imurig.assets/simona_gyro_table_b1.csv``.
-        ``#`` lines are free-text comments (kept in ``meta["notes"]``); the header must hold
-        ``rate_dial_dps, rate_nominal_dps, expected_round_s, measured_round_s, p_V, q_V, r_V``
-        (extra columns are ignored).
-
-    Returns
-    -------
-    Recording with one sample per row (the table has no clock):
-
-    * ``time_s`` = 0, 1, 2, ... (row index, s); segment ``i`` = ``[i, i + 1)`` s with
-      set-points ``rate_dial`` (rad/s) and ``row`` (index);
-    * channels (SI): ``rate_dial``, ``rate_nominal`` (rad/s; nominal = dial * 5/6 because the
-      table's 60 Hz synchronous motor runs on 50 Hz mains), ``expected_round``,
-      ``measured_round`` (s; ``expected = 2*pi / rate_nominal``), ``gyro_p``, ``gyro_q``,
-      ``gyro_r`` (V), and ``round_measured`` (1 = the round was timed, 0 = not timed);
-    * the table's first row (at rest) prints round times 0, meaning "not measured"; it is
-      kept with ``expected_round = measured_round = 0`` s and ``round_measured = 0`` (NaN
-      would not pass :meth:`Recording.validate`);
-    * ``meta``: rig ``turn_table``, source, direction ``clockwise``, ``row_recording``,
-      instrument, ``notes`` (the CSV comments) and
-      ``gyro_nominal_sensitivity_V_per_rad_s`` (manufacturer: 6 mV/(deg/s) for p, q, r).
-
-    Raises
-    ------
-    RecordingError : missing file, missing column (named), non-numeric or non-finite value
-        (row and column named), a negative round time, or fewer than two rows.
-    """
-    text, source = _read_text(path)
+def _parse_table(text: str, source: str) -> tuple[list[str], np.ndarray]:
+    """The CSV's ``#`` comments and its table (n, 7) of the :data:`_COLUMNS`, in lab units; refuses
+    missing columns and non-numeric, non-finite or short rows (RecordingError naming the line)."""
     notes, body = [], []
     for line in text.splitlines():
         s = line.strip()
@@ -167,7 +138,43 @@ def read_simona(path=None) -> Recording:
         rows.append(vals)
     if len(rows) < 2:
         raise RecordingError(f"{source}: {len(rows)} data row(s); at least two are needed")
-    table = np.array(rows, dtype=float)  # (n, 7) in lab units
+    return notes, np.array(rows, dtype=float)  # (n, 7) in lab units
+
+
+def read_simona(path=None) -> Recording:
+    """Import the SIMONA gyro table (seed Table B.1) as a row-level Recording.
+
+    Parameters
+    ----------
+    path : CSV file, or ``None`` for the packaged copy ``imurig.assets/simona_gyro_table_b1.csv``.
+        ``#`` lines are free-text comments (kept in ``meta["notes"]``); the header must hold
+        ``rate_dial_dps, rate_nominal_dps, expected_round_s, measured_round_s, p_V, q_V, r_V``
+        (extra columns are ignored).
+
+    Returns
+    -------
+    Recording with one sample per row (the table has no clock):
+
+    * ``time_s`` = 0, 1, 2, ... (row index, s); segment ``i`` = ``[i, i + 1)`` s with
+      set-points ``rate_dial`` (rad/s) and ``row`` (index);
+    * channels (SI): ``rate_dial``, ``rate_nominal`` (rad/s; nominal = dial * 5/6 because the
+      table's 60 Hz synchronous motor runs on 50 Hz mains), ``expected_round``,
+      ``measured_round`` (s; ``expected = 2*pi / rate_nominal``), ``gyro_p``, ``gyro_q``,
+      ``gyro_r`` (V), and ``round_measured`` (1 = the round was timed, 0 = not timed);
+    * the table's first row (at rest) prints round times 0, meaning "not measured"; it is
+      kept with ``expected_round = measured_round = 0`` s and ``round_measured = 0`` (NaN
+      would not pass :meth:`Recording.validate`);
+    * ``meta``: rig ``turn_table``, source, direction ``clockwise``, ``row_recording``,
+      instrument, ``notes`` (the CSV comments) and
+      ``gyro_nominal_sensitivity_V_per_rad_s`` (manufacturer: 6 mV/(deg/s) for p, q, r).
+
+    Raises
+    ------
+    RecordingError : missing file, missing column (named), non-numeric or non-finite value
+        (row and column named), a negative round time, or fewer than two rows.
+    """
+    text, source = _read_text(path)
+    notes, table = _parse_table(text, source)
     channels, units = {}, {}
     for j, (col, name) in enumerate(_COLUMNS.items()):
         _, spec = split_column(col)
@@ -226,7 +233,7 @@ def measured_rate(rec: Recording) -> np.ndarray:
     moving = ~timed & (rec.channels["rate_dial"] != 0)
     if np.any(moving):
         raise RecordingError(f"rows {np.flatnonzero(moving).tolist()} were not timed but the table was turning "
-                             "(rate_dial != 0): no reference rate; drop those rows (fit_simona(rows=...))")
+                             "(rate_dial != 0): no reference rate; drop those rows (SimonaCalibration(rows=...))")
     return np.where(timed, 2.0 * np.pi / np.where(timed, T, 1.0), 0.0)
 
 
@@ -246,7 +253,40 @@ def _row_index(n: int, rows) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- fit
-def fit_simona(rec: Recording, rows=None) -> dict:
+def _gyro_summary(rec: Recording, g: str, idx: np.ndarray, ref_dps: np.ndarray) -> dict:
+    """Own and manufacturer's calibration of gyro ``g`` on rows ``idx`` (see :class:`SimonaCalibration`)."""
+    V = rec.channels[f"gyro_{g}"][idx]
+    X = np.column_stack([np.ones_like(V), V])
+    res = fit_ols(X, ref_dps, ["1", f"V_{g}"])
+    b0, b1 = res.coef_
+    se0, se1 = res.std_error_
+    sens = _sensitivity(rec, g)  # V/(rad/s)
+    mfr_dps = V / sens / DEG
+    mres = ref_dps - mfr_dps
+    return {
+        "result": res,
+        "rows": idx,
+        "voltage_V": V,
+        "reference_rate_dps": ref_dps,
+        "beta0_dps": float(b0),
+        "beta0_se_dps": float(se0),
+        "beta1_dps_per_V": float(b1),
+        "beta1_se_dps_per_V": float(se1),
+        "scale_mV_per_dps": float(1e3 / b1),
+        "scale_se_mV_per_dps": float(1e3 * se1 / b1**2),
+        "residuals_dps": res.residuals_,
+        "sigma_res_dps": float(res.sigma_res),
+        "max_abs_residual_dps": float(np.max(np.abs(res.residuals_))),
+        "manufacturer_scale_mV_per_dps": float(sens * DEG * 1e3),
+        "manufacturer_rate_dps": mfr_dps,
+        "manufacturer_residuals_dps": mres,
+        "manufacturer_sigma_dps": float(np.std(mres, ddof=1)),
+        "manufacturer_rms_dps": float(np.sqrt(np.mean(mres**2))),
+        "manufacturer_max_abs_dps": float(np.max(np.abs(mres))),
+    }
+
+
+class SimonaCalibration(Estimator):
     """Linear calibration of the p, q, r gyros against the stopwatch rate (seed section 4.4.2).
 
     For each gyro ``k``, on the selected rows::
@@ -254,168 +294,44 @@ def fit_simona(rec: Recording, rows=None) -> dict:
         omega_ref [deg/s] = beta0 [deg/s] + beta1 [(deg/s)/V] * V_k [V]     (fit_ols)
         omega_mfr [deg/s] = V_k / S_nom,   S_nom = 6 mV/(deg/s) (from rec.meta)
 
-    Parameters
-    ----------
-    rec : row recording as from :func:`read_simona` (or a virtual twin in the same format).
-    rows : rows to use: ``None`` (all), a slice (``slice(0, -9)``: before the voltmeter changed
-        range for the last nine rows; ``slice(-9, None)``: after), an index array or a mask.
+    Setting ``rows``: the rows to use: ``None`` (all), a slice (``slice(0, -9)``: before the
+    voltmeter changed range for the last nine rows; ``slice(-9, None)``: after), an index array or a mask.
+    ``fit(rec)`` takes a row recording as from :func:`read_simona` (or a virtual twin in the same format).
 
-    Returns
-    -------
-    ``{"p": fit, "q": fit, "r": fit}``; each ``fit`` is a dict with
-    ``result`` (RegressionResult, deg/s), ``rows`` (indices used), ``voltage_V``,
-    ``reference_rate_dps``, ``beta0_dps``, ``beta0_se_dps``, ``beta1_dps_per_V``,
-    ``beta1_se_dps_per_V``, ``scale_mV_per_dps`` (= 1000/beta1), ``scale_se_mV_per_dps``
-    (= 1000 se(beta1)/beta1^2), ``residuals_dps``, ``sigma_res_dps``, ``max_abs_residual_dps``,
-    ``manufacturer_scale_mV_per_dps``, ``manufacturer_rate_dps``,
-    ``manufacturer_residuals_dps``, ``manufacturer_sigma_dps`` (std, ddof=1),
-    ``manufacturer_rms_dps``, ``manufacturer_max_abs_dps``.
+    Fitted: ``coef_`` (3, 2) [beta0 deg/s, beta1 (deg/s)/V] per gyro p, q, r; ``results_``
+    {gyro: RegressionResult (deg/s)}; ``rows_`` the row indices used; ``summary_`` {gyro: dict} with
+    ``result``, ``rows``, ``voltage_V``, ``reference_rate_dps``, ``beta0_dps``, ``beta0_se_dps``,
+    ``beta1_dps_per_V``, ``beta1_se_dps_per_V``, ``scale_mV_per_dps`` (= 1000/beta1),
+    ``scale_se_mV_per_dps`` (= 1000 se(beta1)/beta1^2), ``residuals_dps``, ``sigma_res_dps``,
+    ``max_abs_residual_dps``, ``manufacturer_scale_mV_per_dps``, ``manufacturer_rate_dps``,
+    ``manufacturer_residuals_dps``, ``manufacturer_sigma_dps`` (std, ddof=1), ``manufacturer_rms_dps``,
+    ``manufacturer_max_abs_dps``. :meth:`apply` adds the calibrated rates.
     """
-    rec.validate()
-    rec.require({f"gyro_{g}": "V" for g in GYROS})
-    idx = _row_index(rec.n, rows)
-    ref_dps = measured_rate(rec)[idx] / DEG  # boundary: rad/s -> deg/s for reporting
-    out = {}
-    for g in GYROS:
-        V = rec.channels[f"gyro_{g}"][idx]
-        X = np.column_stack([np.ones_like(V), V])
-        res = fit_ols(X, ref_dps, ["1", f"V_{g}"])
-        b0, b1 = res.coef_
-        se0, se1 = res.std_error_
-        sens = _sensitivity(rec, g)  # V/(rad/s)
-        mfr_dps = V / sens / DEG
-        mres = ref_dps - mfr_dps
-        out[g] = {
-            "result": res,
-            "rows": idx,
-            "voltage_V": V,
-            "reference_rate_dps": ref_dps,
-            "beta0_dps": float(b0),
-            "beta0_se_dps": float(se0),
-            "beta1_dps_per_V": float(b1),
-            "beta1_se_dps_per_V": float(se1),
-            "scale_mV_per_dps": float(1e3 / b1),
-            "scale_se_mV_per_dps": float(1e3 * se1 / b1**2),
-            "residuals_dps": res.residuals_,
-            "sigma_res_dps": float(res.sigma_res),
-            "max_abs_residual_dps": float(np.max(np.abs(res.residuals_))),
-            "manufacturer_scale_mV_per_dps": float(sens * DEG * 1e3),
-            "manufacturer_rate_dps": mfr_dps,
-            "manufacturer_residuals_dps": mres,
-            "manufacturer_sigma_dps": float(np.std(mres, ddof=1)),
-            "manufacturer_rms_dps": float(np.sqrt(np.mean(mres**2))),
-            "manufacturer_max_abs_dps": float(np.max(np.abs(mres))),
-        }
-    return out
 
+    def __init__(self, rows=None):
+        self.rows = rows
 
-# --------------------------------------------------------------------------- plot
-def _limits(values, seed_lo: float, seed_hi: float, pad: float = 0.05) -> tuple[float, float]:
-    """The seed's axis range, widened (with a margin) only if the data leave it."""
-    v = np.concatenate([np.ravel(x) for x in values])
-    lo, hi = float(np.min(v)), float(np.max(v))
-    span = max(hi - lo, seed_hi - seed_lo)
-    return (min(seed_lo, lo - pad * span) if lo < seed_lo else seed_lo,
-            max(seed_hi, hi + pad * span) if hi > seed_hi else seed_hi)
+    def fit(self, rec: Recording) -> Self:
+        """Fit the three gyros on the selected rows (class doc); returns self."""
+        self._clear_fitted()
+        rec.validate()
+        rec.require({f"gyro_{g}": "V" for g in GYROS})
+        idx = _row_index(rec.n, self.rows)
+        ref_dps = measured_rate(rec)[idx] / DEG  # boundary: rad/s -> deg/s for reporting
+        summary = {g: _gyro_summary(rec, g, idx, ref_dps) for g in GYROS}
+        self.summary_ = summary
+        self.results_ = {g: summary[g]["result"] for g in GYROS}
+        self.coef_ = np.array([[summary[g]["beta0_dps"], summary[g]["beta1_dps_per_V"]] for g in GYROS])
+        self.rows_ = idx
+        return self
 
-
-def plot_fig_4_19(out_png, real: Recording, virtual: Recording | None = None, gyro: str = "p",
-                  rows=None, overwrite: bool = True) -> Path:
-    """Reproduce seed Fig. 4.19 for one gyro: rate vs output voltage with the own ("Actual")
-    and the manufacturer's (6 mV/(deg/s)) linear calibration, then the residuals of each.
-
-    With ``virtual`` (a row recording in the same format) the figure is a 3x2 grid: left
-    "real (seed appendix B)", right "virtual twin", sharing axis limits. Axis limits follow
-    the seed (own residuals +-0.2 deg/s, manufacturer residuals 0..8 deg/s) and widen only
-    if data fall outside. The PNG is written to a temporary file and renamed, so no partial
-    file is left on error. Returns the path.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if gyro not in GYROS:
-        raise ValueError(f"gyro must be one of {GYROS}, got {gyro!r}")
-    G = gyro.upper()
-    cols = [("real (seed appendix B)", fit_simona(real, rows)[gyro])]
-    if virtual is not None:
-        cols.append(("virtual twin", fit_simona(virtual, rows)[gyro]))
-    vmax = max(float(np.max(f["voltage_V"])) for _, f in cols)
-    xlim = (min(0.0, min(float(np.min(f["voltage_V"])) for _, f in cols)), vmax * 1.05)
-    rate_lim = _limits([f["reference_rate_dps"] for _, f in cols] + [f["manufacturer_rate_dps"] for _, f in cols],
-                       0.0, 80.0)
-    own_lim = _limits([f["residuals_dps"] for _, f in cols], -0.2, 0.2)
-    mfr_lim = _limits([f["manufacturer_residuals_dps"] for _, f in cols], 0.0, 8.0)
-
-    fig, axs = plt.subplots(3, len(cols), figsize=(5.2 * len(cols), 8.0), squeeze=False)
-    xl = f"{G}-Gyro Output / V"
-    for j, (title, f) in enumerate(cols):
-        V, ref = f["voltage_V"], f["reference_rate_dps"]
-        vv = np.linspace(xlim[0], xlim[1], 2)
-        a = axs[0, j]
-        a.plot(vv, f["beta0_dps"] + f["beta1_dps_per_V"] * vv, "C0-", lw=1.2,
-               label=f"Actual ({f['scale_mV_per_dps']:.3f} mV/°/s)")
-        a.plot(V, ref, "C0o", ms=4, mfc="none")
-        a.plot(vv, vv / (f["manufacturer_scale_mV_per_dps"] * 1e-3), "C3--", lw=1.2,
-               label=f"Manufacturer ({f['manufacturer_scale_mV_per_dps']:.3g} mV/°/s)")
-        a.set(xlim=xlim, ylim=rate_lim, title=title, xlabel=xl)
-        a.legend(loc="upper left", fontsize=8)
-        a = axs[1, j]
-        a.axhline(0.0, color="0.5", lw=0.6)
-        a.plot(V, f["residuals_dps"], "C0o-", ms=4, mfc="none", lw=0.6,
-               label=f"σ_res = {f['sigma_res_dps']:.3f} °/s")
-        a.set(xlim=xlim, ylim=own_lim, xlabel=xl)
-        a.legend(loc="lower left", fontsize=8)
-        a = axs[2, j]
-        a.plot(V, f["manufacturer_residuals_dps"], "C3o-", ms=4, mfc="none", lw=0.6,
-               label=f"max |res| = {f['manufacturer_max_abs_dps']:.2f} °/s")
-        a.set(xlim=xlim, ylim=mfr_lim, xlabel=xl)
-        a.legend(loc="upper left", fontsize=8)
-        for a in axs[:, j]:
-            a.grid(alpha=0.3)
-        if j == 0:
-            axs[0, 0].set_ylabel(f"Rotation Rate {G}-Gyro / °/s")
-            axs[1, 0].set_ylabel("Residuals actual\ncalibration / °/s")
-            axs[2, 0].set_ylabel("Residuals manufacturer\ncalibration / °/s")
-    fig.suptitle(f"SIMONA IMU {G}-gyro calibration (cf. seed Fig. 4.19)", fontsize=11)
-    fig.tight_layout()
-    try:
-        return atomic_write(Path(out_png), lambda tmp: fig.savefig(tmp, format="png", dpi=110), overwrite)
-    finally:
-        plt.close(fig)
-
-
-# ----------------------------------------------------------------------- markdown
-def _pm(v: float, se: float, digits: int = 3) -> str:
-    return f"{v:.{digits}f} ± {se:.{digits}f}"
-
-
-def simona_markdown(real_fit: dict, virtual_fit: dict | None = None) -> str:
-    """Markdown table of :func:`fit_simona` results (real beside virtual if given) and one
-    sentence comparing own and manufacturer residuals with the seed's conclusion."""
-    srcs = [("real", real_fit)] + ([("virtual", virtual_fit)] if virtual_fit is not None else [])
-    quantities = [
-        ("own scale factor, mV/(°/s)", lambda f: _pm(f["scale_mV_per_dps"], f["scale_se_mV_per_dps"], 4)),
-        ("β0 (rate at 0 V), °/s", lambda f: _pm(f["beta0_dps"], f["beta0_se_dps"], 3)),
-        ("σ_res own, °/s", lambda f: f"{f['sigma_res_dps']:.3f}"),
-        ("max \\|own res.\\|, °/s", lambda f: f"{f['max_abs_residual_dps']:.3f}"),
-        ("max \\|manufacturer res.\\|, °/s", lambda f: f"{f['manufacturer_max_abs_dps']:.2f}"),
-    ]
-    header = ["gyro"] + [f"{q} ({s})" if len(srcs) > 1 else q for q, _ in quantities for s, _ in srcs]
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    for g in GYROS:
-        cells = [g.upper()] + [fn(fit[g]) for _, fn in quantities for _, fit in srcs]
-        lines.append("| " + " | ".join(cells) + " |")
-    sentences = []
-    for s, fit in srcs:
-        ratio = min(fit[g]["manufacturer_max_abs_dps"] / fit[g]["max_abs_residual_dps"] for g in GYROS)
-        own = max(fit[g]["max_abs_residual_dps"] for g in GYROS)
-        mfr = max(fit[g]["manufacturer_max_abs_dps"] for g in GYROS)
-        sentences.append(f"{s}: own-calibration residuals reach at most {own:.3f} °/s against {mfr:.2f} °/s "
-                         f"for the manufacturer's 6 mV/(°/s) (at least {ratio:.0f}× smaller for every gyro)")
-    all_ok = all(min(fit[g]["manufacturer_max_abs_dps"] / fit[g]["max_abs_residual_dps"] for g in GYROS) >= 10
-                 for _, fit in srcs)
-    verdict = "which agrees with" if all_ok else "which does not clearly reproduce"
-    return ("\n".join(lines) + "\n\n" + "; ".join(sentences)
-            + f", {verdict} the seed's conclusion: \"{SEED_CONCLUSION}\".\n")
+    def apply(self, rec: Recording) -> Recording:
+        """A copy of ``rec`` with the calibrated rates ``gyro_cal_p``, ``gyro_cal_q``, ``gyro_cal_r`` (rad/s):
+        omega = (beta0 + beta1 V) deg/s for every row."""
+        self.check_fitted()
+        rec.require({f"gyro_{g}": "V" for g in GYROS})
+        channels, units = dict(rec.channels), dict(rec.units)
+        for k, g in enumerate(GYROS):
+            channels[f"gyro_cal_{g}"] = (self.coef_[k, 0] + self.coef_[k, 1] * rec.channels[f"gyro_{g}"]) * DEG
+            units[f"gyro_cal_{g}"] = "rad/s"
+        return rec.replace(channels=channels, units=units)

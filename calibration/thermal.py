@@ -17,17 +17,20 @@ hysteresis gap between the branches, estimated and reported rather than hidden.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Self
 
 import numpy as np
 
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import fit_ols
 from imurig.kernel.errors import RecordingError
+from imurig.kernel.estimator import Estimator
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
+from imurig.kernel.units import T_REF_K
+from imurig.rigs.thermal_chamber import attitude_R_WC
 
-T0 = 298.15
+T0 = T_REF_K  # K, dT = T - T0
 ACC = ("acc_x", "acc_y", "acc_z")
 GYRO = ("gyro_p", "gyro_q", "gyro_r")
 TEMP_ACC = ("temp_acc_x", "temp_acc_y", "temp_acc_z")
@@ -61,8 +64,6 @@ def step_table(rec: Recording, source: str = "channels", channels=None) -> dict:
     s_gyro = np.asarray(rec.meta.get("gyro_nominal_sensitivity_V_per_rad_s", [np.nan] * 3), float)
     out = {"step": [], "T_set": [], "branch": [], "cycle": [], "acc_bias": [], "acc_scale": [], "T_acc": [],
            "gyro_bias": [], "T_box": []}
-    from imurig.rigs.thermal_chamber import attitude_R_WC
-
     earth_W = Site.from_dict(rec.meta.get("site", {})).earth_rate_W()
     for k in steps:
         sel = np.flatnonzero(seg["step"] == k)
@@ -89,21 +90,6 @@ def step_table(rec: Recording, source: str = "channels", channels=None) -> dict:
     return {k: np.array(v) for k, v in out.items() if len(v)}
 
 
-@dataclass
-class ThermalFit:
-    """Fitted temperature models: one RegressionResult per (quantity, axis)."""
-
-    results: dict
-    order: dict
-
-    def predict(self, key: str, T_K: np.ndarray, h: np.ndarray | float = 0.0) -> np.ndarray:
-        """Model value at sensor temperatures ``T_K`` and hysteresis state h (+-1/2, or 0: mid-way)."""
-        r = self.results[key]
-        T = np.atleast_1d(np.asarray(T_K, float))
-        s = np.broadcast_to(h, T.shape) if "hysteresis" in r.names else None
-        return _design(T, self.order[key], s) @ r.coef_
-
-
 def _design(T, order, s=None):
     dT = T - T0
     cols = [np.ones_like(dT)] + [dT**k for k in range(1, order + 1)]
@@ -116,30 +102,90 @@ def term_names(order: int, hysteresis: bool) -> list[str]:
     return ["1"] + ["dT" if k == 1 else f"dT^{k}" for k in range(1, order + 1)] + (["hysteresis"] if hysteresis else [])
 
 
-def fit_thermal(table: dict, acc_order: int = 3, gyro_order: int = 1, scale_order: int = 1,
-                hysteresis: bool = True) -> ThermalFit:
-    """Fit bias (and accelerometer scale) against the temperature-sensor reading; see module doc."""
-    if np.unique(np.round(table["T_set"], 3)).size < 2:
-        raise RecordingError("the record holds one temperature only: a thermal calibration needs several "
-                             "set-points")
-    s = np.where(table["branch"] == "up", 0.5, -0.5)
-    use_h = hysteresis and np.unique(s).size == 2
-    results, order = {}, {}
-    if "acc_bias" in table:
+class ThermalCalibration(Estimator):
+    """Temperature models of the bias (and the accelerometers' scale) against each sensor's
+    temperature reading, with the hysteresis gap between heating and cooling (module doc).
+
+    Settings: polynomial orders ``acc_order`` (accelerometer bias), ``scale_order``
+    (accelerometer scale), ``gyro_order`` (gyro bias), and ``hysteresis`` (estimate H when the
+    record has both branches). ``fit(table)`` takes the per-step table of :func:`step_table` (or a
+    thermal :class:`~imurig.kernel.recording.Recording`, tabulated first).
+
+    Fitted: ``results_`` {key: RegressionResult} over the keys ``acc_bias_<a>``, ``acc_scale_<a>``
+    (a = x, y, z) and ``gyro_bias_<a>`` (a = p, q, r) present in the table; ``order_`` {key: order};
+    ``hysteresis_`` whether H was estimated. :meth:`apply` compensates indicated specific forces.
+    """
+
+    def __init__(self, acc_order: int = 3, gyro_order: int = 1, scale_order: int = 1, hysteresis: bool = True):
+        self.acc_order = acc_order
+        self.gyro_order = gyro_order
+        self.scale_order = scale_order
+        self.hysteresis = hysteresis
+
+    def fit(self, table: dict | Recording) -> Self:
+        """Fit every model of the step table (module doc); returns self."""
+        self._clear_fitted()
+        if isinstance(table, Recording):
+            table = step_table(table)
+        if np.unique(np.round(table["T_set"], 3)).size < 2:
+            raise RecordingError("the record holds one temperature only: a thermal calibration needs several "
+                                 "set-points")
+        s = np.where(table["branch"] == "up", 0.5, -0.5)
+        use_h = self.hysteresis and np.unique(s).size == 2
+        results, order = {}, {}
+        if "acc_bias" in table:
+            for j, a in enumerate("xyz"):
+                T = table["T_acc"][:, j]
+                for key, y, o in ((f"acc_bias_{a}", table["acc_bias"][:, j], self.acc_order),
+                                  (f"acc_scale_{a}", table["acc_scale"][:, j], self.scale_order)):
+                    X = _design(T, o, s if use_h else None)
+                    results[key] = fit_ols(X, y, term_names(o, use_h))
+                    order[key] = o
+        if "gyro_bias" in table:
+            for j, a in enumerate("pqr"):
+                X = _design(table["T_box"], self.gyro_order, s if use_h else None)
+                key = f"gyro_bias_{a}"
+                results[key] = fit_ols(X, table["gyro_bias"][:, j], term_names(self.gyro_order, use_h))
+                order[key] = self.gyro_order
+        self.results_, self.order_, self.hysteresis_ = results, order, bool(use_h)
+        return self
+
+    def predict(self, key: str, T_K: np.ndarray, h: np.ndarray | float = 0.0) -> np.ndarray:
+        """Model value of ``key`` at sensor temperatures ``T_K`` (K) and hysteresis state h (+-1/2, or 0: mid-way)."""
+        self.check_fitted("predict")
+        r = self.results_[key]
+        T = np.atleast_1d(np.asarray(T_K, float))
+        s = np.broadcast_to(h, T.shape) if "hysteresis" in r.names else None
+        return _design(T, self.order_[key], s) @ r.coef_
+
+    def compensation(self, T_K: np.ndarray, h: np.ndarray, T_ref_K: float = T0):
+        """Per accelerometer axis, the thermal change of the six-position bias and scale relative to the
+        conditions (T_ref, hysteresis state 0), at temperatures ``T_K`` (n, 3) K and states ``h`` (n, 3):
+
+            ΔB = B(T, h) − (S(T, h)/S(T_ref, 0)) B(T_ref, 0),   ρ = S(T, h)/S(T_ref, 0)      [(n, 3)]
+
+        Returns (ΔB m/s², ρ, σ_ΔB): σ_ΔB (n, 3) the fit's standard error of ΔB (delta method on the
+        coefficient covariance)."""
+        self.check_fitted("compensation")
+        T_K = np.asarray(T_K, float)
+        h = np.asarray(h, float)
+        dB, rho, sdB = (np.empty_like(T_K) for _ in range(3))
         for j, a in enumerate("xyz"):
-            T = table["T_acc"][:, j]
-            for key, y, o in ((f"acc_bias_{a}", table["acc_bias"][:, j], acc_order),
-                              (f"acc_scale_{a}", table["acc_scale"][:, j], scale_order)):
-                X = _design(T, o, s if use_h else None)
-                results[key] = fit_ols(X, y, term_names(o, use_h))
-                order[key] = o
-    if "gyro_bias" in table:
-        for j, a in enumerate("pqr"):
-            X = _design(table["T_box"], gyro_order, s if use_h else None)
-            key = f"gyro_bias_{a}"
-            results[key] = fit_ols(X, table["gyro_bias"][:, j], term_names(gyro_order, use_h))
-            order[key] = gyro_order
-    return ThermalFit(results, order)
+            kb, ks = f"acc_bias_{a}", f"acc_scale_{a}"
+            S0 = float(self.predict(ks, np.array([T_ref_K]), 0.0)[0])
+            rho[:, j] = self.predict(ks, T_K[:, j], h[:, j]) / S0
+            B0 = float(self.predict(kb, np.array([T_ref_K]), 0.0)[0])
+            dB[:, j] = self.predict(kb, T_K[:, j], h[:, j]) - rho[:, j] * B0
+            r = self.results_[kb]
+            X = _design(T_K[:, j], self.order_[kb], h[:, j]) - _design(np.array([T_ref_K]), self.order_[kb], np.zeros(1))
+            sdB[:, j] = np.sqrt(np.einsum("ni,ij,nj->n", X, r.cov_, X))
+        return dB, rho, sdB
+
+    def apply(self, f: np.ndarray, T_K: np.ndarray, h: np.ndarray, T_ref_K: float = T0) -> np.ndarray:
+        """Indicated specific force ``f`` (n, 3) m/s² at accelerometer temperatures ``T_K`` (n, 3) K and
+        hysteresis states ``h`` (n, 3) brought back to (T_ref, 0): f_ref = (f − ΔB) / ρ (:meth:`compensation`)."""
+        dB, rho, _ = self.compensation(T_K, h, T_ref_K)
+        return (np.asarray(f, float) - dB) / rho
 
 
 def branch_gap(table: dict, key: str, axis: int) -> dict:

@@ -23,18 +23,18 @@ A triad is described by a :class:`TriadSpec` (channel names, input names, units)
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
-from typing import Callable, ClassVar
+from typing import Callable, ClassVar, Self
 
 import numpy as np
-import scipy.linalg
 
+from imurig.calibration.gls import delta_cov, fit_jointly, gls_projection, reference_error_cov, white_variance_reml
 from imurig.calibration.preprocess import segment_samples, segment_statistic, segment_statistic_variance
 from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import TermLibrary, polynomial
-from imurig.kernel.errors import RecordingError
+from imurig.kernel.errors import NotFittedError, RecordingError
+from imurig.kernel.estimator import Estimator
 from imurig.kernel.recording import Recording
 
 
@@ -84,31 +84,30 @@ def indicated(rec: Recording, spec: TriadSpec, statistic: str = "median", sensit
     return v / s, seg
 
 
-@dataclass
-class TriadCalibration:
-    """Inverse-model calibration of a sensor triad (sklearn-like: settings in __init__,
-    ``fit`` returns self, fitted attributes end in ``_``). Subclasses set ``SPEC``.
+class TriadCalibration(Estimator):
+    """Inverse-model calibration of a sensor triad (the bench's estimator contract: settings in
+    ``__init__``, ``fit`` returns self, fitted attributes end in ``_``). Subclasses set ``SPEC``.
 
     model: 'linear', 'cross', 'seed_final', 'physical', 'stepwise' (forward selection from the linear
     model over the degree-2 library), 'backward' (backward elimination), or {axis: TermLibrary}.
     statistic: 'median' (per position, seed), 'mean', or 'raw' (every sample in the windows).
+
+    Fitted: ``results_`` {axis: RegressionResult}; ``models_`` {axis: (term names, coefficients)}
+    (also set by :meth:`from_dict`); ``selection_`` {axis: stepwise selection} (stepwise models);
+    ``projection_`` {axis: (p_a, n) matrix P_a with beta_a = P_a y_a}; ``cross_cov_`` the cross-axis
+    blocks of the coefficients' covariance (with ``segment_cov``) or None; ``reference_cov_`` the
+    coefficients' covariance from the survey (with a reference Jacobian, without ``segment_cov``) or
+    None; ``sensitivity_`` (3,) the nominal sensitivity used (V per SI unit).
     """
 
     SPEC: ClassVar[TriadSpec]
 
-    model: str | dict = "physical"
-    statistic: str = "median"
-    stepwise_criterion: str = "bic"
-    stepwise_library_degree: int = 2
-    results_: dict = field(default_factory=dict, init=False)
-    selection_: dict = field(default_factory=dict, init=False)
-    sensitivity_: np.ndarray | None = field(default=None, init=False)
-    reference_cov_: np.ndarray | None = field(default=None, init=False)
-
-    def __post_init__(self):
-        self.loaded_ = None
-        self.projection_: dict = {}       # axis -> (p_a, n) matrix P_a with beta_a = P_a y_a
-        self.cross_cov_ = None            # cross-axis blocks of the betas' covariance (segment_cov)
+    def __init__(self, model: str | dict = "physical", statistic: str = "median", stepwise_criterion: str = "bic",
+                 stepwise_library_degree: int = 2):
+        self.model = model
+        self.statistic = statistic
+        self.stepwise_criterion = stepwise_criterion
+        self.stepwise_library_degree = stepwise_library_degree
 
     def _library(self, axis: str) -> TermLibrary:
         if isinstance(self.model, dict):
@@ -119,9 +118,9 @@ class TriadCalibration:
             raise ValueError(f"unknown model {self.model!r}; choose from {sorted(models) + ['stepwise', 'backward']}")
         return models[self.model](axis)
 
-    def fit(self, rec: Recording, reference: np.ndarray, reference_jacobian: np.ndarray | None = None,
+    def fit(self, rec: Recording, reference: np.ndarray | None = None, reference_jacobian: np.ndarray | None = None,
             reference_sigma: np.ndarray | None = None, response_cov: np.ndarray | None = None,
-            segment_cov: np.ndarray | None = None) -> "TriadCalibration":
+            segment_cov: np.ndarray | None = None) -> Self:
         """Fit the three inverse models.
 
         reference : (n_seg, 3) reference quantity per segment, in SI (e.g. m/s^2 or rad/s, in C).
@@ -146,14 +145,17 @@ class TriadCalibration:
         covariance is then absolute, (X' V_a^-1 X)^-1, with cross-axis blocks
         P_a (diag(Sigma_k,ab) + J_a diag(sigma^2) J_b') P_b' (P_a the GLS projection).
         The three axes are then refitted jointly with the full (3n, 3n) covariance (seemingly
-        unrelated regressions, :meth:`_fit_jointly`): the setting and survey errors reach all
+        unrelated regressions, :func:`imurig.calibration.gls.fit_jointly`): the setting and survey errors reach all
         axes at once, and using that puts the estimator on the Cramér-Rao bound (Monte-Carlo:
         RMS/CRLB 0.96-1.22 with the window mean, x sqrt(pi/2) with the median).
         Fixed models and per-segment statistics only. Without it, ordinary least squares
         with the survey's covariance added (which counts the survey twice where it also
         inflates the residual).
         """
+        self._clear_fitted()
         spec = self.SPEC
+        if reference is None:
+            raise ValueError(f"{type(self).__name__}.fit needs the reference quantity per segment (n_segments, 3)")
         s = rec.meta.get(spec.sensitivity_key)
         self.sensitivity_ = None if s is None else np.broadcast_to(np.asarray(s, float), (3,)).copy()
         u, seg = indicated(rec, spec, self.statistic)
@@ -162,94 +164,78 @@ class TriadCalibration:
             raise ValueError(f"reference must be (n_segments, 3) = ({rec.n_segments}, 3), got {reference.shape}")
         y_all = reference[seg]
         inputs = {n: u[:, j] for j, n in enumerate(spec.inputs)}
-        linear = ("1",) + spec.inputs
         survey = None
         if reference_jacobian is not None and reference_sigma is not None:
             survey = np.asarray(reference_jacobian, float)[seg] * np.asarray(reference_sigma, float)  # (n, 3, q)
+        within = None
         if segment_cov is not None:
-            segment_cov = np.asarray(segment_cov, float)
-            if segment_cov.shape != (rec.n_segments, 3, 3) or not np.isfinite(segment_cov).all():
-                raise ValueError(f"segment_cov must be a finite (n_segments, 3, 3) = ({rec.n_segments}, 3, 3) "
-                                 f"array, got {segment_cov.shape}")
-            if self.model in ("stepwise", "backward") or self.statistic == "raw" or response_cov is not None:
-                raise ValueError("segment_cov needs a fixed model, per-segment statistics and no response_cov")
-            segment_cov = segment_cov[seg]
-            sens = np.broadcast_to(np.asarray(rec.meta[spec.sensitivity_key], float), (3,))
-            within = np.nanmean(segment_statistic_variance(rec, spec.channels, self.statistic), axis=0) / sens**2
-            within = np.nan_to_num(within)
-        self.results_, self.selection_, self.projection_ = {}, {}, {}
-        white = np.zeros(3)
+            segment_cov, within = self._segment_cov(rec, segment_cov, seg, response_cov)
+        results, selection, projection, white = {}, {}, {}, np.zeros(3)
         for j, a in enumerate(spec.axes):
-            if self.model in ("stepwise", "backward"):
-                lib = polynomial(spec.inputs, self.stepwise_library_degree)
-                if self.model == "stepwise":
-                    sel = forward_selection(lib, inputs, y_all[:, j], start=linear,
-                                            criterion=self.stepwise_criterion)
-                else:
-                    sel = backward_elimination(lib, inputs, y_all[:, j], keep=linear,
-                                               criterion=self.stepwise_criterion)
-                self.selection_[a] = sel
-                self.results_[a] = sel.result
-                self.projection_[a] = np.linalg.pinv(TermLibrary.from_names(sel.result.names).design(inputs))
-                continue
-            lib = self._library(a)
-            X = lib.design(inputs)
-            if response_cov is not None:
-                V = response_cov
-            elif segment_cov is not None:
-                K = _reference_error_cov(segment_cov, survey, j, j) + within[j] * np.eye(len(y_all))
-                V = K + white_variance_reml(X, y_all[:, j], K) * np.eye(len(K))
-            else:
-                self.results_[a] = fit_ols(X, y_all[:, j], lib.names)
-                self.projection_[a] = np.linalg.pinv(X)
-                continue
-            self.results_[a] = fit_gls(X, y_all[:, j], lib.names, V, known_cov=segment_cov is not None)
-            self.projection_[a] = _gls_projection(X, V)
-            white[j] = V[0, 0] - K[0, 0] + within[j] if segment_cov is not None else 0.0
-        self.cross_cov_ = self.reference_cov_ = None
+            results[a], projection[a], sel, white[j] = self._fit_axis(a, j, inputs, y_all[:, j], response_cov,
+                                                                      segment_cov, survey, within)
+            if sel is not None:
+                selection[a] = sel
+        cross_cov = reference_cov = None
         if segment_cov is not None:
-            self._fit_jointly(inputs, y_all, segment_cov, survey, white)
+            results, cross_cov = fit_jointly(results, spec.axes, inputs, y_all, segment_cov, survey, white)
         elif survey is not None:
-            S = np.concatenate([self.projection_[a] @ survey[:, j, :] for j, a in enumerate(spec.axes)])
-            self.reference_cov_ = S @ S.T
+            S = np.concatenate([projection[a] @ survey[:, j, :] for j, a in enumerate(spec.axes)])
+            reference_cov = S @ S.T
+        self.results_, self.selection_, self.projection_ = results, selection, projection
+        self.cross_cov_, self.reference_cov_ = cross_cov, reference_cov
+        self.models_ = {a: (list(r.names), np.asarray(r.coef_)) for a, r in results.items()}
         return self
 
-    def _fit_jointly(self, inputs, y_all, segment_cov, survey, white) -> None:
-        """Refit the three axes as one generalised least-squares problem (seemingly unrelated
-        regressions): a position's setting error and the survey errors reach all three axes at
-        once, so the other axes' readings tell each axis how far its reference is off.
+    def _segment_cov(self, rec: Recording, segment_cov, seg: np.ndarray, response_cov):
+        """The per-sample reference-error covariance (n, 3, 3) and the within-window noise (3,) of a
+        segment's statistic (batch means pooled over segments, SI^2)."""
+        spec = self.SPEC
+        segment_cov = np.asarray(segment_cov, float)
+        if segment_cov.shape != (rec.n_segments, 3, 3) or not np.isfinite(segment_cov).all():
+            raise ValueError(f"segment_cov must be a finite (n_segments, 3, 3) = ({rec.n_segments}, 3, 3) "
+                             f"array, got {segment_cov.shape}")
+        if self.model in ("stepwise", "backward") or self.statistic == "raw" or response_cov is not None:
+            raise ValueError("segment_cov needs a fixed model, per-segment statistics and no response_cov")
+        sens = np.broadcast_to(np.asarray(rec.meta[spec.sensitivity_key], float), (3,))
+        within = np.nanmean(segment_statistic_variance(rec, spec.channels, self.statistic), axis=0) / sens**2
+        return segment_cov[seg], np.nan_to_num(within)
 
-            y = blockdiag(X_x, X_y, X_z) beta + e,  cov(e)_(a,b) = K_ab + delta_ab w_a I   [(3n, 3n)]
-
-        with w_a the white part found by the per-axis fit. beta = (X' V^-1 X)^-1 X' V^-1 y; its
-        covariance (X' V^-1 X)^-1 holds the cross-axis blocks (``cross_cov_``).
-        """
-        axes = self.SPEC.axes
-        n = y_all.shape[0]
-        Xs = [TermLibrary.from_names(self.results_[a].names).design(inputs) for a in axes]
-        off = np.concatenate([[0], np.cumsum([X.shape[1] for X in Xs])])
-        V = np.zeros((3 * n, 3 * n))
-        Xf = np.zeros((3 * n, off[-1]))
-        for i in range(3):
-            Xf[i * n:(i + 1) * n, off[i]:off[i + 1]] = Xs[i]
-            for j in range(3):
-                V[i * n:(i + 1) * n, j * n:(j + 1) * n] = (_reference_error_cov(segment_cov, survey, i, j)
-                                                           + (white[i] * np.eye(n) if i == j else 0.0))
-        L = np.linalg.cholesky(V)
-        Xw = scipy.linalg.solve_triangular(L, Xf, lower=True)
-        yw = scipy.linalg.solve_triangular(L, y_all.T.reshape(-1), lower=True)
-        Q, R = np.linalg.qr(Xw)
-        beta = scipy.linalg.solve_triangular(R, Q.T @ yw)
-        Rinv = scipy.linalg.solve_triangular(R, np.eye(R.shape[0]))
-        cov = Rinv @ Rinv.T
-        self.cross_cov_ = cov.copy()
-        for i, a in enumerate(axes):
-            sl = slice(off[i], off[i + 1])
-            self.cross_cov_[sl, sl] = 0.0  # the diagonal blocks live in results_
-            self.results_[a] = _with_coefficients(self.results_[a], Xs[i], y_all[:, i], beta[sl], cov[sl, sl])
+    def _fit_axis(self, a: str, j: int, inputs: dict, y: np.ndarray, response_cov, segment_cov, survey, within):
+        """One axis: stepwise selection, OLS, or GLS with ``response_cov`` or the reference-error covariance
+        K_a + (w_a + s_a^2) I (s_a^2 by REML). Returns (result, projection P_a, selection or None, white part)."""
+        spec = self.SPEC
+        if self.model in ("stepwise", "backward"):
+            lib = polynomial(spec.inputs, self.stepwise_library_degree)
+            linear = ("1",) + spec.inputs
+            if self.model == "stepwise":
+                sel = forward_selection(lib, inputs, y, start=linear, criterion=self.stepwise_criterion)
+            else:
+                sel = backward_elimination(lib, inputs, y, keep=linear, criterion=self.stepwise_criterion)
+            return sel.result, np.linalg.pinv(TermLibrary.from_names(sel.result.names).design(inputs)), sel, 0.0
+        lib = self._library(a)
+        X = lib.design(inputs)
+        if response_cov is not None:
+            V = response_cov
+        elif segment_cov is not None:
+            K = reference_error_cov(segment_cov, survey, j, j) + within[j] * np.eye(len(y))
+            V = K + white_variance_reml(X, y, K) * np.eye(len(K))
+        else:
+            return fit_ols(X, y, lib.names), np.linalg.pinv(X), None, 0.0
+        res = fit_gls(X, y, lib.names, V, known_cov=segment_cov is not None)
+        white = V[0, 0] - K[0, 0] + within[j] if segment_cov is not None else 0.0
+        return res, gls_projection(X, V), None, white
 
     # ------------------------------------------------------------ results
+    def _require_results(self, what: str) -> None:
+        self.check_fitted(what)
+        if not hasattr(self, "results_"):
+            raise NotFittedError(f"{what}() needs the fit's statistics: this {type(self).__name__} was loaded "
+                                 "from a saved calibration (coefficients only); fit it to get them")
+
     def coefficient_vector(self):
+        """((axis, term) names, coefficients beta, their full covariance) of the three inverse models."""
+        self._require_results("coefficient_vector")
         axes = self.SPEC.axes
         names = [(a, n) for a in axes for n in self.results_[a].names]
         beta = np.concatenate([self.results_[a].coef_ for a in axes])
@@ -267,6 +253,7 @@ class TriadCalibration:
 
     def physical_parameters(self) -> list[dict]:
         """Forward-model parameters with delta-method standard errors (see module doc)."""
+        self._require_results("physical_parameters")
         spec = self.SPEC
         axes, inp = spec.axes, spec.inputs
         names, beta, cov = self.coefficient_vector()
@@ -309,12 +296,9 @@ class TriadCalibration:
                 for (n, u), e, s in zip(labels, est, se) if np.isfinite(e)]
 
     def models(self) -> dict:
-        """{axis: (term names, coefficients)} of the fitted (or loaded) inverse models."""
-        if self.results_:
-            return {a: (list(r.names), np.asarray(r.coef_)) for a, r in self.results_.items()}
-        if getattr(self, "loaded_", None):
-            return self.loaded_
-        raise ValueError("the calibration is not fitted; call fit() or load one with from_dict()")
+        """{axis: (term names, coefficients)} of the fitted (or loaded) inverse models (``models_``)."""
+        self.check_fitted("models")
+        return self.models_
 
     def predict(self, u: np.ndarray) -> np.ndarray:
         """Calibrated quantity (m,3) for indicated quantity u (m,3), SI."""
@@ -342,11 +326,12 @@ class TriadCalibration:
         cal = cls(model=d.get("model", "loaded"), statistic=d.get("statistic", "median"))
         s = d.get("nominal_sensitivity")
         cal.sensitivity_ = None if s is None else np.asarray(s, float)
-        cal.loaded_ = {a: (list(v["terms"]), np.asarray(v["coef"], float)) for a, v in d["axes"].items()}
+        cal.models_ = {a: (list(v["terms"]), np.asarray(v["coef"], float)) for a, v in d["axes"].items()}
         return cal
 
     def apply(self, rec: Recording) -> Recording:
         """Add calibrated channels ``<prefix><axis>`` (SI) to a copy of ``rec``."""
+        self.check_fitted()
         spec = self.SPEC
         rec.require({c: "V" for c in spec.channels})
         s = self.sensitivity_ if self.sensitivity_ is not None else rec.meta.get(spec.sensitivity_key)
@@ -362,82 +347,8 @@ class TriadCalibration:
 
     def table(self) -> dict:
         """Seed-style table: coefficients per axis and sigma_res, MS_res, R, R_adj."""
+        self._require_results("table")
         return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
-
-
-def _with_coefficients(res, X: np.ndarray, y: np.ndarray, coef: np.ndarray, cov: np.ndarray):
-    """``res`` with new coefficients and covariance, its residual statistics recomputed (the
-    unweighted ones, as :func:`fit_gls` reports them)."""
-    fitted = X @ coef
-    resid = y - fitted
-    ss_res = float(resid @ resid)
-    dof = res.n - res.p
-    r2 = 1.0 - ss_res / res.ss_t if res.ss_t > 0 else float("nan")
-    r2_adj = 1.0 - (ss_res / dof) / (res.ss_t / (res.n - 1)) if res.ss_t > 0 else float("nan")
-    se = np.sqrt(np.diag(cov))
-    return dataclasses.replace(res, coef_=coef, cov_=cov, std_error_=se, t_value_=coef / se, residuals_=resid,
-                               fitted_=fitted, ss_res=ss_res, ms_res=ss_res / dof, r2=r2, r2_adj=r2_adj,
-                               R=np.sqrt(r2) if r2 >= 0 else float("nan"),
-                               R_adj=np.sqrt(r2_adj) if r2_adj >= 0 else float("nan"),
-                               sigma_res=float(np.std(resid, ddof=1)))
-
-
-def _gls_projection(X: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """P = (X' C^-1 X)^-1 X' C^-1 (p, n) for C (n, n): the GLS estimate is beta = P y."""
-    CiX = np.linalg.solve(cov, X)
-    return np.linalg.solve(X.T @ CiX, CiX.T)
-
-
-def _reference_error_cov(segment_cov: np.ndarray, survey: np.ndarray | None, i: int, j: int) -> np.ndarray:
-    """Covariance (n, n) between the reference errors of axes i and j: the segments' own
-    (diagonal, segment_cov[:, i, j]) plus the survey's, J_i diag(sigma^2) J_j' (survey = J sigma)."""
-    K = np.diag(segment_cov[:, i, j])
-    return K if survey is None else K + survey[:, i, :] @ survey[:, j, :].T
-
-
-def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray) -> float:
-    """REML estimate of s^2 in y = X b + e, cov(e) = K + s^2 I, K (n, n) known.
-
-    Minimises  1/2 [log det V + log det(X' V^-1 X) + r' V^-1 r],  V = K + s^2 I, r the GLS
-    residual, over log s^2 (bounded scalar search between 1e-12 and 1 times 10 x the data's
-    OLS residual variance). One eigendecomposition K = U diag(lam) U' makes each evaluation
-    O(n p^2): V^-1 = U diag(1 / (lam + s^2)) U'.
-    """
-    import scipy.optimize
-
-    ols = np.linalg.lstsq(X, y, rcond=None)[0]
-    top = max(float(np.var(y - X @ ols)), 1e-300) * 10
-    lam, U = np.linalg.eigh(0.5 * (K + K.T))
-    lam = np.clip(lam, 0.0, None)
-    Xu, yu = U.T @ X, U.T @ y
-
-    def nll(log_s2):
-        v = np.exp(log_s2) + lam
-        Xw = Xu / v[:, None]
-        A = Xu.T @ Xw
-        b = np.linalg.solve(A, Xw.T @ yu)
-        r = yu - Xu @ b
-        return 0.5 * (np.sum(np.log(v)) + np.linalg.slogdet(A)[1] + np.sum(r * r / v))
-
-    lo, hi = np.log(top * 1e-12), np.log(top)
-    res = scipy.optimize.minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
-    return float(np.exp(res.x))
-
-
-def delta_cov(h, x, cov) -> np.ndarray:
-    """Covariance of h(x) by linearisation with a central-difference Jacobian."""
-    x = np.asarray(x, float)
-    step = np.maximum(np.sqrt(np.clip(np.diag(cov), 0, None)) * 1e-2, 1e-10 * np.maximum(1, np.abs(x)))
-    cols = []
-    for i in range(x.size):
-        e = np.zeros_like(x)
-        e[i] = step[i]
-        cols.append((h(x + e) - h(x - e)) / (2 * step[i]))
-    J = np.stack(cols, axis=1)
-    J = np.where(np.isfinite(J), J, 0.0)
-    return J @ cov @ J.T
-
-
 
 
 def forward_parameters(axes, sensitivity, bias, k2, misalignment) -> dict:

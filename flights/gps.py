@@ -27,42 +27,19 @@ RTK errors over about a minute).
 from __future__ import annotations
 
 import itertools
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from imurig.flights import earth
-from imurig.flights.truth import FlightTruth, offset_position
+from imurig.flights.truth import offset_position
 from scipy import signal
 
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import FlightTruth, GpsFixes
 
 MODES = ("standalone", "differential", "rtk")
 CEP_TO_SIGMA = 1.0 / 1.1774
 DELFT_REFERENCE = (52.0, 4.37, 45.0)   # DGPS/RTK base: the Geodesy institute roof (seed 5.2)
-
-
-@dataclass(frozen=True)
-class GpsFixes:
-    """Fixes of one receiver run. time_s (N,) IMU-clock time tags; lat_rad, lon_rad, h_m (N,)
-    antenna position; v_N (N,3) m/s antenna velocity; sigma_pos_N, sigma_vel_N (N,3) the
-    receiver's reported 1-σ per NED axis; valid (N,) False in outages (values NaN there);
-    t_true_s (N,) the epoch each fix refers to (truth, for tests and reports)."""
-
-    time_s: np.ndarray
-    lat_rad: np.ndarray
-    lon_rad: np.ndarray
-    h_m: np.ndarray
-    v_N: np.ndarray
-    sigma_pos_N: np.ndarray
-    sigma_vel_N: np.ndarray
-    mode: str
-    valid: np.ndarray
-    t_true_s: np.ndarray
-    meta: dict = field(default_factory=dict)
-
-    @property
-    def n(self) -> int:
-        return int(self.time_s.size)
 
 
 @dataclass(frozen=True)
@@ -152,7 +129,9 @@ class GpsReceiver:
         return out
 
     def measure(self, truth: FlightTruth, rng: np.random.Generator) -> GpsFixes:
-        """Fixes of this receiver along ``truth`` (equations in the module docstring)."""
+        """Fixes of this receiver along ``truth`` (equations in the module docstring): geodetic
+        :class:`~imurig.kernel.navdata.GpsFixes` whose ``time_s`` are the logger's IMU-clock tags (time of
+        validity + latency + offset + jitter, quantised), ``t_true_s`` the epochs they refer to."""
         if self.rate_hz > truth.rate_hz:
             raise ConfigError(f"GPS rate {self.rate_hz:g} Hz is above the IMU rate {truth.rate_hz:g} Hz; the "
                               "logger time-tags fixes on the IMU clock, so use a GPS rate <= the IMU rate")

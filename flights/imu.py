@@ -21,11 +21,11 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from imurig.flights.truth import FlightTruth
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
 
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import FlightTruth
 from imurig.kernel.recording import Recording
 
 FLIGHT_SCAN = ("acc_x", "acc_y", "acc_z", "gyro_p", "gyro_q", "gyro_r", "mag_x", "mag_y", "mag_z",
@@ -82,6 +82,9 @@ def measure_flight(truth: FlightTruth, lab: ImuLab, seed: np.random.SeedSequence
     if C.shape != (3, 3) or not np.allclose(C @ C.T, np.eye(3), atol=1e-9) or np.linalg.det(C) < 0:
         raise ConfigError("C_BC must be a proper rotation matrix (3x3, orthonormal, det +1)")
     for name in ("f_B", "w_IB_B", "B_B", "T_imu_K"):
+        if getattr(truth, name) is None:
+            raise ConfigError(f"truth.{name} is missing: the sensor chain needs the field at the magnetometer "
+                              "and the IMU temperature (a flight truth, not a closed-form trajectory)")
         if not np.all(np.isfinite(getattr(truth, name))):
             raise ConfigError(f"truth.{name} has non-finite values; rebuild the truth")
     rig = rig_recording(truth, C)

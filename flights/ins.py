@@ -32,6 +32,7 @@ from imurig.flights import earth as E
 from scipy.integrate import solve_ivp
 
 from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.navdata import SAMPLE_SEMANTICS, FlightTruth
 
 
 # --- pre-integration -----------------------------------------------------------------------------
@@ -61,7 +62,6 @@ def _check_imu(name, a, n=None):
     return a
 
 
-SAMPLE_SEMANTICS = ("held", "instantaneous")
 
 
 def preintegrate(time_s, w_IB_B, f_B, samples_per_step: int, samples: str = "instantaneous") -> Increments:
@@ -236,29 +236,11 @@ def state_at(truth, i: int) -> NavState:
 
 
 # --- closed-form trajectories for tests ------------------------------------------------------------
-@dataclass(frozen=True)
-class KinematicTruth:
-    """A trajectory with its exact IMU signals, field names as in ``FlightTruth``."""
-
-    time_s: np.ndarray
-    rate_hz: float
-    lat_rad: np.ndarray
-    lon_rad: np.ndarray
-    h_m: np.ndarray
-    v_N: np.ndarray
-    q_NB: np.ndarray
-    f_B: np.ndarray
-    w_IB_B: np.ndarray
-    lever_gps_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    lever_mag_B: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    phases: tuple = ()
-    vehicle: str = "kinematic"
-    meta: dict = field(default_factory=dict)
-
-
 def kinematic_truth(duration_s, rate_hz, lat0_rad, lon0_rad, h0_m, v_fn, a_fn, euler_fn, euler_rate_fn,
-                    phases=()) -> KinematicTruth:
-    """Exact IMU signals along a prescribed trajectory on the WGS-84 ellipsoid.
+                    phases=()) -> FlightTruth:
+    """Exact IMU signals along a prescribed trajectory on the WGS-84 ellipsoid, as a
+    :class:`~imurig.kernel.navdata.FlightTruth` (vehicle "kinematic", samples instantaneous, no
+    magnetic field or temperature, lever arms zero).
 
     ``v_fn(t)``/``a_fn(t)`` give v_N and dv_N/dt (N, 3); ``euler_fn(t)``/``euler_rate_fn(t)`` give
     (roll, pitch, yaw) and their rates (N, 3). Position is integrated from v_N with DOP853
@@ -291,18 +273,17 @@ def kinematic_truth(duration_s, rate_hz, lat0_rad, lon0_rad, h0_m, v_fn, a_fn, e
                        -np.sin(r) * dp + np.cos(r) * np.cos(p) * dy], axis=1)
     f_B = np.einsum("nij,nj->ni", C_BN, f_N)
     w_IB_B = w_NB_B + np.einsum("nij,nj->ni", C_BN, w_ie + w_en)
-    return KinematicTruth(t, float(rate_hz), lat, lon, h, v, q, f_B, w_IB_B, phases=tuple(phases))
+    return FlightTruth(time_s=t, rate_hz=float(rate_hz), lat_rad=lat, lon_rad=lon, h_m=h, v_N=v, q_NB=q, f_B=f_B,
+                       w_IB_B=w_IB_B, phases=tuple(phases), vehicle="kinematic",
+                       meta={"imu_samples": "instantaneous"})
 
 
 def sample_semantics(truth) -> str:
     """What the IMU samples of ``truth`` are: ``"held"`` (zero-order hold over [t_k, t_k+1): the
     MuJoCo flight truth, the sensor chain) or ``"instantaneous"`` (closed-form trajectories and the
-    analytic static tests). Read from ``truth.meta["imu_samples"]``; a :class:`KinematicTruth`
-    without it is instantaneous, anything else held."""
+    analytic static tests). Read from ``truth.meta["imu_samples"]``; held without it."""
     m = getattr(truth, "meta", None) or {}
-    if "imu_samples" in m:
-        return str(m["imu_samples"])
-    return "instantaneous" if isinstance(truth, KinematicTruth) else "held"
+    return str(m.get("imu_samples", "held"))
 
 
 def nav_errors(sol: NavSolution, truth, idx) -> dict:
@@ -317,7 +298,7 @@ def nav_errors(sol: NavSolution, truth, idx) -> dict:
 
 def s_turn_truth(duration_s=300.0, rate_hz=100.0, *, lat0_rad=52.0 * math.pi / 180, lon0_rad=4.37 * math.pi / 180,
                  h0_m=1000.0, speed_m_s=100.0, yaw_amp_rad=0.0, yaw_period_s=120.0, yaw0_rad=0.0,
-                 pitch_amp_rad=0.0, pitch_period_s=40.0, climb_amp_m_s=0.0) -> KinematicTruth:
+                 pitch_amp_rad=0.0, pitch_period_s=40.0, climb_amp_m_s=0.0) -> FlightTruth:
     """A closed-form manoeuvre: level flight at ``speed_m_s`` with S-turns
     ψ(t) = ψ0 + A sin(2πt/P) (bank φ = atan(V ψ̇ / g), the coordinated-turn bank), a pitch
     oscillation θ(t) = θ_a sin(2πt/P_θ) and a vertical velocity v_d = −c sin(2πt/P_θ).

@@ -92,7 +92,7 @@ def gramian(truth, *, scale_factors=True, misalignments=True, nav_rate_hz=10.0, 
             H = np.vstack(rows) @ Phi0 @ D
             G += H.T @ H
         F = np.zeros((n, n))
-        F[:18, :18] = filt._F(x, f_B, w_B, C)
+        F[:18, :18] = filt.error_dynamics(x, f_B, w_B, C)
         k = 18
         if scale_factors:
             F[3:6, 18:21] = -C * f_B

@@ -34,7 +34,8 @@ from imurig.flights.phases import (
     default_phases,
 )
 from imurig.flights.pilot import Pilot
-from imurig.flights.truth import FlightTruth, cabin_temperature_K, truth_from_kinematics
+from imurig.flights.truth import cabin_temperature_K, truth_from_kinematics
+from imurig.kernel.navdata import FlightTruth
 from imurig.kernel.progress import progress
 
 __all__ = [

@@ -43,7 +43,9 @@ import numpy as np
 from imurig.flights import earth
 
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import FlightTruth
 from imurig.kernel.site import decimal_year, parse_time
+from imurig.kernel.units import T_REF_K
 
 DEG = np.pi / 180.0
 
@@ -64,59 +66,6 @@ class BodyKinematics:
     wdot_NB_B: np.ndarray
     rate_hz: float
     controls: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class FlightTruth:
-    """Navigation truth at the IMU on the IMU clock. Body frame B = FRD (x forward, y right, z down); N = local NED."""
-
-    time_s: np.ndarray      # (N,) s, uniform at rate_hz
-    rate_hz: float
-    lat_rad: np.ndarray     # (N,) WGS-84 geodetic latitude of the IMU
-    lon_rad: np.ndarray     # (N,)
-    h_m: np.ndarray         # (N,) ellipsoidal height
-    v_N: np.ndarray         # (N,3) m/s IMU velocity w.r.t. Earth, NED
-    q_NB: np.ndarray        # (N,4) wxyz, rotates B vectors into N: x_N = C(q_NB) x_B
-    f_B: np.ndarray         # (N,3) m/s^2 true specific force at the IMU (WGS-84 normal gravity, Coriolis, transport)
-    w_IB_B: np.ndarray      # (N,3) rad/s true inertial angular rate (body rate + Earth rate + transport rate)
-    B_B: np.ndarray         # (N,3) T IGRF field at the magnetometer, body axes (sensor errors NOT included)
-    T_imu_K: np.ndarray     # (N,) IMU temperature
-    lever_gps_B: np.ndarray  # (3,) m GPS antenna relative to the IMU, body axes
-    lever_mag_B: np.ndarray  # (3,) m magnetometer relative to the IMU
-    phases: tuple           # ((name, t_start_s, t_end_s), ...) manoeuvre labels
-    vehicle: str            # "citation" | "van" | "fixture"
-    meta: dict              # start_time (ISO), seed, plan, etc.
-
-    @property
-    def n(self) -> int:
-        return int(self.time_s.size)
-
-    def euler(self):
-        """(roll, pitch, yaw) rad, each (N,)."""
-        return earth.euler_from_q(self.q_NB)
-
-    def phase_mask(self, name: str) -> np.ndarray:
-        """Boolean (N,) mask of the samples in every phase called ``name``."""
-        m = np.zeros(self.n, bool)
-        for nm, a, b in self.phases:
-            if nm == name:
-                m |= (self.time_s >= a) & (self.time_s < b)
-        return m
-
-    def slice(self, start_s: float, stop_s: float) -> FlightTruth:
-        """The samples with start_s <= t < stop_s (time kept on the same clock)."""
-        i = (self.time_s >= start_s) & (self.time_s < stop_s)
-        kw = {k: (getattr(self, k)[i] if isinstance(getattr(self, k), np.ndarray)
-                  and getattr(self, k).shape[:1] == (self.n,) else getattr(self, k))
-              for k in self.__dataclass_fields__}
-        kw["phases"] = tuple((nm, max(a, start_s), min(b, stop_s)) for nm, a, b in self.phases
-                             if b > start_s and a < stop_s)
-        return FlightTruth(**kw)
-
-    def gps_antenna_position(self):
-        """(lat, lon, h) of the GPS antenna: IMU position + C_NB lever_gps_B (exact on the ellipsoid
-        to first order in lever/R, i.e. < 1e-9 m for a few-metre lever arm)."""
-        return offset_position(self.lat_rad, self.lon_rad, self.h_m, earth.C_from_q(self.q_NB) @ self.lever_gps_B)
 
 
 def offset_position(lat, lon, h, d_N):
@@ -318,7 +267,7 @@ def static_tests_truth(attitudes_deg=((0.0, 0.0), (-30.0, 0.0), (0.0, -30.0)), d
                        transition_s: float = 10.0, rate_hz: float = 100.0, heading_deg: float = 234.0,
                        origin_deg: tuple = (52.31, 4.76, 43.0), start_time: str = "2005-06-26T08:00:00+02:00",
                        lever_gps_B=(0.5, 0.3, -1.1), lever_mag_B=(0.4, 0.0, 0.0),
-                       T_imu_K: float = 298.15) -> FlightTruth:
+                       T_imu_K: float = T_REF_K) -> FlightTruth:
     """The static attitude tests of the paper's section 4.2: the IMU on a fixture, parked, at
     (roll, pitch) = 0/0, −30/0, 0/−30 deg for ``dwell_s`` each, turned between them about its
     own centre by a minimum-jerk profile of ``transition_s`` (analytic kinematics, exact):

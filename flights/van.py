@@ -243,7 +243,7 @@ def drive(plan: VanPlan | None = None, substeps: int = 1):
 
 
 def simulate_van(plan: VanPlan | None = None, substeps: int = 1):
-    """The van's ground test as a :class:`imurig.flights.truth.FlightTruth` (vehicle "van")."""
+    """The van's ground test as a :class:`imurig.kernel.navdata.FlightTruth` (vehicle "van")."""
     plan = plan or VanPlan()
     kin, phases, sites, wall = drive(plan, substeps)
     T = cabin_temperature_K(kin.time_s, -kin.p_N[:, 2], start_K=295.15, warm_K=4.0, lapse_K_per_m=0.0)

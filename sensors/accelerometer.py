@@ -17,9 +17,14 @@ accelerometer's own temperature (K).
 i_noise: output current noise in the datasheet's three bands.
 
 Lever arm: the triad senses at r_C (``position_C_m``, m, case frame) from the case reference
-point where the rig gives f_C; rigid-body kinematics add (see :func:`lever_arm_specific_force`)
+point where the rig gives f_C; rigid-body kinematics add (the chain's
+:class:`imurig.sensors.effects.lever_arm.LeverArm` with r_C = ``position_C_m``)
 
     f_C(r) = f_C + dw/dt x r_C + w x (w x r_C)           [m/s^2, (n,3)],  w = w_C (rad/s)
+
+M, k2 and kb_i1 are the sensor-stage effects axis_misalignment, scale_nonlinearity and
+temperature_drift of :mod:`imurig.sensors.effects` (:meth:`QFlexTriad.sensor_effects`): the triad
+injects them; the effect objects own their diagnosis and truth maps.
 
 Datasheet units (mA/g, ug, ug/g^2, ppm/C, mrad) appear only in ``from_datasheet``.
 """
@@ -29,8 +34,13 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.kernel.units import G_STANDARD
-from imurig.sensors.noise import band_noise
+from imurig.kernel.units import G_STANDARD, T_REF_K
+from imurig.sensors.effects.axis_misalignment import AxisMisalignment
+from imurig.sensors.effects.lever_arm import LeverArm
+from imurig.sensors.effects.lever_arm import lever_arm_specific_force  # noqa: F401  (its home: the effect)
+from imurig.sensors.effects.scale_nonlinearity import ScaleNonlinearity
+from imurig.sensors.effects.temperature_drift import TemperatureDrift
+from imurig.sensors.noise import band_noise, sampled_bands, window_mean_variance
 
 AXES = ("x", "y", "z")
 
@@ -56,7 +66,7 @@ class QFlexTriad:
     hysteresis_width_K: float = 4.0
     load_resistor_ohm: np.ndarray = field(default_factory=lambda: np.full(3, 750.0))
     noise_bands: tuple = ((0.0, 10.0, 10e-9), (10.0, 500.0, 100e-9), (500.0, 10e3, 2e-6))
-    reference_temperature_K: float = 298.15
+    reference_temperature_K: float = T_REF_K
     noise_enabled: bool = True
     #: where the triad senses, relative to the case reference point (the rig's 'imu' site), in C (m)
     position_C_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -110,6 +120,16 @@ class QFlexTriad:
         )
         return cls(load_resistor_ohm=np.full(3, load_resistor_ohm), noise_bands=bands, **base)
 
+    # ------------------------------------------------------------- effects
+    def sensor_effects(self) -> tuple:
+        """The sensor-stage effects this triad injects, with its parameters (stage "sensor")."""
+        return (AxisMisalignment(self.misalignment_rad), ScaleNonlinearity(self.k2_per_m_s2),
+                TemperatureDrift(self.bias_tempco_m_s2_per_K, self.reference_temperature_K))
+
+    def lever_arm(self) -> LeverArm:
+        """The specific-force effect of the triad's offset ``position_C_m`` from the reference point."""
+        return LeverArm(self.position_C_m)
+
     # ------------------------------------------------------------- physics
     def nominal_sensitivity_V_per_m_s2(self) -> np.ndarray:
         """What the lab would use to turn volts into indicated m/s^2: nominal K1 * R_L."""
@@ -142,19 +162,14 @@ class QFlexTriad:
         out = np.zeros((n, 3))
         if not self.noise_enabled:
             return out
-        for lo, hi, rms in self.noise_bands:
-            if rms <= 0:
-                continue
-            if averaged:
-                if lo >= fs / 2:
-                    continue
-                rms = rms * np.sqrt((min(hi, fs / 2) - lo) / (hi - lo))
-                hi = min(hi, fs / 2)
-            if lo >= fs / 2:
-                out += rng.standard_normal((n, 3)) * rms
-            else:
-                out += band_noise(rng, (n, 3), fs, (lo, min(hi, fs / 2)), rms)
+        for lo, hi, rms in sampled_bands(self.noise_bands, fs, averaged):
+            out += band_noise(rng, (n, 3), fs, (lo, hi), rms)
         return out
+
+    def window_mean_variance_A2(self, fs: float, n_window: int, averaged: bool = False) -> float:
+        """Variance (A^2) of the mean of ``n_window`` logged samples of one axis' current noise
+        (long-window limit, :func:`imurig.sensors.noise.window_mean_variance`); 0 with the noise off."""
+        return window_mean_variance(self.noise_bands, fs, n_window, averaged) if self.noise_enabled else 0.0
 
     def output_voltage(self, f_C: np.ndarray, fs: float, rng: np.random.Generator,
                        temperature_K=None, hysteresis=0.0) -> np.ndarray:
@@ -171,16 +186,6 @@ class QFlexTriad:
         return d
 
 
-def lever_arm_specific_force(w_C: np.ndarray, time_s: np.ndarray, r_C) -> np.ndarray:
-    """Specific force added at r_C (m, (3,) or (n,3), case frame C) by the case's rotation:
-    dw/dt x r_C + w_C x (w_C x r_C) [m/s^2, (n,3)]; w_C (n,3) rad/s, dw/dt by central
-    differences on ``time_s`` (n,) s."""
-    w = np.asarray(w_C, float)
-    r = np.broadcast_to(np.asarray(r_C, float), w.shape)
-    a = np.gradient(w, np.asarray(time_s, float), axis=0)
-    return np.cross(a, r) + np.cross(w, np.cross(w, r))
-
-
 @dataclass
 class CurrentTemperatureSensor:
     """A 1 uA/K current-output temperature sensor over a load resistor (Q-Flex internal, AD590-like).
@@ -190,7 +195,7 @@ class CurrentTemperatureSensor:
 
     uA_per_K: float = 1.0
     uA_at_reference: float = 298.2
-    reference_temperature_K: float = 298.15
+    reference_temperature_K: float = T_REF_K
     load_resistor_ohm: float = 10e3
     offset_K: float = 0.0  # absolute error of this sensor (datasheet +-3 C before calibration)
     noise_V_rms: float = 50e-6

@@ -29,6 +29,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.adc_quantisation import variance_V2
 from imurig.sensors.effects.base import ScanSlot
+from imurig.sensors.effects.channel_skew import ChannelSkew
 
 GROUNDINGS = ("GRSE", "NRSE", "DIFF")
 
@@ -72,6 +73,11 @@ class DAQ6036E:
         """The settling crosstalk effect of this converter (:mod:`imurig.sensors.effects.adc_crosstalk`)."""
         return AdcCrosstalk(settling_tau_s=self.settling_tau_s, enabled=self.crosstalk_enabled)
 
+    @property
+    def skew(self) -> ChannelSkew:
+        """The channel skew of this converter (:mod:`imurig.sensors.effects.channel_skew`)."""
+        return ChannelSkew(enabled=self.skew_enabled)
+
     def crosstalk_coefficient(self) -> float:
         """Fraction of the previous channel's difference left when this one is sampled."""
         return self.crosstalk.coefficient(self.mux_frequency_hz)
@@ -99,7 +105,7 @@ class DAQ6036E:
             phase = rng.uniform(0, 2 * np.pi)
             common += self.ground_loop_V * (np.sin(2 * np.pi * self.mains_hz * time_s + phase)
                                             + 0.3 * np.sin(2 * np.pi * 3 * self.mains_hz * time_s))
-        crosstalk = self.crosstalk
+        crosstalk, skew = self.crosstalk, self.skew
         c = crosstalk.coefficient(self.mux_frequency_hz)
         q = self.lsb_V
         lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
@@ -108,10 +114,8 @@ class DAQ6036E:
         # one channel at a time (vectorised over time) keeps memory at a few (n,) arrays
         for j, name in enumerate(self.scan_list):
             u = analog[name] + common
-            if self.skew_enabled and slope and name in slope:
-                # slot j is sampled j / f_mux after the scan starts: first-order shift of the
-                # noise-free signal (wideband noise is not differentiated; its samples stay i.i.d.)
-                u = u + slope[name] * (j / self.mux_frequency_hz)
+            if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
+                u = skew.inject(u, ScanSlot(j, self.mux_frequency_hz, slope_V_s=slope[name]))
             u_in = u
             if c > 0:
                 if j == 0:  # the first slot follows the last slot of the previous scan

@@ -1,15 +1,21 @@
 """The sensor chain: truth at the IMU -> sensor physics -> analog lines -> ADC -> Recording.
 
-    rig Recording (set-points + truth signals f_C, w_C, B_C)
-      + disturbances (pump, people)       -> specific force at the IMU      [m/s^2]
-      -> Q-Flex triad, fluxgate, temperature sensors -> analog volts       [V]
-      + loose cable spikes                 -> analog volts                 [V]
-      -> DAQ-6036E (skew, ground loop, crosstalk, noise, 16-bit)           [V, quantised]
-      = Recording with channels acc_*, mag_*, temp_*
+The chain composes effect objects (:mod:`imurig.sensors.effects`) stage by stage, as dm_control
+composes corruptors:
 
-Every stage draws from its own generator (:func:`imurig.sensors.noise.child_rng`), keyed
-by the stage name, so one seed reproduces a dataset bit for bit, and switching one effect
-on or off leaves every other stage's realisation unchanged.
+    rig Recording (set-points + truth signals f_C, w_C, B_C)
+      specific_force: pump, people (+ the triad's lever arm)  -> specific force at the IMU [m/s^2]
+      sensor:         Q-Flex triad, fog triad, fluxgate, temperature sensors (their own
+                      parameters: misalignment, nonlinearity, temperature drift ...) -> analog volts [V]
+      analog:         slip rings (every IMU line), loose cable (one line)               [V]
+      conversion:     DAQ-6036E (channel skew, ground loop, crosstalk, noise, 16 bit)   [V, quantised]
+      events:         timers tag the rig's pulses                                      [s]
+      = Recording with channels acc_*, mag_*, gyro_*, temp_* (and pulse_* events)
+
+Every effect draws from its own generator (:func:`imurig.sensors.noise.child_rng`), keyed by the
+effect's stream name ("pump", "people", "cable", "slip_<line>", "adc", each sensor's name ...),
+so one seed reproduces a dataset bit for bit, and switching one effect on or off leaves every
+other stage's realisation unchanged.
 """
 from __future__ import annotations
 
@@ -17,20 +23,26 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
+from imurig.kernel.site import parse_time
 from imurig.sensors.accelerometer import AXES, CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration, SlipRingNoise
+from imurig.sensors.effects.base import ChainContext
 from imurig.sensors.gyro import AXES as GYRO_AXES
 from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.magnetometer import FluxgateTriad
-from imurig.sensors.timers import EventTimer, gps_mark_timer, hp6700_counter
 from imurig.sensors.noise import child_rng
-from imurig.kernel.site import parse_time
+from imurig.sensors.thermal import first_order_lag, hysteresis_state
+from imurig.sensors.timers import EventTimer, gps_mark_timer, hp6700_counter
 
 DEFAULT_SCAN = ("acc_x", "mag_x", "acc_y", "mag_y", "acc_z", "mag_z",
                 "temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box")
 TURN_TABLE_SCAN = ("gyro_p", "gyro_q", "gyro_r", "acc_x", "acc_y", "acc_z", "temp_box", "pulse")
+#: the stages a lab's own disturbance effects may act at (conversion effects are the converter's
+#: settings, sensor-stage effects the sensor models' parameters)
+LAB_STAGES = ("specific_force", "analog")
 
 
 @dataclass
@@ -56,8 +68,24 @@ class ThermalLags:
 
 
 @dataclass
+class SensorTemperatures:
+    """The sensors' temperatures (K, (n,)) and the accelerometers' hysteresis state during a record."""
+
+    acc: np.ndarray
+    gyro: np.ndarray
+    box: np.ndarray
+    h_acc: np.ndarray | float
+    chamber: bool
+
+
+@dataclass
 class ImuLab:
-    """The MiniSAR IMU, its junction box and the acquisition set-up, as one switchable chain."""
+    """The MiniSAR IMU, its junction box and the acquisition set-up, as one switchable chain.
+
+    The lab's disturbances are effect objects: ``pump`` and ``people`` (specific force),
+    ``slip_rings`` and ``cable`` (analog lines), and any further ones in ``effects`` (stage
+    "specific_force" or "analog"); :meth:`stage_effects` lists them per stage in chain order.
+    """
 
     accelerometers: QFlexTriad = field(default_factory=QFlexTriad.from_datasheet)
     magnetometer: FluxgateTriad = field(default_factory=FluxgateTriad.from_datasheet)
@@ -73,6 +101,14 @@ class ImuLab:
     slip_rings: SlipRingNoise = field(default_factory=SlipRingNoise)
     thermal_lags: ThermalLags = field(default_factory=ThermalLags)
     timers: tuple[EventTimer, ...] = field(default_factory=lambda: (gps_mark_timer(), hp6700_counter()))
+    effects: tuple = ()
+
+    def __post_init__(self):
+        for e in self.effects:
+            if getattr(e, "stage", None) not in LAB_STAGES:
+                raise ConfigError(f"effect '{getattr(e, 'name', e)}' acts at stage '{getattr(e, 'stage', None)}'; a "
+                                  f"lab's own effects act at {LAB_STAGES} (conversion effects are the converter's "
+                                  "settings, sensor-stage effects the sensor models' parameters)")
 
     @classmethod
     def draw(cls, rng: np.random.Generator, **overrides) -> "ImuLab":
@@ -82,104 +118,146 @@ class ImuLab:
         kw.update(overrides)
         return cls(**kw)
 
+    def stage_effects(self, stage: str) -> list:
+        """The lab's effects acting at ``stage``, in chain order (the named ones first).
+
+        "conversion": the converter's (crosstalk, channel skew); "sensor": the accelerometer
+        triad's parameters (misalignment, nonlinearity, temperature drift)."""
+        if stage == "conversion":
+            return [self.adc.skew, self.adc.crosstalk]
+        if stage == "sensor":
+            return list(self.accelerometers.sensor_effects())
+        named = {"specific_force": (self.pump, self.people), "analog": (self.slip_rings, self.cable)}.get(stage, ())
+        return [*named, *(e for e in self.effects if e.stage == stage)]
+
+    # ------------------------------------------------------------------ the chain
     def measure(self, rig: Recording, seed: np.random.SeedSequence) -> Recording:
         """Add measured channels to a rig recording; returns a new Recording."""
+        ctx = self._context(rig)
+        f_dist = self._specific_force(ctx, seed)
+        temps = self._temperatures(rig)
+        analog, slope, used = self._sensor_lines(rig, ctx, f_dist, temps, seed)
+        ctx.imu_lines = tuple(analog)
+        for line in rig.meta.get("analog_lines", []):
+            analog[line] = rig.truth_signals[line]
+        self._analog(analog, ctx, seed)
+        volts, adc_report = self.adc.convert(analog, rig.time_s, child_rng(seed, "adc"), slope)
+        events = self._events(rig, seed)
+        return self._recording(rig, seed, volts, adc_report, f_dist, temps, used, events)
+
+    def _context(self, rig: Recording) -> ChainContext:
         t = rig.time_s
-        fs = float(rig.meta["sample_rate_hz"])
         start = parse_time(rig.meta["start_time"])
         hour = (start.hour + start.minute / 60 + start.second / 3600 + (t - t[0]) / 3600.0) % 24.0
+        sens = dict(zip((f"acc_{a}" for a in AXES), self.accelerometers.nominal_sensitivity_V_per_m_s2()))
+        return ChainContext(time_s=t, sample_rate_hz=float(rig.meta["sample_rate_hz"]), hour_of_day=hour,
+                            truth_signals=rig.truth_signals, adc=self.adc, sensitivity_V_per_SI=sens)
+
+    def _specific_force(self, ctx: ChainContext, seed) -> np.ndarray:
+        """Specific-force stage: the disturbances' f (n, 3) m/s^2 at the IMU, shared by the sensors."""
+        f = np.zeros((ctx.time_s.size, 3))
+        for eff in self.stage_effects("specific_force"):
+            f = eff.inject(f, ctx, child_rng(seed, eff.stream))
+        return f
+
+    def _temperatures(self, rig: Recording) -> SensorTemperatures:
+        t, ts = rig.time_s, rig.truth_signals
+        if "T_air" in ts:  # a thermal chamber: each sensor group lags the air temperature
+            T_acc = first_order_lag(ts["T_air"], t, self.thermal_lags.accelerometers_s)
+            return SensorTemperatures(acc=T_acc, gyro=first_order_lag(ts["T_air"], t, self.thermal_lags.gyros_s),
+                                      box=first_order_lag(ts["T_air"], t, self.thermal_lags.box_sensor_s),
+                                      h_acc=hysteresis_state(T_acc, self.accelerometers.hysteresis_width_K,
+                                                             float(rig.meta["sample_rate_hz"])), chamber=True)
+        T = self.climate.imu_temperature_K(t)
+        return SensorTemperatures(acc=T, gyro=T, box=T, h_acc=0.0, chamber=False)
+
+    def _sensor_lines(self, rig, ctx, f_dist, temps, seed) -> tuple[dict, dict, list]:
+        """Sensor stage: the analog line of every scanned sensor (V), the noise-free slopes (V/s)
+        for the converter's skew, and which sensor groups were used."""
         scan = set(self.adc.scan_list)
-        ts = rig.truth_signals
+        analog, slope, used = {}, {}, []
 
         def wanted(prefix, axes):
             return any(f"{prefix}_{a}" in scan for a in axes)
 
-        f_dist = (self.pump.specific_force(t, hour, fs, child_rng(seed, "pump"))
-                  + self.people.specific_force(t, hour, fs, child_rng(seed, "people")))
-        if "T_air" in ts:  # a thermal chamber: each sensor group lags the air temperature
-            from imurig.sensors.thermal import first_order_lag, hysteresis_state
-
-            T_acc = first_order_lag(ts["T_air"], t, self.thermal_lags.accelerometers_s)
-            T_gyro = first_order_lag(ts["T_air"], t, self.thermal_lags.gyros_s)
-            T_box = first_order_lag(ts["T_air"], t, self.thermal_lags.box_sensor_s)
-            h_acc = hysteresis_state(T_acc, self.accelerometers.hysteresis_width_K, fs)
-        else:
-            T_acc = T_gyro = T_box = self.climate.imu_temperature_K(t)
-            h_acc = 0.0
-        T_imu = T_acc
-        analog, slope, used = {}, {}, []
-        if wanted("acc", AXES):
-            f_C = np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1)
-            acc = self.accelerometers
-            if np.any(acc.position_C_m) and "w_C_x" in ts:  # the triad off the case reference point
-                from imurig.sensors.accelerometer import lever_arm_specific_force
-
-                f_C = f_C + lever_arm_specific_force(np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1), t,
-                                                     acc.position_C_m)
-            v = acc.ideal_voltage(f_C + f_dist, T_acc, h_acc)
-            d = np.gradient(v, t, axis=0)
-            v += acc.noise_current(t.size, fs, child_rng(seed, "accelerometers"),
-                                   averaged=bool(rig.meta.get("averaged_logging"))) * acc.load_resistor_ohm
-            for j, a in enumerate(AXES):
-                analog[f"acc_{a}"], slope[f"acc_{a}"] = v[:, j], d[:, j]
-            used.append("accelerometers")
-        if wanted("mag", AXES):
-            B_C = np.stack([ts[f"B_C_{a}"] for a in AXES], axis=1)
-            v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
-            d = np.gradient(v, t, axis=0)  # fluxgate noise is small: no separate noise-free path
-            for j, a in enumerate(AXES):
-                analog[f"mag_{a}"], slope[f"mag_{a}"] = v[:, j], d[:, j]
-            used.append("magnetometer")
-        if wanted("gyro", GYRO_AXES):
-            w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
-            g = self.gyros
-            f_gyro = (np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1) + f_dist
-                      if np.any(g.g_sensitivity_rad_s_per_m_s2) else None)
-            v = g.ideal_voltage(w_C, T_gyro, f_gyro)
-            d = np.gradient(v, t, axis=0)
-            grng = child_rng(seed, "gyros")
-            for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
-                v[blk] += g.noise_rate(blk.stop - blk.start, fs, grng) * g.scale_V_per_rad_s
-            for j, a in enumerate(GYRO_AXES):
-                analog[f"gyro_{a}"], slope[f"gyro_{a}"] = v[:, j], d[:, j]
-            used.append("gyros")
+        for prefix, axes, group, lines in (("acc", AXES, "accelerometers", self._accelerometer_volts),
+                                           ("mag", AXES, "magnetometer", self._magnetometer_volts),
+                                           ("gyro", GYRO_AXES, "gyros", self._gyro_volts)):
+            if wanted(prefix, axes):
+                v, d = lines(rig, ctx, f_dist, temps, seed)
+                for j, a in enumerate(axes):
+                    analog[f"{prefix}_{a}"], slope[f"{prefix}_{a}"] = v[:, j], d[:, j]
+                used.append(group)
         for name, sensor in self.temp_sensors.items():
             if name in scan:
-                analog[name] = sensor.voltage(T_box if name == "temp_box" else T_acc, child_rng(seed, name))
-        if self.slip_rings.enabled and "spin_angle" in ts:
-            # every IMU line crosses a slip ring; lines from the table itself do not
-            for name in list(analog):
-                analog[name] = analog[name] + self.slip_rings.voltage(ts["spin_angle"], child_rng(seed, "slip_" + name))
-        for line in rig.meta.get("analog_lines", []):
-            analog[line] = ts[line]
-        if self.cable.enabled:
-            if self.cable.channel not in analog:
-                raise ValueError(f"loose cable on '{self.cable.channel}', which is not an analog line; "
-                                 f"choose one of {sorted(analog)}")
-            analog[self.cable.channel] = analog[self.cable.channel] + self.cable.voltage(
-                t.size, fs, child_rng(seed, "cable"))
+                analog[name] = sensor.voltage(temps.box if name == "temp_box" else temps.acc, child_rng(seed, name))
+        return analog, slope, used
 
-        volts, adc_report = self.adc.convert(analog, t, child_rng(seed, "adc"), slope)
+    def _accelerometer_volts(self, rig, ctx, f_dist, temps, seed):
+        ts, t = rig.truth_signals, rig.time_s
+        acc = self.accelerometers
+        f_C = acc.lever_arm().inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
+        v = acc.ideal_voltage(f_C + f_dist, temps.acc, temps.h_acc)
+        d = np.gradient(v, t, axis=0)
+        v += acc.noise_current(t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"),
+                               averaged=bool(rig.meta.get("averaged_logging"))) * acc.load_resistor_ohm
+        return v, d
 
-        channels = dict(rig.channels)
-        units = dict(rig.units)
+    def _magnetometer_volts(self, rig, ctx, f_dist, temps, seed):
+        B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
+        v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
+        return v, np.gradient(v, rig.time_s, axis=0)  # fluxgate noise is small: no separate noise-free path
+
+    def _gyro_volts(self, rig, ctx, f_dist, temps, seed):
+        ts, t, g = rig.truth_signals, rig.time_s, self.gyros
+        w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
+        f_gyro = (np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1) + f_dist
+                  if np.any(g.g_sensitivity_rad_s_per_m_s2) else None)
+        v = g.ideal_voltage(w_C, temps.gyro, f_gyro)
+        d = np.gradient(v, t, axis=0)
+        grng = child_rng(seed, "gyros")
+        for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
+            v[blk] += g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng) * g.scale_V_per_rad_s
+        return v, d
+
+    def _analog(self, analog: dict, ctx: ChainContext, seed) -> None:
+        """Analog stage: each effect on the lines it acts on, one random stream per line."""
+        for eff in self.stage_effects("analog"):
+            for line in eff.lines(list(analog), ctx):
+                analog[line] = eff.inject(analog[line], ctx, child_rng(seed, eff.line_stream(line)))
+
+    def _events(self, rig: Recording, seed) -> dict:
+        """Events stage: every timer tags the rig's true pulses."""
+        events = dict(rig.events)
+        if "pulse_true" in rig.events:
+            for timer in self.timers:
+                events[f"pulse_{timer.name}"] = timer.measure(rig.events["pulse_true"], child_rng(seed, timer.name))
+        return events
+
+    # ------------------------------------------------------------------ the record
+    def _recording(self, rig, seed, volts, adc_report, f_dist, temps, used, events) -> Recording:
+        channels, units = dict(rig.channels), dict(rig.units)
         for k, v in volts.items():
             channels[k] = v
             units[k] = "V"
-        quantum = {k: self.adc.lsb_V for k in volts}
-        truth_signals = dict(rig.truth_signals)
-        truth_units = dict(rig.truth_units)
-        if "T_air" in ts:
-            for k, v in (("T_acc", T_acc), ("T_gyro", T_gyro), ("T_box", T_box), ("h_acc", h_acc)):
+        truth_signals, truth_units = dict(rig.truth_signals), dict(rig.truth_units)
+        if temps.chamber:
+            for k, v in (("T_acc", temps.acc), ("T_gyro", temps.gyro), ("T_box", temps.box), ("h_acc", temps.h_acc)):
                 truth_signals[k] = v
                 truth_units[k] = "1" if k == "h_acc" else "K"
         else:
-            truth_signals["T_imu"] = T_imu
+            truth_signals["T_imu"] = temps.acc
             truth_units["T_imu"] = "K"
         if np.any(f_dist):
             for j, a in enumerate(AXES):
                 truth_signals[f"f_dist_C_{a}"] = f_dist[:, j]
                 truth_units[f"f_dist_C_{a}"] = "m/s^2"
+        return Recording(time_s=rig.time_s, channels=channels, units=units, segments=dict(rig.segments),
+                         segment_units=dict(rig.segment_units), meta=self._meta(rig, adc_report),
+                         truth=self._truth(rig, seed, used), truth_signals=truth_signals, truth_units=truth_units,
+                         channel_quantum={k: self.adc.lsb_V for k in volts}, events=events)
+
+    def _meta(self, rig: Recording, adc_report: dict) -> dict:
         meta = dict(rig.meta)
         meta["adc"] = self.adc.settings() | {"saturated_samples": adc_report["saturated_samples"]}
         meta["acc_nominal_sensitivity_V_per_m_s2"] = self.accelerometers.nominal_sensitivity_V_per_m_s2().tolist()
@@ -188,12 +266,13 @@ class ImuLab:
                                     "bias_instability_rad_s": self.gyros.bias_instability_rad_s,
                                     "bias_instability_tau_s": self.gyros.bias_instability_tau_s,
                                     "source": "VG941-3AM datasheet (random walk, bias variation); tau assumed"}
-        events = dict(rig.events)
         if "pulse_true" in rig.events:
-            for timer in self.timers:
-                events[f"pulse_{timer.name}"] = timer.measure(rig.events["pulse_true"], child_rng(seed, timer.name))
             meta["timers"] = {tm.name: tm.settings() for tm in self.timers}
         meta["temperature_sensor"] = {"uA_per_K": 1.0, "uA_at_298_15K": 298.2, "load_resistor_ohm": 10e3}
+        return meta
+
+    def _truth(self, rig: Recording, seed, used: list) -> dict:
+        scan = set(self.adc.scan_list)
         truth = dict(rig.truth or {})
         sensors = {"accelerometers": self.accelerometers.truth(), "magnetometer": self.magnetometer.truth(),
                    "gyros": self.gyros.truth()}
@@ -202,10 +281,9 @@ class ImuLab:
         truth["chain"] = {"adc": self.adc.settings(), "pump": asdict(self.pump), "people": asdict(self.people),
                           "cable": asdict(self.cable), "climate": asdict(self.climate),
                           "thermal_lags": asdict(self.thermal_lags),
-                          "slip_rings": asdict(self.slip_rings) if "spin_angle" in ts else None,
+                          "slip_rings": asdict(self.slip_rings) if "spin_angle" in rig.truth_signals else None,
                           "timers": {tm.name: tm.settings() for tm in self.timers}}
+        if self.effects:
+            truth["chain"]["effects"] = {e.name: e.settings() for e in self.effects}
         truth["seed"] = {"entropy": str(seed.entropy), "spawn_key": list(seed.spawn_key)}
-        return Recording(time_s=t, channels=channels, units=units, segments=dict(rig.segments),
-                         segment_units=dict(rig.segment_units), meta=meta, truth=truth,
-                         truth_signals=truth_signals, truth_units=truth_units, channel_quantum=quantum,
-                         events=events)
+        return truth

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy import signal
 
-from imurig.kernel.units import DEG
+from imurig.kernel.units import DEG, T_REF_K
 
 AXES = ("p", "q", "r")
 
@@ -48,7 +48,7 @@ class FOGTriad:
     bias_instability_tau_s: float = 100.0
     bias_tempco_rad_s_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
     scale_tempco_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    reference_temperature_K: float = 298.15
+    reference_temperature_K: float = T_REF_K
     nominal_scale_V_per_rad_s: float = 6e-3 / DEG
     noise_enabled: bool = True
 

@@ -1,5 +1,20 @@
-"""Coloured noise generators (vectorised, explicit Generator)."""
+"""Coloured noise generators (vectorised, explicit Generator) and the one rule for how a noise
+band appears in a sampled record.
+
+A sensor's noise is given as bands (lo, hi, rms) of Gaussian noise (Hz, Hz, rms in the sensor's
+unit). :func:`sampled_bands` folds them into the sampled record (the one place that rule is
+written; :func:`band_noise` draws them, :func:`window_mean_variance` states the variance of a
+window mean, the filter priors take their low-frequency density):
+
+- direct sampling (no anti-alias filter): a band above f_s/2 aliases into the record as white
+  noise of its full rms, (0, f_s/2, rms); a band across f_s/2 keeps its rms in (lo, f_s/2);
+- averaged logging (each sample the mean of many fast conversions): what lies above f_s/2
+  averages out; a band across f_s/2 keeps the in-band share of its power,
+  rms^2 (f_s/2 - lo) / (hi - lo), in (lo, f_s/2).
+"""
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 from scipy import signal
@@ -27,18 +42,74 @@ def band_noise(rng: np.random.Generator, shape: tuple[int, ...], fs: float, band
     scaled so that its theoretical rms equals ``rms`` (scalar or per column).
     """
     lo, hi = band_hz
-    nyq = fs / 2
     white = rng.standard_normal(shape)
-    if lo <= 0 and hi >= nyq:
+    sos = _shaping_filter(fs, band_hz)
+    if sos is None:
         return white * rms
-    if lo <= 0:
-        sos = signal.butter(4, hi / nyq, "lowpass", output="sos")
-    elif hi >= nyq * 0.98:
-        sos = signal.butter(4, lo / nyq, "highpass", output="sos")
-    else:
-        sos = signal.butter(4, [lo / nyq, hi / nyq], "bandpass", output="sos")
     y = signal.sosfilt(sos, white, axis=0)
-    # theoretical power gain of the filter for unit white noise
-    _, h = signal.sosfreqz(sos, worN=8192)
-    gain = np.sqrt(np.mean(np.abs(h) ** 2))
+    gain = np.sqrt(band_power_gain(fs, (lo, hi)))
     return y * (np.asarray(rms) / gain)
+
+
+def _shaping_filter(fs: float, band_hz: tuple[float, float]):
+    """The Butterworth shaping filter of :func:`band_noise` for ``band_hz`` (None: white)."""
+    lo, hi = band_hz
+    nyq = fs / 2
+    if lo <= 0 and hi >= nyq:
+        return None
+    if lo <= 0:
+        return signal.butter(4, hi / nyq, "lowpass", output="sos")
+    if hi >= nyq * 0.98:
+        return signal.butter(4, lo / nyq, "highpass", output="sos")
+    return signal.butter(4, [lo / nyq, hi / nyq], "bandpass", output="sos")
+
+
+@lru_cache(maxsize=128)
+def _power_gain_cached(fs: float, lo: float, hi: float) -> float:
+    sos = _shaping_filter(fs, (lo, hi))
+    if sos is None:
+        return 1.0
+    _, h = signal.sosfreqz(sos, worN=8192)
+    return float(np.mean(np.abs(h) ** 2))
+
+
+def band_power_gain(fs: float, band_hz: tuple[float, float]) -> float:
+    """g^2: the mean power gain over [0, f_s/2] of :func:`band_noise`'s shaping filter for
+    ``band_hz`` (1 for white noise); band_noise scales by rms / g."""
+    return _power_gain_cached(float(fs), float(band_hz[0]), float(band_hz[1]))
+
+
+def sampled_bands(bands, fs: float, averaged: bool = False) -> list[tuple[float, float, float]]:
+    """The noise bands (lo, hi, rms) as the record sampled at ``fs`` holds them (module doc):
+    bands of zero rms dropped; direct sampling aliases a band above f_s/2 to white (0, f_s/2,
+    rms); averaged logging drops it and keeps a band's in-band power share."""
+    nyq = fs / 2
+    out = []
+    for lo, hi, rms in bands:
+        if rms <= 0:
+            continue
+        if averaged:
+            if lo >= nyq:
+                continue
+            rms = rms * np.sqrt((min(hi, nyq) - lo) / (hi - lo))
+            hi = min(hi, nyq)
+        if lo >= nyq:
+            out.append((0.0, nyq, rms))
+        else:
+            out.append((lo, min(hi, nyq), rms))
+    return out
+
+
+def window_mean_variance(bands, fs: float, n_window: int, averaged: bool = False) -> float:
+    """Variance of the mean of ``n_window`` consecutive samples of the noise ``bands`` (long-window
+    limit: the sampled noise's power at DC over the window). White: rms^2 / N; a band reaching DC
+    (low-pass shaping, |H(0)| = 1): rms^2 / (g^2 N), g^2 = :func:`band_power_gain`; a band above
+    DC (|H(0)| = 0) averages out. Bands folded by :func:`sampled_bands`."""
+    nyq = fs / 2
+    var = 0.0
+    for lo, hi, rms in sampled_bands(bands, fs, averaged):
+        if lo <= 0 and hi >= nyq:
+            var += rms**2 / n_window
+        elif lo <= 0:
+            var += rms**2 / (band_power_gain(fs, (lo, hi)) * n_window)
+    return var

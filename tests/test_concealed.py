@@ -12,7 +12,7 @@ from imurig.concealed import cases
 from imurig.concealed import suite
 from imurig.reports.diagnosis import TWIN_OPTIONS
 from imurig.kernel.errors import ConfigError
-from imurig.kernel.recording import load
+from imurig.kernel.files import load
 
 
 def test_every_case_names_a_twin_the_diagnose_command_can_rebuild():

@@ -175,7 +175,7 @@ def test_null_tilt_positions_say_no_effect(tmp_path):
     """A null tilt record (nothing left out of the physical twin): the same plots, 'no effect accepted'."""
     from imurig.reports.diagnosis import _figure_tilt_positions
     from imurig.diagnose.tilt_table import diagnose_tilt_table
-    from imurig.reports.common import OutputFolder
+    from imurig.kernel.outputs import OutputFolder
 
     case = _case("tilt_table", "adc_crosstalk")
     rec = null_recording(case, 2)

@@ -54,7 +54,7 @@ def test_crosstalk_injection_closed_form():
     c = math.exp(-1.0 / (200e3 * 0.59e-6))
     assert eff.coefficient(200e3) == pytest.approx(c, rel=1e-15)
     u, prev = np.array([0.1, -2.0, 4.0]), np.array([1.0, 1.0, -3.0])
-    np.testing.assert_allclose(eff.inject(u, ScanSlot(2, 200e3, prev)), u + c * (prev - u), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(eff.inject(u, ScanSlot(2, 200e3, prev)), u + c * (prev - u), rtol=1e-15, atol=1e-15)
     assert AdcCrosstalk(enabled=False).coefficient(200e3) == 0.0
 
 
@@ -98,3 +98,271 @@ def test_quantisation_variance_matches_the_converter(averaging):
     assert abs(var - variance_V2(adc.lsb_V, 0.6, averaging)) < 4.5 * se
     assert adc.sample_variance_V2() == variance_V2(adc.lsb_V, 0.6, averaging)
     assert floor_V(adc.lsb_V) == pytest.approx(adc.lsb_V / math.sqrt(12), rel=1e-15)
+
+
+# ------------------------------------------------------------------ the Q-Flex's mean-level effects
+G = 9.80665
+
+
+def _triad_truth(tri, T_mean):
+    """The truth mapping the truth maps read (recording_truth's form) for a triad at T_mean."""
+    return {"sensors": {"accelerometers": tri.truth()},
+            "conditions": {"mean_temperature_K": float(T_mean),
+                           "acc_nominal_sensitivity_V_per_m_s2": tri.nominal_sensitivity_V_per_m_s2().tolist()}}
+
+
+def _positions(m=60, seed=5):
+    rng = np.random.default_rng(seed)
+    f = rng.normal(0.0, 1.0, (m, 3))
+    return G * f / np.linalg.norm(f, axis=1, keepdims=True) * rng.uniform(0.3, 1.0, (m, 1))
+
+
+def test_misalignment_truth_map_is_the_exact_inverse_model():
+    """Regressing the true f_j on (1, u_x, u_y, u_z) of the noise-free Q-Flex (bias, scale errors,
+    scale tempco at 303 K, misalignment, no k2) gives the effect's m_jk to machine precision."""
+    from imurig.sensors.accelerometer import QFlexTriad
+    from imurig.sensors.effects import AxisMisalignment
+
+    M = np.array([[0, 1.5e-3, -0.8e-3], [0.6e-3, 0, 1.1e-3], [-1.9e-3, 0.4e-3, 0]])
+    tri = QFlexTriad(bias_m_s2=[0.02, -0.01, 0.05], k1_A_per_m_s2=np.array([1.31, 1.34, 1.33]) * 1e-3 / G,
+                     misalignment_rad=M, scale_tempco_per_K=[1e-4, -2e-4, 5e-5])
+    f, T = _positions(), 303.15
+    u = tri.ideal_voltage(f, T) / tri.nominal_sensitivity_V_per_m_s2()
+    X = np.column_stack([np.ones(len(f)), u])
+    truth = _triad_truth(tri, T)
+    for j, a in enumerate("xyz"):
+        coef, *_ = np.linalg.lstsq(X, f[:, j], rcond=None)
+        for k, b in enumerate("xyz"):
+            if k != j:
+                assert coef[1 + k] == pytest.approx(AxisMisalignment().fitted(truth, f"acc_{a}")[f"m_{a}{b}"],
+                                                    rel=1e-9, abs=1e-13)
+    np.testing.assert_allclose(AxisMisalignment(M).inject(f), f @ (np.eye(3) + M).T, rtol=1e-15, atol=1e-15)
+
+
+def test_nonlinearity_truth_map_is_the_inverse_models_square():
+    """u = D (a + k2 a^2) inverts to a = u/D - k2 (u/D)^2 + 2 k2^2 (u/D)^3 - ...: regressing f on
+    powers of u up to the fourth gives the coefficient of u^2 = -k2 / D^2 (the effect's map) to
+    the series' truncation, (k2 g)^3 ~ 1e-13 relative."""
+    from imurig.sensors.accelerometer import QFlexTriad
+    from imurig.sensors.effects import ScaleNonlinearity
+
+    k2 = np.array([48e-6, -30e-6, 20e-6]) / G
+    tri = QFlexTriad(k1_A_per_m_s2=np.array([1.31, 1.34, 1.33]) * 1e-3 / G, k2_per_m_s2=k2,
+                     scale_tempco_per_K=[1e-4, -2e-4, 5e-5])
+    f, T = _positions(), 293.15
+    u = tri.ideal_voltage(f, T) / tri.nominal_sensitivity_V_per_m_s2()
+    truth = _triad_truth(tri, T)
+    for j, a in enumerate("xyz"):
+        X = np.column_stack([u[:, j] ** p for p in range(5)])
+        coef, *_ = np.linalg.lstsq(X, f[:, j], rcond=None)
+        assert coef[2] == pytest.approx(ScaleNonlinearity().fitted(truth, f"acc_{a}")["k2"], rel=1e-7)
+    np.testing.assert_allclose(ScaleNonlinearity(k2).inject(f), f + k2 * f**2, rtol=1e-15, atol=1e-15)
+
+
+def test_temperature_drift_truth_map_and_candidate():
+    """f_j = u_j / D_j - b_j - kb_j dT exactly: regressing f on (1, u, V_T) of the temperature
+    sensor (10 mV/K) gives -kb_j / 0.01 to machine precision; the candidate is V_T - mean, only
+    where the temperature moved more than 0.2 K."""
+    from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
+    from imurig.sensors.effects import ChainContext, TemperatureDrift
+
+    kb = np.array([5e-4, -3e-4, 2e-4])
+    tri = QFlexTriad(bias_m_s2=[0.01, -0.02, 0.03], k1_A_per_m_s2=np.array([1.31, 1.33, 1.35]) * 1e-3 / G,
+                     bias_tempco_m_s2_per_K=kb)
+    f = _positions()
+    T = 298.15 + np.random.default_rng(6).uniform(-5, 5, len(f))
+    u = tri.ideal_voltage(f, T) / tri.nominal_sensitivity_V_per_m_s2()
+    v_T = CurrentTemperatureSensor(noise_V_rms=0.0).voltage(T, np.random.default_rng(0))
+    X = np.column_stack([np.ones(len(f)), u, v_T])
+    for j, a in enumerate("xyz"):
+        coef, *_ = np.linalg.lstsq(X, f[:, j], rcond=None)
+        assert coef[-1] == pytest.approx(TemperatureDrift().fitted({"sensors": {"accelerometers": tri.truth()}},
+                                                                   f"acc_{a}")["drift"], rel=1e-9)
+    eff = TemperatureDrift(kb)
+    ctx = ChainContext(time_s=np.arange(len(f)), sample_rate_hz=1.0, truth_signals={"T_imu": T})
+    np.testing.assert_allclose(eff.inject(f, ctx), f + kb * (T - 298.15)[:, None], rtol=1e-15, atol=1e-15)
+    view = PositionView(channel="acc_x", axis="x", readings={}, channel_median={"temp_acc_y": v_T}.get)
+    (cand,) = eff.candidates(view)
+    np.testing.assert_array_equal(cand.design(None)[:, 0], v_T - v_T.mean())
+    flat = np.full(len(f), 2.982) + np.linspace(0, 0.0019, len(f))     # 0.19 K: too little to name a drift
+    assert eff.candidates(replace(view, channel_median={"temp_acc_x": flat}.get)) == []
+
+
+def test_cross_coupling_is_absent_from_the_qflex_inverse_model():
+    """The Q-Flex's readings are each a function of their own axis: regressing f on the inverse
+    model's powers plus the product of the other two readings leaves the product's coefficient at
+    the effect's truth, 0, to the series' truncation."""
+    from imurig.sensors.accelerometer import QFlexTriad
+    from imurig.sensors.effects import CrossCoupling
+
+    tri = QFlexTriad(k2_per_m_s2=np.array([48e-6, -30e-6, 20e-6]) / G)
+    f = _positions(120)
+    u = tri.ideal_voltage(f) / tri.nominal_sensitivity_V_per_m_s2()
+    X = np.column_stack([np.ones(len(f))] + [u[:, k] ** p for k in range(3) for p in range(1, 5)]
+                        + [u[:, 1] * u[:, 2]])
+    coef, *_ = np.linalg.lstsq(X, f[:, 0], rcond=None)
+    assert abs(coef[-1] - CrossCoupling().fitted({}, "acc_x")["c"]) < 1e-12
+    c = np.array([1e-4, 2e-4, 3e-4])
+    expect = f + c * np.stack([f[:, 1] * f[:, 2], f[:, 0] * f[:, 2], f[:, 0] * f[:, 1]], 1)
+    np.testing.assert_allclose(CrossCoupling(c).inject(f), expect, rtol=1e-15, atol=1e-15)
+
+
+def test_position_candidates_follow_the_twin():
+    """Misalignment and nonlinearity are offered only where the twin lacks them."""
+    from imurig.sensors.effects import AxisMisalignment, ScaleNonlinearity
+
+    view, _ = _view()
+    (mis,) = AxisMisalignment().candidates(view)
+    assert mis.param_names == ("m_yx", "m_yz")
+    np.testing.assert_array_equal(mis.design(None), np.column_stack([view.readings["ax"], view.readings["az"]]))
+    assert AxisMisalignment().candidates(replace(view, model_terms=frozenset({"ax", "az"}))) == []
+    (sq,) = ScaleNonlinearity().candidates(view)
+    np.testing.assert_array_equal(sq.design(None)[:, 0], view.readings["ay"] ** 2)
+    assert ScaleNonlinearity().candidates(replace(view, model_terms=frozenset({"ay^2"}))) == []
+
+
+# ------------------------------------------------------------------ kinematics and the converter
+def test_lever_arm_is_tangential_plus_centripetal():
+    """Spinning about z at w(t) = w0 + w1 t with r = (r, 0, 0): dw/dt x r = (0, w1 r, 0) and
+    w x (w x r) = (-w^2 r, 0, 0), to machine precision (the rate is linear: central differences
+    are exact but for their rounding); the recorded offset is the fitted dr."""
+    from imurig.sensors.effects import ChainContext, LeverArm
+
+    t = np.linspace(0.0, 2.0, 201)
+    w = 0.5 + 0.3 * t
+    r = 0.12
+    ctx = ChainContext(time_s=t, sample_rate_hz=100.0,
+                       truth_signals={"w_C_x": 0 * t, "w_C_y": 0 * t, "w_C_z": w})
+    out = LeverArm([r, 0.0, 0.0]).inject(np.zeros((t.size, 3)), ctx)
+    # to the rounding of the central differences, eps |w| / dt ~ 1e-14
+    np.testing.assert_allclose(out, np.column_stack([-w**2 * r, np.full(t.size, 0.3 * r), 0 * t]), rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(LeverArm().inject(np.ones((t.size, 3)), ctx), np.ones((t.size, 3)))
+    truth = {"sensors": {"accelerometers": {"position_C_m": [0.02, -0.015, 0.01]}}}
+    assert LeverArm().fitted(truth) == {"dr_x_m": 0.02, "dr_y_m": -0.015, "dr_z_m": 0.01}
+
+
+def test_channel_skew_is_the_first_order_time_shift():
+    """A ramp x = a t sampled j / f_mux late reads a (t + j / f_mux): the skew's first-order
+    shift is exact for it; the truth map is the slot over f_mux of the recorded scan."""
+    from imurig.sensors.chain import DEFAULT_SCAN
+    from imurig.sensors.effects import ChannelSkew
+
+    t = np.linspace(0, 1, 11)
+    a, f_mux = 3.7, 20e3
+    for j in range(4):
+        out = ChannelSkew().inject(a * t, ScanSlot(j, f_mux, slope_V_s=np.full(t.size, a)))
+        np.testing.assert_allclose(out, a * (t + j / f_mux), rtol=1e-15, atol=1e-15)
+    adc = DAQ6036E(scan_list=DEFAULT_SCAN)
+    assert ChannelSkew().fitted({"chain": {"adc": adc.settings()}}, "acc_y")["tau_s"] == 2 / 20e3
+    assert ChannelSkew().fitted({"chain": {"adc": replace(adc, skew_enabled=False).settings()}}, "acc_y")["tau_s"] == 0
+    # the converter applies it: a ramp on slot 2 reads its value 2 / f_mux later (to the rounding)
+    n = 1000
+    tt = np.arange(n) / 1e3
+    quiet = DAQ6036E(scan_list=("a", "b", "c"), range_V=0.05, input_noise_lsb_rms=0.0, common_mode_noise_V_rms=0.0,
+                     crosstalk_enabled=False)
+    x = {k: 0.01 * tt for k in "abc"}
+    out, _ = quiet.convert(x, tt, np.random.default_rng(0), slope={k: np.full(n, 0.01) for k in "abc"})
+    assert np.max(np.abs(out["c"] - 0.01 * (tt + 2 / 20e3))) <= quiet.lsb_V / 2 + 1e-15
+
+
+# ------------------------------------------------------------------ the lab's disturbances
+def _batch_se(x, batches=100):
+    """Mean of x and its standard error from batch means (x correlated over << len / batches)."""
+    b = np.asarray(x, float)[: len(x) // batches * batches].reshape(batches, -1).mean(axis=1)
+    return float(b.mean()), float(b.std(ddof=1) / math.sqrt(batches))
+
+
+def test_pump_harmonic_amplitudes_and_variance():
+    """A_h = rms sqrt(2) w_h / |w| (sum A_h^2 / 2 = rms^2); the simulated vibration's power summed
+    over the axes (directions are unit vectors) is 3 x the effect's per-axis variance within 4.5
+    standard errors; nothing out of working hours, nothing in a long window mean."""
+    from imurig.sensors.effects import ChainContext, PumpVibration
+
+    pump = PumpVibration(rms_m_s2=0.03, broadband_rms_m_s2=0.01, modulation_hz=2.0)
+    A = pump.amplitudes()
+    np.testing.assert_allclose(A, 0.03 * math.sqrt(2) * np.array([1.0, 0.5]) / math.sqrt(1.25), rtol=1e-15)
+    assert np.sum(A**2) / 2 == pytest.approx(0.03**2, rel=1e-14)
+    fs, n = 200.0, 100_000
+    t = np.arange(n) / fs
+    day = ChainContext(time_s=t, sample_rate_hz=fs, hour_of_day=np.full(n, 10.0))
+    # independent records (each draws its own phases, directions and envelopes): SE from their spread
+    p = [np.mean(np.sum(pump.inject(np.zeros((n, 3)), day, np.random.default_rng(70 + k)) ** 2, axis=1))
+         for k in range(12)]
+    assert abs(np.mean(p) - 3 * pump.noise_variance(day)) < 4.5 * np.std(p, ddof=1) / math.sqrt(len(p))
+    night = replace(day, hour_of_day=np.full(n, 20.0))
+    assert pump.noise_variance(night) == 0.0
+    assert not np.any(pump.inject(np.zeros((n, 3)), night, np.random.default_rng(7)))
+    assert pump.noise_variance(replace(day, window_samples=1500)) == 0.0
+
+
+def test_pump_test_and_refit_recover_a_sinusoid():
+    """Positions of white noise plus a 24.7 Hz sinusoid of amplitude A (random phase each): the
+    spectral test fires at the peak and the refit gives the frequency to a small fraction of a
+    Welch bin, A within 4.5 standard errors, and the residual scatter down to the noise."""
+    from imurig.sensors.effects import PumpVibration, ScatterView
+
+    rng = np.random.default_rng(8)
+    fs, m, n, A, sig, s = 100.0, 30, 400, 2e-3, 4e-4, 0.1
+    t = np.arange(n) / fs
+    x = np.concatenate([A * np.sin(2 * np.pi * 24.7 * t + rng.uniform(0, 2 * np.pi)) + sig * rng.normal(size=n)
+                        for _ in range(m)])
+    view = ScatterView("acc_x", x, [slice(i * n, (i + 1) * n) for i in range(m)], fs, np.full(m, 10.0), s)
+    res = PumpVibration().test(view)
+    fd = res["finding"]
+    assert res["spectral_peak_to_median"] > 25 and fd["positions_affected"] == m
+    assert abs(fd["refit_frequency_hz"] - 24.7) < 0.01 * fs / 256
+    assert abs(fd["amplitude_V"] - A) < 4.5 * fd["amplitude_se_V"]
+    assert fd["amplitude_m_s2"] == pytest.approx(fd["amplitude_V"] / s, rel=1e-15)
+    assert fd["scatter_before_V"] == pytest.approx(math.sqrt(A**2 / 2 + sig**2), rel=0.05)
+    assert fd["scatter_after_V"] == pytest.approx(sig, rel=0.05)
+    quiet = replace(view, samples=sig * rng.normal(size=m * n))
+    assert "finding" not in PumpVibration().test(quiet)
+
+
+def test_people_transients_variance_is_shot_noise():
+    """Per-axis variance of one sample p peak^2 / 3 sum h^2 and of a long window mean
+    p peak^2 / 3 H(1)^2 / N against the simulated transients (sum over the three axes, 4.5 SE)."""
+    from imurig.sensors.effects import ChainContext, PeopleTransients
+
+    people = PeopleTransients(rate_per_hour_working=3600.0 * 5)    # 5 events per second by day
+    fs, n = 100.0, 2_000_000
+    ctx = ChainContext(time_s=np.arange(n) / fs, sample_rate_hz=fs, hour_of_day=np.full(n, 10.0))
+    f = people.inject(np.zeros((n, 3)), ctx, np.random.default_rng(9))
+    m, se = _batch_se(np.sum(f**2, axis=1))
+    assert abs(m - 3 * people.noise_variance(ctx)) < 4.5 * se
+    N = 2000  # 20 s windows, 65 decay times: the long-window limit holds to ~tau fs / N = 1.5 %
+    w = f[: n // N * N].reshape(-1, N, 3).mean(axis=1)
+    s2 = np.sum(w**2, axis=1)
+    expect = 3 * people.noise_variance(replace(ctx, window_samples=N))
+    assert abs(s2.mean() - expect) < 4.5 * s2.std(ddof=1) / math.sqrt(s2.size)
+    assert people.impulsive and people.noise_variance(replace(ctx, sample_rate_hz=20.0)) == 0.0
+
+
+def test_loose_cable_spikes_variance_and_test():
+    """Spike lengths max(1, floor(U f_s)) have the moments the effect states (4.5 SE); the line's
+    per-sample variance p amplitude^2 E[L] against a simulated record; the spike test counts
+    spikes > 8 robust sigma and names the effect from three."""
+    from imurig.sensors.effects import ChainContext, LooseCable, ScatterView
+
+    cable = LooseCable(enabled=True, rate_hz=2.0, min_duration_s=0.0023, max_duration_s=0.0517)
+    fs = 1000.0
+    U = np.random.default_rng(10).uniform(cable.min_duration_s, cable.max_duration_s, 1_000_000)
+    L = np.maximum(1, (U * fs).astype(int)).astype(float)
+    m1, m2 = cable.length_moments(fs)
+    assert abs(L.mean() - m1) < 4.5 * L.std() / 1e3 and abs(np.mean(L**2) - m2) < 4.5 * np.std(L**2) / 1e3
+    n = 4_000_000
+    ctx = ChainContext(time_s=np.arange(n) / fs, sample_rate_hz=fs)
+    assert cable.lines(["acc_x", "acc_y"], ctx) == ["acc_y"]
+    with pytest.raises(ValueError, match="not an analog line"):
+        cable.lines(["acc_x"], ctx)
+    v = cable.inject(np.zeros(n), ctx, np.random.default_rng(11))
+    mv, se = _batch_se(v**2, batches=400)
+    assert abs(mv - cable.noise_variance(ctx)) < 4.5 * se
+    rng = np.random.default_rng(12)
+    x = 1e-4 * rng.normal(size=20 * 400)
+    view = ScatterView("acc_y", x, [slice(i * 400, (i + 1) * 400) for i in range(20)], 100.0, np.full(20, 20.0))
+    assert "finding" not in cable.test(view) and cable.test(view)["spikes_total"] == 0
+    x[[50, 1234, 5000]] += 0.01
+    res = cable.test(replace(view, samples=x))
+    assert res["finding"]["spikes"] == 3 and res["finding"]["positions"] == 3
+    assert res["robust_sigma_V"] == pytest.approx(1e-4, rel=0.05)

@@ -1,15 +1,17 @@
 """The loosely coupled EKF against truth: consistency (NEES, NIS) over repeated runs, GPS outage
 growth and recovery, bias estimation, refusals. Data are drawn from exactly the filter's error
-model (``ekf.synthetic_sensors``) along closed-form S-turns (``ins.s_turn_truth``)."""
+model (``synthetic.synthetic_sensors``) along closed-form S-turns (``ins.s_turn_truth``)."""
 import math
 
 import numpy as np
 import pytest
 from imurig.flights import earth as E
 from imurig.flights import ekf, ins
+from imurig.flights.synthetic import synthetic_sensors
 from scipy.stats import chi2
 
 from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.navdata import GpsFixes, ImuStream
 
 D = math.pi / 180
 RUNS = 8
@@ -27,7 +29,7 @@ def truth():
 def _run(truth, seed, noise_filter=None, outages=(OUTAGE,)):
     noise = ekf.ImuNoise(vrw=5e-4)
     rng = np.random.default_rng(np.random.SeedSequence([6, seed]))
-    imu, gps, tb = ekf.synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D,
+    imu, gps, tb = synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D,
                                          outages=outages)
     cfg = ekf.FilterConfig(nav_rate_hz=20.0, mag_heading_sigma_rad=1 * D, sigma0_heading_rad=5 * D,
                            sigma0_acc_bias_m_s2=0.05, sigma0_gyro_bias_rad_s=0.003 * D)
@@ -39,7 +41,7 @@ def _run(truth, seed, noise_filter=None, outages=(OUTAGE,)):
     x0.lat_rad, x0.lon_rad, x0.h_m = (float(a) for a in E.geodetic_from_ned(dx[:3], x0.lat_rad, x0.lon_rad, x0.h_m))
     x0.v_N = x0.v_N + dx[3:6]
     x0.q_NB = E.q_mult(E.q_from_rotvec(-dx[6:9]), x0.q_NB)
-    res = f.run(imu, gps, x0)
+    res = f.fit(imu, gps, x0).solution_
     idx = np.arange(res.time_s.size) * res.meta["samples_per_step"]
     return res, idx, tb
 
@@ -111,9 +113,9 @@ def test_biases_estimated_within_their_standard_errors(runs):
 def test_scale_factor_variant_runs_and_estimates(truth):
     noise = ekf.ImuNoise(vrw=5e-4)
     rng = np.random.default_rng(11)
-    imu, gps, _ = ekf.synthetic_sensors(truth, noise, rng, mag_sigma_rad=1 * D)
+    imu, gps, _ = synthetic_sensors(truth, noise, rng, mag_sigma_rad=1 * D)
     cfg = ekf.FilterConfig(nav_rate_hz=20.0, estimate_scale_factors=True, sigma0_heading_rad=2 * D)
-    r = ekf.LooseEKF(cfg, noise).run(imu, gps, ins.state_at(truth, 0))
+    r = ekf.LooseEKF(cfg, noise).fit(imu, gps, ins.state_at(truth, 0)).solution_
     assert r.P_diag.shape[1] == 24 and len(r.state_names) == 24
     # scale factors are observable with S-turns: the yaw-gyro scale σ shrinks below its prior
     assert math.sqrt(r.P_diag[-1, 23]) < 0.5 * cfg.sigma0_gyro_scale
@@ -122,15 +124,16 @@ def test_scale_factor_variant_runs_and_estimates(truth):
 def test_refuses_bad_inputs(truth):
     noise = ekf.ImuNoise()
     rng = np.random.default_rng(3)
-    imu, gps, _ = ekf.synthetic_sensors(truth, noise, rng)
+    imu, gps, _ = synthetic_sensors(truth, noise, rng)
     f = ekf.LooseEKF(ekf.FilterConfig(nav_rate_hz=20.0), noise)
-    fast = ekf.SimpleGps(np.arange(0, 10, 0.001), *(np.zeros(10000) for _ in range(3)), np.zeros((10000, 3)),
-                         np.ones((10000, 3)), np.ones((10000, 3)))
+    fast = GpsFixes(time_s=np.arange(0, 10, 0.001), lat_rad=np.zeros(10000), lon_rad=np.zeros(10000),
+                    h_m=np.zeros(10000), v_N=np.zeros((10000, 3)), sigma_pos_N=np.ones((10000, 3)),
+                    sigma_vel_N=np.ones((10000, 3)))
     with pytest.raises(ConfigError, match="above the IMU rate"):
-        f.run(imu, fast, ins.state_at(truth, 0))
+        f.fit(imu, fast, ins.state_at(truth, 0))
     imu.f_B[100, 0] = np.nan
     with pytest.raises(RecordingError, match="NaN"):
-        f.run(imu, gps, ins.state_at(truth, 0))
+        f.fit(imu, gps, ins.state_at(truth, 0))
 
 
 def test_observability_table_of_the_paper():
@@ -195,7 +198,7 @@ def _perfect_imu_real_gps(tr, seed, acc_bias_prior=1e-3):
     sq = math.sqrt(tr.rate_hz)
     w = tr.w_IB_B + rng.standard_normal((tr.n, 3)) * noise.arw * sq
     f = tr.f_B + rng.standard_normal((tr.n, 3)) * noise.vrw * sq
-    imu = ekf.ImuStream(tr.time_s, w, f, tr.B_B, T, samples=ins.sample_semantics(tr))
+    imu = ImuStream(time_s=tr.time_s, f_B=f, w_IB_B=w, B_B=tr.B_B, T_acc_K=T, samples=ins.sample_semantics(tr))
     # the true field: the heading σ is the fluxgate's own noise over the horizontal intensity
     H = float(np.median(np.hypot(tr.B_B[:, 0], tr.B_B[:, 1])))
     cfg = ekf.FilterConfig(nav_rate_hz=25.0, gps_latency_s=opt.gps_latency_s, gps_time_sigma_s=opt.gps_time_sigma_s,
@@ -205,7 +208,7 @@ def _perfect_imu_real_gps(tr, seed, acc_bias_prior=1e-3):
     x0 = R.align(tr, imu, gps, R.declination_model(tr))
     f_m, B_m = R.alignment_means(tr, imu)
     P0 = f.alignment_covariance(x0, f_m, B_m, gps, window_s=R.ALIGN_WINDOW_S, sigma_mag_rad=cfg.mag_heading_sigma_rad)
-    return f.run(imu, gps, x0, P0=P0), gps
+    return f.fit(imu, gps, x0, P0=P0).solution_, gps
 
 
 @pytest.fixture(scope="module")
@@ -379,10 +382,10 @@ def test_alignment_covariance_is_the_levelling_error_propagation():
     Dd = 0.01
     B_N = np.array([math.cos(Dd), math.sin(Dd), math.tan(67 * D)]) * 19e-6
     n = 500
-    stream = ekf.ImuStream(np.arange(n) * 0.01, np.zeros((n, 3)), np.tile(C.T @ [0, 0, -g] + b, (n, 1)),
-                           np.tile(C.T @ B_N, (n, 1)))
-    gps = ekf.SimpleGps(np.array([0.0]), np.array([0.9]), np.array([0.08]), np.array([0.0]), np.zeros((1, 3)),
-                        np.full((1, 3), 0.02), np.full((1, 3), 0.01))
+    stream = ImuStream(time_s=np.arange(n) * 0.01, w_IB_B=np.zeros((n, 3)), f_B=np.tile(C.T @ [0, 0, -g] + b, (n, 1)),
+                       B_B=np.tile(C.T @ B_N, (n, 1)))
+    gps = GpsFixes(time_s=np.array([0.0]), lat_rad=np.array([0.9]), lon_rad=np.array([0.08]), h_m=np.array([0.0]),
+                   v_N=np.zeros((1, 3)), sigma_pos_N=np.full((1, 3), 0.02), sigma_vel_N=np.full((1, 3), 0.01))
     tr = SimpleNamespace(rate_hz=100.0, lever_gps_B=np.array([1.0, 0.0, -2.0]))
     x0 = R.align(tr, stream, gps, Dd)
     S = np.eye(3) - E.C_from_q(x0.q_NB) @ C.T
@@ -451,7 +454,7 @@ def test_nonlinearity_states_estimate_an_injected_second_order_term(truth):
     k2 = np.array([3e-6, -4e-6, 5e-6])
     noise = ekf.ImuNoise(vrw=5e-4)
     rng = np.random.default_rng(np.random.SeedSequence([61, 0]))
-    imu, gps, _tb = ekf.synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D, outages=())
+    imu, gps, _tb = synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D, outages=())
     imu.f_B = imu.f_B + k2 * np.asarray(truth.f_B) ** 2
     out = {}
     for est in (True, False):
@@ -459,7 +462,7 @@ def test_nonlinearity_states_estimate_an_injected_second_order_term(truth):
                                sigma0_acc_bias_m_s2=0.05, sigma0_gyro_bias_rad_s=0.003 * D,
                                estimate_nonlinearity=est, sigma0_acc_nonlinearity_s2_m=5e-6)
         f = ekf.LooseEKF(cfg, noise, lever_gps_B=LEVER)
-        res = f.run(imu, gps, ins.state_at(truth, 0))
+        res = f.fit(imu, gps, ins.state_at(truth, 0)).solution_
         idx = np.arange(res.time_s.size) * res.meta["samples_per_step"]
         out[est] = (res, ekf.nees_nav(res, truth, idx))
     res, nees = out[True]
@@ -479,12 +482,12 @@ def test_gyro_turn_on_bias_is_a_random_constant_beside_the_instability(truth):
     noise = ekf.ImuNoise(vrw=5e-4, gyro_bias_tau_s=5.0)
     short = ins.s_turn_truth(40.0, 100.0, yaw_amp_rad=60 * D, yaw_period_s=80.0)
     rng = np.random.default_rng(np.random.SeedSequence([62, 0]))
-    imu, _gps, _tb = ekf.synthetic_sensors(short, noise, rng)
+    imu, _gps, _tb = synthetic_sensors(short, noise, rng)
     for split in (True, False):
         cfg = ekf.FilterConfig(nav_rate_hz=20.0, use_magnetometer=False, sigma0_gyro_bias_rad_s=0.003 * D,
                                gyro_bias_gm_states=split)
         f = ekf.LooseEKF(cfg, noise)
-        res = f.run(imu, None, ins.state_at(short, 0))
+        res = f.fit(imu, None, ins.state_at(short, 0)).solution_
         bg = res.P_diag[-1, 12:15]
         if split:
             gm = res.P_diag[-1, cfg.gyro_gm_slice()]
@@ -496,7 +499,7 @@ def test_gyro_turn_on_bias_is_a_random_constant_beside_the_instability(truth):
     for seed in range(4):
         noise = ekf.ImuNoise(vrw=5e-4)
         rng = np.random.default_rng(np.random.SeedSequence([63, seed]))
-        imu, gps, tb = ekf.synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D, outages=())
+        imu, gps, tb = synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D, outages=())
         cfg = ekf.FilterConfig(nav_rate_hz=20.0, mag_heading_sigma_rad=1 * D, sigma0_heading_rad=5 * D,
                                sigma0_acc_bias_m_s2=0.05, sigma0_gyro_bias_rad_s=0.003 * D,
                                gyro_bias_gm_states=True)
@@ -504,7 +507,7 @@ def test_gyro_turn_on_bias_is_a_random_constant_beside_the_instability(truth):
         P0 = f.initial_covariance()
         P0[:9, :9] = 0.0
         P0[:9, :9] += np.diag(np.full(9, 1e-12))    # start on the truth (no alignment error)
-        res = f.run(imu, gps, ins.state_at(truth, 0), P0=P0)
+        res = f.fit(imu, gps, ins.state_at(truth, 0), P0=P0).solution_
         # b0 estimate = total bias estimate − its Gauss-Markov part (meta) against the injected b_0
         b0_hat = res.gyro_bias_rad_s[-1] - np.asarray(res.meta["gyro_bias_gm_rad_s"])
         e = b0_hat - tb["gyro_bias_rad_s"]

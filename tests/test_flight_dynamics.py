@@ -102,7 +102,7 @@ def test_linearised_modes_match_approximations():
 
 def test_manoeuvres_come_from_control_inputs(short_flight):
     tr = short_flight
-    roll, _pitch, _yaw = tr.euler()
+    roll, _pitch, _yaw = earth.euler_from_q(tr.q_NB)
     names = [p[0] for p in tr.phases]
     assert names == ["level", "elevator_3211", "double_doublet", "alpha_dot_s_turns"]
     # the 3-2-1-1 happened in the elevator, and the aircraft answered in pitch rate
@@ -150,7 +150,7 @@ def test_static_truth_closed_form_earth_terms():
     wie_B = np.einsum("nji,nj->ni", C, earth.omega_IE_N(st.lat_rad))
     np.testing.assert_allclose(st.w_IB_B[static], wie_B[static], atol=1e-18)
     assert np.linalg.norm(st.w_IB_B[0]) == pytest.approx(earth.OMEGA_E_RAD_S, rel=1e-12)
-    roll, _pitch, _ = st.euler()
+    roll, _pitch, _ = earth.euler_from_q(st.q_NB)
     i = st.phase_mask("static_roll-30_pitch+0")
     np.testing.assert_allclose(np.degrees(roll[i]), -30.0, atol=1e-9)
     import pyIGRF
@@ -190,7 +190,7 @@ def test_ground_circle_and_takeoff():
     c = np.linalg.lstsq(A, x ** 2 + y ** 2, rcond=None)[0]
     R = math.sqrt(c[2] + (c[0] / 2) ** 2 + (c[1] / 2) ** 2)
     assert R == pytest.approx(25.0 + 1.5 + 0.3, abs=2.0)     # the IMU rides 1.5 m ahead of the main gear
-    roll, pitch, yaw = tr.euler()
+    roll, pitch, yaw = earth.euler_from_q(tr.q_NB)
     assert np.abs(np.degrees(roll[m])).max() < 1.0 and np.abs(np.degrees(pitch[m])).max() < 1.0
     assert np.ptp(np.unwrap(yaw[tr.phase_mask("ground_circle")])) > 1.9 * math.pi
     assert tr.h_m[-1] - h0 > 45.0
@@ -223,7 +223,7 @@ def test_van_ground_test():
                            VanHardBrake(10.0), VanParked(2.0), VanRamp(angle_deg=5.0, park_s=6.0)))
     tr = simulate_van(plan)
     assert tr.vehicle == "van" and tr.lever_mag_B[0] < -7.0          # the boom: 5 m behind the van's back
-    roll, pitch, _ = tr.euler()
+    roll, pitch, _ = earth.euler_from_q(tr.q_NB)
     flat = np.degrees(pitch[tr.phase_mask("parked")][0])
     brake = tr.phase_mask("hard_braking")
     # tyre forces saturate at mu N: the deceleration cannot exceed (mu + c_rr) g

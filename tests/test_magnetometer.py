@@ -62,9 +62,9 @@ def test_default_seed_heading_bias_of_the_papers_order():
 
 
 def test_swing_over_a_few_degrees_refused():
-    from imurig.calibration.magnetometer import fit_ellipse_2d
+    from imurig.calibration.magnetometer import MagnetometerCalibration
 
     psi = np.radians(np.linspace(0, 8, 200))
     H = 19e-6
     with pytest.raises(ScheduleError, match="heading"):
-        fit_ellipse_2d(H * np.cos(psi) + 1e-6, H * np.sin(psi), H)
+        MagnetometerCalibration("ellipse").fit(np.column_stack([H * np.cos(psi) + 1e-6, H * np.sin(psi)]), H)

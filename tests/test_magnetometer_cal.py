@@ -1,4 +1,5 @@
-"""Truth-based tests of imurig.calibration.magnetometer (seed sections 4.6-4.7, [Elk01]).
+"""Truth-based tests of imurig.calibration.magnetometer (seed sections 4.6-4.7, [Elk01]): the
+MagnetometerCalibration estimator with methods 'ellipse', 'ellipsoid' and 'swing'.
 
 Synthetic data follow the bench's sensor model ``m = A B_C + b + e`` (tesla) with a known
 ``A``, ``b`` and white noise; every estimate is compared with the injected truth, either
@@ -11,16 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from imurig.calibration.magnetometer import (
-    ELLIPSE_PARAMS,
-    SWING_TERMS,
-    compass_swing,
-    fit_ellipse_2d,
-    fit_ellipsoid_3d,
-    heading_from_field,
-    wrap_2pi,
-    wrap_pi,
-)
+from imurig.calibration.heading import heading_from_field, wrap_2pi, wrap_pi
+from imurig.calibration.magnetometer import ELLIPSE_PARAMS, SWING_TERMS, MagnetometerCalibration
 from imurig.kernel.errors import RecordingError, ScheduleError
 from imurig.sensors.magnetometer import FluxgateTriad
 
@@ -87,6 +80,18 @@ def _upper(S: np.ndarray) -> np.ndarray:
     return S[np.triu_indices(3)]
 
 
+def fit_ellipse_2d(mx, my, field_horizontal_T):
+    return MagnetometerCalibration("ellipse").fit(np.column_stack([mx, my]), field_horizontal_T)
+
+
+def fit_ellipsoid_3d(m, field_total_T):
+    return MagnetometerCalibration("ellipsoid").fit(m, field_total_T)
+
+
+def compass_swing(heading_true_rad, heading_indicated_rad):
+    return MagnetometerCalibration("swing").fit(heading_indicated_rad, heading_true_rad)
+
+
 # ---------------------------------------------------------------------------
 # angles and heading convention
 
@@ -137,21 +142,21 @@ def test_ellipse_noise_free_recovers_truth_exactly():
     truth = dict(sx=1.04, sy=0.955, rho=0.02, bx=B2[0], by=B2[1])
     psi, m = level_swing(rng, noise=0.0, A2=_A2(truth["sx"], truth["sy"], truth["rho"]))
     res = fit_ellipse_2d(m[:, 0], m[:, 1], H)
-    assert res.converged and res.iterations <= 10
+    assert res.converged_ and res.n_iter_ <= 10
     for k in ("sx", "sy", "rho"):
-        assert abs(res.params[k] - truth[k]) <= 1e-9 * abs(truth[k]), k
+        assert abs(res.params_[k] - truth[k]) <= 1e-9 * abs(truth[k]), k
     for k in ("bx", "by"):
-        assert abs(res.params[k] - truth[k]) <= 1e-9 * abs(truth[k]), k
-    assert res.rms_residual_T <= 1e-9 * H
-    np.testing.assert_allclose(res.A2, _A2(), rtol=1e-9)
+        assert abs(res.params_[k] - truth[k]) <= 1e-9 * abs(truth[k]), k
+    assert res.rms_residual_T_ <= 1e-9 * H
+    np.testing.assert_allclose(res.A_, _A2(), rtol=1e-9)
     # the calibrated field is the true horizontal field, the heading the true heading
-    hx, hy = res.apply(m[:, 0], m[:, 1])
+    hx, hy = res.apply(m).T
     np.testing.assert_allclose(np.hypot(hx, hy), H, rtol=1e-9)
-    np.testing.assert_allclose(wrap_pi(res.heading(m[:, 0], m[:, 1]) - psi), 0.0, atol=1e-9)
-    assert res.coverage_deg > 359.0
+    np.testing.assert_allclose(wrap_pi(res.heading(m) - psi), 0.0, atol=1e-9)
+    assert res.coverage_deg_ > 359.0
     # step 1 (algebraic) is already exact on noise-free data: no initial guess needed
     for k in ELLIPSE_PARAMS:
-        assert res.initial[k] == pytest.approx(truth[k], rel=1e-8)
+        assert res.initial_[k] == pytest.approx(truth[k], rel=1e-8)
 
 
 def test_ellipse_noisy_parameters_within_4_standard_errors():
@@ -162,10 +167,10 @@ def test_ellipse_noisy_parameters_within_4_standard_errors():
                      bx=B2[0], by=B2[1])
         _, m = level_swing(rng, A2=_A2(truth["sx"], truth["sy"], truth["rho"]))
         res = fit_ellipse_2d(m[:, 0], m[:, 1], H)
-        assert res.converged
-        assert res.sigma_T == pytest.approx(SIGMA, rel=0.1)   # radial residual = sensor noise
+        assert res.converged_
+        assert res.sigma_ == pytest.approx(SIGMA, rel=0.1)   # radial residual = sensor noise
         for k in ELLIPSE_PARAMS:
-            zk = (res.params[k] - truth[k]) / res.std_errors[k]
+            zk = (res.params_[k] - truth[k]) / res.std_errors_[k]
             assert abs(zk) < 4.0, (seed, k, zk)
             z.append(zk)
     rms = float(np.sqrt(np.mean(np.square(z))))
@@ -176,7 +181,7 @@ def test_ellipse_heading_error_at_noise_level_raw_heading_several_degrees_off():
     rng = np.random.default_rng(7)
     psi, m = level_swing(rng)
     res = fit_ellipse_2d(m[:, 0], m[:, 1], H)
-    err_cal = wrap_pi(res.heading(m[:, 0], m[:, 1]) - psi)
+    err_cal = wrap_pi(res.heading(m) - psi)
     err_raw = wrap_pi(heading_from_field(m) - psi)
     assert np.sqrt(np.mean(err_cal ** 2)) < 3 * SIGMA / H          # ~ noise / H rad = 0.06 deg
     assert np.max(np.abs(err_raw)) > math.radians(8.0)            # 3354 nT of hard iron on 19010 nT
@@ -196,10 +201,10 @@ def test_ellipse_half_turn_accepted_but_less_precise():
     _, m_full = level_swing(rng)
     half = fit_ellipse_2d(m_half[:, 0], m_half[:, 1], H)
     full = fit_ellipse_2d(m_full[:, 0], m_full[:, 1], H)
-    assert half.coverage_deg == pytest.approx(200.0, abs=1.0)
+    assert half.coverage_deg_ == pytest.approx(200.0, abs=1.0)
     for k in ("bx", "by"):
-        assert half.std_errors[k] > full.std_errors[k]
-        assert abs(half.params[k] - {"bx": B2[0], "by": B2[1]}[k]) < 4 * half.std_errors[k]
+        assert half.std_errors_[k] > full.std_errors_[k]
+        assert abs(half.params_[k] - {"bx": B2[0], "by": B2[1]}[k]) < 4 * half.std_errors_[k]
 
 
 def test_ellipse_hyperbola_is_not_an_ellipse():
@@ -229,14 +234,14 @@ def test_ellipse_refuses_too_few_points_and_bad_data():
 def test_ellipsoid_noise_free_recovers_b_and_AAt():
     A, b, B, m = tumble(np.random.default_rng(11), noise=0.0)
     res = fit_ellipsoid_3d(m, F)
-    assert res.converged
+    assert res.converged_
     AAt = A @ A.T
-    assert np.max(np.abs(res.b - b)) <= 1e-9 * np.linalg.norm(b)
-    assert np.max(np.abs(res.AAt - AAt)) <= 1e-9 * np.linalg.norm(AAt)
+    assert np.max(np.abs(res.b_ - b)) <= 1e-9 * np.linalg.norm(b)
+    assert np.max(np.abs(res.AAt_ - AAt)) <= 1e-9 * np.linalg.norm(AAt)
     # T = A^-1 upper triangular with a positive diagonal, A recovered up to a rotation
-    assert np.allclose(np.tril(res.T, -1), 0.0) and np.all(np.diag(res.T) > 0)
-    np.testing.assert_allclose(res.A @ res.T, np.eye(3), atol=1e-12)
-    R = np.linalg.solve(res.A, A)          # A = A_hat R
+    assert np.allclose(np.tril(res.T_, -1), 0.0) and np.all(np.diag(res.T_) > 0)
+    np.testing.assert_allclose(res.A_ @ res.T_, np.eye(3), atol=1e-12)
+    R = np.linalg.solve(res.A_, A)          # A = A_hat R
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
     cal = res.apply(m)
     np.testing.assert_allclose(cal, B @ R.T, atol=1e-9 * F)
@@ -248,15 +253,15 @@ def test_ellipsoid_noisy_invariants_within_4_standard_errors():
     for seed in SEEDS:
         A, b, _, m = tumble(np.random.default_rng(300 + seed))
         res = fit_ellipsoid_3d(m, F)
-        assert res.converged
-        zs = np.concatenate([(_upper(res.AAt) - _upper(A @ A.T)) / _upper(res.AAt_std), (res.b - b) / res.b_std])
+        assert res.converged_
+        zs = np.concatenate([(_upper(res.AAt_) - _upper(A @ A.T)) / _upper(res.AAt_std_), (res.b_ - b) / res.b_std_])
         assert np.all(np.abs(zs) < 4.0), (seed, zs)
-        np.testing.assert_allclose(np.sqrt(np.diag(res.invariant_cov)),
-                                   np.concatenate([_upper(res.AAt_std), res.b_std]), rtol=1e-12)
+        np.testing.assert_allclose(np.sqrt(np.diag(res.invariant_cov_)),
+                                   np.concatenate([_upper(res.AAt_std_), res.b_std_]), rtol=1e-12)
         z.extend(zs)
         norm_std = float(np.std(np.linalg.norm(res.apply(m), axis=1)))
         assert SIGMA / 1.5 <= norm_std <= 1.5 * SIGMA, norm_std
-        assert res.sigma_T == pytest.approx(SIGMA, rel=0.1)
+        assert res.sigma_ == pytest.approx(SIGMA, rel=0.1)
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.6 <= rms <= 1.5, rms
 
@@ -272,8 +277,8 @@ def test_ellipsoid_bench_fluxgate_model():
     A = k @ triad.soft_iron @ (np.eye(3) + triad.misalignment_rad)
     b = k @ triad.hard_iron_T
     res = fit_ellipsoid_3d(m, F)
-    assert np.all(np.abs((_upper(res.AAt) - _upper(A @ A.T)) / _upper(res.AAt_std)) < 4.0)
-    assert np.all(np.abs((res.b - b) / res.b_std) < 4.0)
+    assert np.all(np.abs((_upper(res.AAt_) - _upper(A @ A.T)) / _upper(res.AAt_std_)) < 4.0)
+    assert np.all(np.abs((res.b_ - b) / res.b_std_) < 4.0)
 
 
 def test_ellipsoid_small_cone_refused():
@@ -349,7 +354,7 @@ def test_swing_noisy_within_4_standard_errors_and_correct_to_noise_level():
         psi_true, ind = _rose(rng, noise)
         res = compass_swing(psi_true, ind)
         for k, c in zip(SWING_TERMS, TRUE_COEF):
-            assert abs(res.coef[k] - c) < 4 * res.std_errors[k], (seed, k)
+            assert abs(res.params_[k] - c) < 4 * res.std_errors_[k], (seed, k)
         err = wrap_pi(res.correct(ind_dense) - dense)
         # what is left is the estimation error of the 5 terms: rms ~ noise sqrt(5/12)
         assert np.sqrt(np.mean(err ** 2)) < 2 * noise

@@ -27,8 +27,9 @@ from imurig.montecarlo.engine import (
     run_seed,
     run_study,
 )
-from imurig.reports.montecarlo import read_results_h5
+from imurig.montecarlo.results import read_results_h5
 from imurig.montecarlo.stats import binomial_band, parameter_stats
+from imurig.reports.montecarlo import write_study_outputs
 
 #: a small tilt-table schedule (4 x 4 x 2 positions, 5 s at 100 Hz averaged): ~0.1 s per run
 SMALL_TILT = {"theta_deg": [0, 30, 60, 90], "phi_deg": [0, 90, 180, 270], "dwell_s": 5.0}
@@ -166,11 +167,12 @@ def test_tilt_table_noise_model_matches_simulated_window_means():
     from imurig.sensors.adc import DAQ6036E
     from imurig.sensors.chain import ImuLab
 
-    from imurig.montecarlo.tilt import TILT_TABLE, _triad_from_truth, window_noise_cov
+    from imurig.montecarlo.tilt import TILT_TABLE
+    from imurig.montecarlo.tilt_crlb import triad_from_truth, window_noise_cov
 
     p = TILT_TABLE.validate({"setting_resolution_arcmin": 0.0, "people": False})
     rec = TILT_TABLE.simulate(p, np.random.SeedSequence(3))
-    tri = _triad_from_truth(rec.truth["sensors"]["accelerometers"])
+    tri = triad_from_truth(rec.truth["sensors"]["accelerometers"])
     f = np.stack([rec.truth_signals[f"f_C_{a}"] for a in "xyz"], 1)
     d = rec.stack(["acc_x", "acc_y", "acc_z"]) - tri.ideal_voltage(f, rec.truth_signals["T_imu"])
     m = np.array([d[s].mean(0) for s in rec.segment_slices()])
@@ -209,7 +211,8 @@ def test_static_rig_equals_mujoco_rig_in_the_windows():
     from imurig.rigs.tilt_table import TiltTable
     from imurig.kernel.random_streams import child_generator
 
-    from imurig.montecarlo.tilt import TILT_TABLE, static_rig
+    from imurig.montecarlo.tilt import TILT_TABLE
+    from imurig.montecarlo.tilt_rig import static_rig
     from imurig.kernel.site import Site
 
     p = TILT_TABLE.validate({"theta_deg": [0, 35, 90], "phi_deg": [0, 120, 250], "dwell_s": 0.5,
@@ -234,7 +237,9 @@ def test_forward_model_matches_the_sensor():
     """The CRLB's forward model is QFlexTriad.ideal_voltage at the reference temperature."""
     from imurig.rigs.tilt_table import specific_force_C
 
-    from imurig.montecarlo.tilt import TILT_TABLE, _key, _layout, forward_volts
+    from imurig.montecarlo.tilt import TILT_TABLE
+    from imurig.montecarlo.tilt_crlb import forward_volts
+    from imurig.montecarlo.tilt_rig import layout_key, window_layout
 
     p = TILT_TABLE.validate(SMALL_TILT)
     errors, _, lab = TILT_TABLE.draw_lab(p, np.random.SeedSequence(8))
@@ -243,7 +248,7 @@ def test_forward_model_matches_the_sensor():
     th = np.concatenate([acc.k1_A_per_m_s2 * acc.load_resistor_ohm, [M[i, j] for i in range(3) for j in range(3)
                                                                      if i != j], acc.bias_m_s2, acc.k2_per_m_s2])
     psi = np.array([errors.theta_zero_rad, errors.level_x_rad] + [errors.phi_zero_rad[m] for m in p["mounts"]])
-    lay = _layout(_key(p))
+    lay = window_layout(layout_key(p))
     z = np.zeros(lay["set_theta"].size * 2)
     g = 9.81242231
     v = forward_volts(th, psi, p, p["mounts"], lay["set_theta"], lay["set_phi"], z, z, g)
@@ -277,15 +282,16 @@ def test_killed_study_resumes_to_the_uninterrupted_result(client, tmp_path):
         run_study(LINEAR, 20, master_seed=3, client=client, out=a)
     with pytest.raises(ConfigError, match="different settings"):
         run_study(LINEAR, 20, master_seed=4, client=client, out=a, resume=True)
-    resumed = run_study(LINEAR, 20, master_seed=3, client=client, out=a, resume=True)
+    resumed = run_study(LINEAR, 20, master_seed=3, client=client, out=a, resume=True, report=write_study_outputs)
     assert resumed.timing["new_runs"] == 13
     assert len(list((a / "runs").glob("run_*.json"))) == 20
-    whole = run_study(LINEAR, 20, master_seed=3, client=client, out=b)
+    whole = run_study(LINEAR, 20, master_seed=3, client=client, out=b, report=write_study_outputs)
     assert resumed.rows == whole.rows
     ra, rb = read_results_h5(a / "results.h5"), read_results_h5(b / "results.h5")
     for k in ("run", "estimate", "std_error", "injected", "crlb"):
         assert np.array_equal(ra[k], rb[k], equal_nan=True), k
-    again = run_study(LINEAR, 20, master_seed=3, client=client, out=a, resume=True)  # nothing left to do
+    # nothing left to do
+    again = run_study(LINEAR, 20, master_seed=3, client=client, out=a, resume=True, report=write_study_outputs)
     assert again.timing["new_runs"] == 0 and again.rows == whole.rows
     s = json.loads((a / "summary.json").read_text())
     assert s["runs"] == 20 and (a / "report.md").exists() and (a / "fig_errors.png").exists()
@@ -326,10 +332,11 @@ def test_compare_schedules_reports_accuracy_and_lab_time(client, tmp_path):
     """Design of experiments on a small base schedule: one study per schedule, paired seeds,
     lab time like seed Table 4.7 (the seed's own schedule gives 270 min at its rates)."""
     from imurig.montecarlo.doe import compare_schedules
+    from imurig.reports.montecarlo_doe import write_comparison
 
     s = compare_schedules("tilt-table", 2, 3, out=tmp_path / "doe", base_params={**SMALL_TILT, "dwell_s": 2.0},
                           schedules={"4 phi, 2 s": {}, "2 phi, 2 s": {"phi_deg": [0, 180]}, "4 phi, 8 s": {"dwell_s": 8.0}},
-                          client=client)
+                          client=client, study_report=write_study_outputs, report=write_comparison)
     by = {r["label"]: r for r in s["schedules"]}
     assert by["2 phi, 2 s"]["lab_time"]["positions"] == 16 and by["4 phi, 8 s"]["lab_time"]["positions"] == 32
     assert by["4 phi, 8 s"]["lab_time"]["lab_time_seed_rates_s"] == 900 + 32 * (8 + 45) + 900
@@ -340,8 +347,7 @@ def test_compare_schedules_reports_accuracy_and_lab_time(client, tmp_path):
     inj = [{x["name"]: x["injected"] for x in v}["bias_x"] for v in rows.values()]
     assert len(set(inj)) == 1
     assert "Table 4.7" in (tmp_path / "doe" / "report.md").read_text()
-    from imurig.montecarlo.doe import table_47
-    from imurig.montecarlo.tilt import TILT_TABLE
+    from imurig.montecarlo.tilt import TILT_TABLE, table_47
 
     assert table_47(TILT_TABLE, TILT_TABLE.validate({}))["complete calibration (2 mountings)"] == 270 * 60
 
@@ -474,7 +480,7 @@ def test_turn_table_forward_model_matches_the_sensor(turn_run):
     from imurig.calibration.gyro import AXIS_OF_MOUNT
     from imurig.sensors.gyro import FOGTriad
 
-    from imurig.montecarlo.turn import forward_volts
+    from imurig.montecarlo.turn_crlb import forward_volts
 
     _, rec, rw, rate = turn_run
     g = rec.truth["sensors"]["gyros"]
@@ -499,7 +505,7 @@ def test_turn_table_noise_model_matches_simulated_whole_round_means(turn_run):
     expected chi2 would be > 1.2 per degree of freedom."""
     from imurig.sensors.gyro import FOGTriad
 
-    from imurig.montecarlo.turn import whole_round_noise
+    from imurig.montecarlo.turn_crlb import whole_round_noise
 
     p, rec, rw, rate = turn_run
     g = rec.truth["sensors"]["gyros"]
@@ -543,7 +549,7 @@ def test_turn_table_lab_time_follows_the_rig_and_the_seed(turn_run):
 def test_turn_table_run_reproduced_alone_equals_its_row(client, tmp_path):
     """A turn-table run on the dask cluster reproduced alone equals its row; every row carries
     injected value, estimate, SE, z and a positive Cramér-Rao bound."""
-    st = run_study("turn-table", 1, master_seed=31, client=client, out=tmp_path / "tt")
+    st = run_study("turn-table", 1, master_seed=31, client=client, out=tmp_path / "tt", report=write_study_outputs)
     alone = reproduce_run("turn-table", 0, 31)
     assert alone["rows"] == st.rows[0]
     assert len(alone["rows"]) == 15
@@ -645,7 +651,8 @@ def test_flight_error_budget_study(client, tmp_path):
     """A 2-run flight study (50 s, datasheet residuals of two sources): the report holds the
     budget; the 2 deg magnetometer residual adds more heading error than a 0.003 deg/s gyro
     bias over 50 s; every run flies none / each source / all."""
-    st = run_study("flight", 2, master_seed=9, params=FLIGHT_SMALL, client=client, out=tmp_path / "fl")
+    st = run_study("flight", 2, master_seed=9, params=FLIGHT_SMALL, client=client, out=tmp_path / "fl",
+                   report=write_study_outputs)
     s = json.loads((tmp_path / "fl" / "summary.json").read_text())
     b = s["budget"]["heading_rms_deg"]
     assert b["runs"] == 2 and set(b["sources"]) == {"gyro_bias", "magnetometer"}

@@ -29,7 +29,7 @@ def test_hdf5_round_trip_is_bit_exact(small_recording, tmp_path):
 def _json_equal(a, b):
     import json
 
-    from imurig.kernel.recording import to_json
+    from imurig.kernel.outputs import to_json
 
     return json.loads(to_json(a)) == json.loads(to_json(b))
 

@@ -194,7 +194,7 @@ def test_gls_with_known_and_reml_white_variance_is_honest():
     from scipy.stats import chi2
 
     from imurig.calibration.regression import fit_gls
-    from imurig.calibration.triad import white_variance_reml
+    from imurig.calibration.gls import white_variance_reml
 
     rng = np.random.default_rng(7)
     n, reps = 80, 200

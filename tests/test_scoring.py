@@ -92,10 +92,11 @@ def test_tilt_residuals_reach_the_noise_floor(tilt_score):
 
 
 def test_turn_bench_through_interface_scores_as_internally(turn):
-    from imurig.campaigns.turn_table import calibrate_gyros, gyro_parameters
+    from imurig.calibration.gyro import GyroCalibration
+    from imurig.campaigns.turn_table import gyro_parameters
 
     rec = turn.simulate()
-    cal, *_ = calibrate_gyros(rec)
+    cal = GyroCalibration().fit(rec)
     internal = {p["name"]: p for p in gyro_parameters(cal, rec)}
     s = score_calibrator(TurnTableCalibrator(), turn)
     for r in s.rows:
@@ -136,11 +137,11 @@ class BiasedTilt(TiltTableCalibrator):
     name = "biased"
 
     def fit(self, recording):
-        rows = super().fit(recording)
-        for r in rows:
+        super().fit(recording)
+        for r in self.estimates_:
             if r["name"] == "bias_y":
                 r["estimate"] += 8 * r["std_error"]
-        return rows
+        return self
 
 
 def test_biased_estimator_fails_naming_the_parameter(tilt, tilt_score):
@@ -160,12 +161,14 @@ class Overcautious(TiltTableCalibrator):
     """Huge standard errors pass any z bound; the SE-ratio and RMS-z bounds catch it."""
 
     def fit(self, recording):
-        return [{**r, "std_error": 100 * r["std_error"]} for r in super().fit(recording)]
+        self.estimates_ = [{**r, "std_error": 100 * r["std_error"]} for r in super().fit(recording).estimates_]
+        return self
 
 
 class Overconfident(TiltTableCalibrator):
     def fit(self, recording):
-        return [{**r, "std_error": r["std_error"] / 20} for r in super().fit(recording)]
+        self.estimates_ = [{**r, "std_error": r["std_error"] / 20} for r in super().fit(recording).estimates_]
+        return self
 
 
 def test_standard_error_bounds_catch_inflated_and_shrunk_errors(tilt):
@@ -288,7 +291,7 @@ def test_truth_file_inside_export_refused(tmp_path):
 def test_scores_from_csv_and_json_equal_in_process(tilt, tilt_score, tilt_export, tmp_path):
     _, truth_file = tilt_export
     truth = TruthSet.load(truth_file)
-    est = TiltTableCalibrator().fit(tilt.recording())
+    est = TiltTableCalibrator().fit(tilt.recording()).estimates_
     write_estimates_csv(tmp_path / "est.csv", est)
     write_estimates_json(tmp_path / "est.json", est)
     for f in ("est.csv", "est.json"):
@@ -440,9 +443,9 @@ def test_pytest_plugin_in_a_user_suite(pytester):
         "from imurig.scoring.baselines import TiltTableCalibrator\n\n"
         "class Mine(TiltTableCalibrator):\n"
         "    def fit(self, rec):\n"
-        "        rows = super().fit(rec)\n"
-        "        rows[9]['estimate'] += 1e-3   # bias_x off by 1 mm/s^2\n"
-        "        return rows\n\n"
+        "        super().fit(rec)\n"
+        "        self.estimates_[9]['estimate'] += 1e-3   # bias_x off by 1 mm/s^2\n"
+        "        return self\n\n"
         "def test_bench(imurig_campaign, assert_calibrator_meets):\n"
         "    assert_calibrator_meets(TiltTableCalibrator(), imurig_campaign('tilt-table-quick', seed=1))\n\n"
         "def test_mine(imurig_campaign, assert_calibrator_meets):\n"
@@ -481,24 +484,26 @@ class GpsOnlyFilter:
     def __init__(self, claim=1.0):
         self.claim = claim
 
-    def run(self, streams):
+    def fit(self, streams):
         g = streams.gps
-        P = np.tile(np.diag(np.square(g.sigma_r_m)), (g.time_s.size, 1, 1)) * self.claim
-        return NavSolution(time_s=g.time_s, r_N=g.r_N, P_r=P)
+        P = np.stack([np.diag(s) for s in np.square(g.sigma_pos_N)]) * self.claim
+        self.solution_ = NavSolution(time_s=g.time_s, r_N=g.r_N, P_r=P)
+        return self
 
 
 def test_filter_consistency_nees():
     """An honest filter's average NEES lies in the chi-square interval; one claiming a 10x
     smaller covariance is flagged inconsistent."""
-    from imurig.scoring.interface import GpsStream, ImuStream, NavFilter, NavStreams
+    from imurig.kernel.navdata import GpsFixes, ImuStream
+    from imurig.scoring.interface import NavFilter, NavStreams
     from imurig.scoring.nav import score_filter
 
     truth = _trajectory()
     rng = np.random.default_rng(np.random.SeedSequence(8))
     sig = np.array([2.0, 2.0, 4.0])
     idx = np.arange(0, truth.time_s.size, 4)
-    gps = GpsStream(time_s=truth.time_s[idx], r_N=truth.r_N[idx] + rng.standard_normal((idx.size, 3)) * sig,
-                    sigma_r_m=sig)
+    gps = GpsFixes(time_s=truth.time_s[idx], r_N=truth.r_N[idx] + rng.standard_normal((idx.size, 3)) * sig,
+                   sigma_pos_N=sig)
     imu = ImuStream(time_s=truth.time_s, f_B=np.zeros((truth.time_s.size, 3)), w_IB_B=np.zeros((truth.time_s.size, 3)))
     streams = NavStreams(imu=imu, gps=gps)
     assert isinstance(GpsOnlyFilter(), NavFilter)

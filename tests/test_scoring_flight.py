@@ -21,9 +21,8 @@ from imurig.scoring.flight import (
     score_nav_filter_on_flight,
     trim_solution,
 )
+from imurig.kernel.navdata import GpsFixes, ImuStream
 from imurig.scoring.interface import (
-    GpsStream,
-    ImuStream,
     MagStream,
     NavSolution,
     NavStreams,
@@ -47,7 +46,7 @@ def calibrated(nominal):
 def baseline(calibrated):
     """Baseline score and 3-sigma bounds from its own covariance (module doc)."""
     s, _, _ = calibrated
-    sol = ProjectEKF().run(s)
+    sol = ProjectEKF().fit(s).solution_
     t = trim_solution(sol, float(s.imu.time_s[0]) + SETTLE_S)
     bounds = {b: 3 * math.sqrt(float(np.mean(np.trace(P, axis1=1, axis2=2))))
               for b, P in (("position", t.P_r), ("velocity", t.P_v), ("attitude", t.P_att))}
@@ -97,10 +96,10 @@ def test_gps_stream_in_truth_frame_within_its_sigma(nominal):
     v = np.stack([np.interp(g.time_s, truth.time_s, truth.v_N[:, j]) for j in range(3)], 1)
     i = np.searchsorted(truth.time_s, g.time_s)
     ant = r + E.C_from_q(truth.q_NB[i]) @ np.asarray(s.meta["lever_gps_B_m"])
-    sig = np.sqrt(np.asarray(g.sigma_r_m) ** 2 + (s.meta["gps_time_sigma_s"] * v) ** 2)
+    sig = np.sqrt(np.asarray(g.sigma_pos_N) ** 2 + (s.meta["gps_time_sigma_s"] * v) ** 2)
     z = (g.r_N - ant) / sig
     assert np.max(np.abs(z)) < 5, np.max(np.abs(z))
-    zv = (g.v_N - v) / np.sqrt(np.asarray(g.sigma_v_m_s) ** 2 + 0.05 ** 2)   # + lever-arm velocity ≲ 0.05 m/s
+    zv = (g.v_N - v) / np.sqrt(np.asarray(g.sigma_vel_N) ** 2 + 0.05 ** 2)   # + lever-arm velocity ≲ 0.05 m/s
     assert np.max(np.abs(zv)) < 5
 
 
@@ -125,8 +124,10 @@ def test_streams_hold_no_truth(nominal):
 
     s, _, _ = nominal
     assert type(s) is NavStreams
-    assert [f.name for f in dataclasses.fields(s.imu)] == ["time_s", "f_B", "w_IB_B"] and type(s.imu) is ImuStream
-    assert type(s.gps) is GpsStream and type(s.mag) is MagStream
+    assert type(s.imu) is ImuStream and type(s.gps) is GpsFixes and type(s.mag) is MagStream
+    assert [f.name for f in dataclasses.fields(s.imu)] == ["time_s", "f_B", "w_IB_B", "B_B", "T_acc_K", "samples"]
+    assert s.imu.B_B is None and s.imu.T_acc_K is None          # the field is the mag stream; no temperatures
+    assert s.gps.t_true_s is None and s.gps.lat_rad is None      # no true epochs; positions in N0 (r_N)
     assert [f.name for f in dataclasses.fields(s.mag)] == ["time_s", "B_B"]
     assert not any("truth" in k or "true" in k for k in s.meta)
     assert not any(isinstance(v, NavSolution) for v in s.meta.values())

@@ -1,15 +1,22 @@
 """Sensor-chain stages against closed forms: Q-Flex equation, ADC crosstalk, grounding,
-quantisation, anti-alias filter, band-limited noise, temperature sensor."""
+quantisation, anti-alias filter, band-limited noise and its folding, temperature sensor, and the
+chain's composition of effects per stage."""
 from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 import pytest
 
 from imurig.calibration.preprocess import lowpass_downsample
+from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
-from imurig.sensors.noise import band_noise
+from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
+from imurig.sensors.effects import AdcCrosstalk, Effect
+from imurig.sensors.noise import band_noise, band_power_gain, sampled_bands, window_mean_variance
 from imurig.kernel.units import G_STANDARD
 
 FS = 1000.0
@@ -134,3 +141,75 @@ def test_downsample_ratio_must_be_whole():
     rec = Recording(time_s=t, channels={"a": np.zeros(100)}, units={"a": "V"}, meta={})
     with pytest.raises(RecordingError, match="whole number"):
         lowpass_downsample(rec, rate_hz=300.0)
+
+
+# ------------------------------------------------------------------ noise-band folding
+def test_sampled_bands_fold_and_average():
+    """Direct sampling aliases a band above f_s/2 to white of its full rms and cuts a band across
+    f_s/2 at f_s/2; averaged logging drops the first and keeps the second's in-band power share."""
+    bands = ((0.0, 10.0, 1.0), (10.0, 500.0, 2.0), (500.0, 10e3, 3.0), (0.0, 5.0, 0.0))
+    assert sampled_bands(bands, 100.0) == [(0.0, 10.0, 1.0), (10.0, 50.0, 2.0), (0.0, 50.0, 3.0)]
+    av = sampled_bands(bands, 100.0, averaged=True)
+    assert av[:1] == [(0.0, 10.0, 1.0)] and len(av) == 2
+    assert av[1][:2] == (10.0, 50.0) and av[1][2] == pytest.approx(2.0 * np.sqrt(40.0 / 490.0), rel=1e-15)
+
+
+def test_window_mean_variance_of_low_pass_noise():
+    """The variance of N-sample window means of band_noise (0-10 Hz at 100 Hz) is rms^2 / (g^2 N)
+    (long-window limit) within 4.5 standard errors; white noise gives rms^2 / N; a band above DC none."""
+    fs, N, n_win = 100.0, 1000, 2000
+    x = band_noise(np.random.default_rng(4), (N * n_win,), fs, (0.0, 10.0), 2.0)
+    m = x.reshape(n_win, N).mean(axis=1)
+    v = window_mean_variance(((0.0, 10.0, 2.0),), fs, N)
+    assert v == pytest.approx(4.0 / (band_power_gain(fs, (0.0, 10.0)) * N), rel=1e-15)
+    assert abs(np.mean(m**2) - v) < 4.5 * np.std(m**2, ddof=1) / np.sqrt(n_win)
+    assert window_mean_variance(((0.0, 500.0, 2.0),), fs, N) == pytest.approx(4.0 / N, rel=1e-15)
+    assert window_mean_variance(((10.0, 40.0, 2.0),), fs, N) == 0.0
+
+
+# ------------------------------------------------------------------ the chain composes effects
+def _still_rig(n=3000, fs=100.0, start="2005-06-14T10:00:00+02:00"):
+    t = np.arange(n) / fs
+    ts = {f"f_C_{a}": np.full(n, v) for a, v in zip("xyz", (0.1, -0.2, 9.81))}
+    ts |= {f"B_C_{a}": np.full(n, v) for a, v in zip("xyz", (18e-6, 1e-6, 45e-6))}
+    ts |= {f"w_C_{a}": np.zeros(n) for a in "xyz"}
+    return Recording(time_s=t, channels={}, units={}, truth_signals=ts,
+                     meta={"sample_rate_hz": fs, "start_time": start})
+
+
+@dataclass
+class Hum(Effect):
+    """A test effect: a 7 Hz hum on mag_x (V)."""
+
+    amplitude_V: float = 1e-3
+    name: ClassVar[str] = "test_hum"
+    stage: ClassVar[str] = "analog"
+    stream: ClassVar[str] = "test_hum"
+
+    def lines(self, names, ctx):
+        return ["mag_x"]
+
+    def inject(self, v, ctx, rng):
+        return v + self.amplitude_V * np.sin(2 * np.pi * 7.0 * ctx.time_s + rng.uniform(0, 2 * np.pi))
+
+
+def test_chain_stages_compose_the_labs_effects():
+    """The named disturbances and the lab's own effects act at their stages; an extra analog
+    effect changes its own line only (its own random stream), every other channel bit for bit;
+    a conversion or sensor effect is refused as a lab effect."""
+    lab = ImuLab(adc=DAQ6036E(scan_list=DEFAULT_SCAN, sample_rate_hz=100.0))
+    assert lab.stage_effects("specific_force") == [lab.pump, lab.people]
+    assert lab.stage_effects("analog") == [lab.slip_rings, lab.cable]
+    assert [e.name for e in lab.stage_effects("conversion")] == ["channel_skew", "adc_crosstalk"]
+    rig = _still_rig()
+    seed = np.random.SeedSequence(5)
+    a = lab.measure(rig, seed)
+    hum = Hum()
+    b = replace(lab, effects=(hum,)).measure(rig, seed)
+    assert replace(lab, effects=(hum,)).stage_effects("analog") == [lab.slip_rings, lab.cable, hum]
+    assert "f_dist_C_x" in a.truth_signals and "effects" not in a.truth["chain"]    # the pump is on by day
+    assert b.truth["chain"]["effects"] == {"test_hum": {"amplitude_V": 1e-3}}
+    for k in a.channels:
+        assert np.array_equal(a.channels[k], b.channels[k]) == (k != "mag_x"), k
+    with pytest.raises(ConfigError, match="converter"):
+        ImuLab(effects=(AdcCrosstalk(),))

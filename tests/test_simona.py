@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from imurig.calibration.simona import (GYROS, fit_simona, measured_rate, plot_fig_4_19, read_simona,
-                                       simona_markdown)
+from imurig.calibration.simona import GYROS, SimonaCalibration, measured_rate, read_simona
+from imurig.calibration.simona_report import plot_fig_4_19, simona_markdown
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.units import DEG
@@ -55,7 +55,7 @@ def test_import_rows_units_segments(real):
 
 
 def test_own_fit_matches_closed_form_and_beats_manufacturer(real):
-    fit = fit_simona(real)
+    fit = SimonaCalibration().fit(real).summary_
     ref_dps = np.where(real.channels["measured_round"] > 0, 360.0 / np.where(real.channels["measured_round"] > 0,
                                                                               real.channels["measured_round"], 1), 0)
     for g in GYROS:
@@ -75,14 +75,14 @@ def test_own_fit_matches_closed_form_and_beats_manufacturer(real):
 
 
 def test_fit_before_range_change(real):
-    before = fit_simona(real, rows=slice(0, -9))
-    after = fit_simona(real, rows=slice(-9, None))
+    before = SimonaCalibration(rows=slice(0, -9)).fit(real).summary_
+    after = SimonaCalibration(rows=slice(-9, None)).fit(real).summary_
     assert before["p"]["rows"].tolist() == list(range(16))
     assert after["p"]["result"].n == 9
     V = real.channels["gyro_p"][:16]
     ref = measured_rate(real)[:16] / DEG
     assert before["p"]["beta1_dps_per_V"] == pytest.approx(np.polyfit(V, ref, 1)[0], rel=1e-10)
-    md = simona_markdown(fit_simona(real), before)
+    md = simona_markdown(SimonaCalibration().fit(real).summary_, before)
     assert "(virtual)" in md
 
 
@@ -90,7 +90,7 @@ def test_synthetic_exact_recovery():
     V = np.linspace(0.002, 0.45, 20)
     b0 = {"p": 0.03, "q": -0.02, "r": 0.05}
     b1 = {"p": 183.0, "q": 184.5, "r": 185.2}
-    fit = fit_simona(_synthetic(b0, b1, V))
+    fit = SimonaCalibration().fit(_synthetic(b0, b1, V)).summary_
     for g in GYROS:
         assert fit[g]["beta0_dps"] == pytest.approx(b0[g], abs=1e-12)
         assert fit[g]["beta1_dps_per_V"] == pytest.approx(b1[g], rel=1e-12)
@@ -103,7 +103,7 @@ def test_synthetic_noise_within_four_standard_errors():
     b0 = {"p": 0.1, "q": 0.1, "r": 0.1}
     b1 = {"p": 180.0, "q": 180.0, "r": 180.0}
     sigma = 0.05
-    fit = fit_simona(_synthetic(b0, b1, V, noise_dps=rng.normal(0.0, sigma, V.size)))
+    fit = SimonaCalibration().fit(_synthetic(b0, b1, V, noise_dps=rng.normal(0.0, sigma, V.size))).summary_
     for g in GYROS:
         f = fit[g]
         assert abs(f["beta0_dps"] - b0[g]) < 4 * f["beta0_se_dps"]

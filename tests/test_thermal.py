@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from imurig.calibration.thermal import fit_thermal
+from imurig.calibration.thermal import ThermalCalibration
 from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.kernel.errors import RecordingError, ScheduleError
 from imurig.rigs.thermal_chamber import ThermalProfile
@@ -111,4 +111,4 @@ def test_fit_refuses_single_temperature(runs):
     keep = np.isclose(tab["T_set"], tab["T_set"][0])
     tab = {k: (v[keep] if isinstance(v, np.ndarray) and v.shape[:1] == keep.shape else v) for k, v in tab.items()}
     with pytest.raises(RecordingError, match="one temperature"):
-        fit_thermal(tab)
+        ThermalCalibration().fit(tab)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from imurig.calibration.allan import fit_arw
-from imurig.calibration.gyro import pulse_edges
-from imurig.campaigns.turn_table import (Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros, gyro_parameters,
+from imurig.calibration.gyro import GyroCalibration, pulse_edges
+from imurig.campaigns.turn_table import (Z_BOUND, TurnTableCampaign, arm_study, gyro_parameters,
                                          round_time_error_at, simona_virtual, timer_study)
 from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
@@ -142,7 +142,7 @@ def gyro_runs():
     out = []
     for seed in (1, 2, 3, 4):
         rec = TurnTableCampaign(protocol=SHORT, seed=seed).simulate()
-        cal, *_ = calibrate_gyros(rec)
+        cal = GyroCalibration().fit(rec)
         out.append(gyro_parameters(cal, rec))
     return out
 

@@ -64,6 +64,7 @@ from imurig.flights.plan import simulate_flight
 from imurig.flights.truth import static_tests_truth
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import GpsFixes
 from imurig.kernel.progress import progress
 from imurig.sensors.chain import ImuLab
 
@@ -131,12 +132,12 @@ def measure_volts(truth, lab: ImuLab, seed: int) -> dict:
     return {k: np.asarray(rec.channels[k]) for k in rec.channels}
 
 
-def gps_fixes(truth, opt: FlightOptions, seed: int) -> ekf.SimpleGps:
+def gps_fixes(truth, opt: FlightOptions, seed: int) -> GpsFixes:
     """The Euro4 receiver's fixes of the flight (:func:`receiver_fixes`) on the stream ``flight/gps``."""
     return receiver_fixes(truth, opt, random_streams.generator("flight/gps", seed))
 
 
-def receiver_fixes(truth, opt, rng: np.random.Generator) -> ekf.SimpleGps:
+def receiver_fixes(truth, opt, rng: np.random.Generator) -> GpsFixes:
     """Fixes of the Euro4 receiver model (:class:`imurig.flights.gps.GpsReceiver`) at ``opt.gps_rate_hz``,
     drawn from ``rng``, time-tagged as the filter uses them; sets ``opt.gps_latency_s`` and
     ``opt.gps_time_sigma_s``.
@@ -154,8 +155,9 @@ def receiver_fixes(truth, opt, rng: np.random.Generator) -> ekf.SimpleGps:
     dti = 1.0 / truth.rate_hz if rx.quantise_to_imu else 0.0
     opt.gps_latency_s = float(rx.latency_s + dti / 2)   # time_offset_s is an unknown error: not removed
     opt.gps_time_sigma_s = math.sqrt((dti / 2) ** 2 + rx.time_jitter_s ** 2)
-    return ekf.SimpleGps(fx.time_s - opt.gps_latency_s, fx.lat_rad, fx.lon_rad, fx.h_m, fx.v_N, fx.sigma_pos_N,
-                         fx.sigma_vel_N, mode=fx.mode, valid=np.asarray(fx.valid, bool), meta=fx.meta)
+    return GpsFixes(time_s=fx.time_s - opt.gps_latency_s, lat_rad=fx.lat_rad, lon_rad=fx.lon_rad, h_m=fx.h_m,
+                    v_N=fx.v_N, sigma_pos_N=fx.sigma_pos_N, sigma_vel_N=fx.sigma_vel_N, mode=fx.mode,
+                    valid=np.asarray(fx.valid, bool), meta=fx.meta)
 
 
 # ------------------------------------------------------------------ the study
@@ -167,7 +169,7 @@ class FlightStudy:
     opt: FlightOptions
     truth: object
     lab: ImuLab
-    gps: ekf.SimpleGps
+    gps: GpsFixes
     cals: dict
     runs: dict
     summary: dict

@@ -14,14 +14,17 @@ from dataclasses import replace
 
 import numpy as np
 
-from imurig.calibration.magnetometer import fit_ellipsoid_3d
-from imurig.calibration.thermal import _design, fit_thermal, step_table
+from imurig.calibration.gyro import GyroCalibration
+from imurig.calibration.magnetometer import MagnetometerCalibration
+from imurig.calibration.thermal import ThermalCalibration, step_table
 from imurig.campaigns.thermal import ThermalCampaign
 from imurig.campaigns.tilt_table import TiltTableCampaign
 from imurig.campaigns.tilt_table import calibrate as cal_acc
-from imurig.campaigns.turn_table import TurnTableCampaign, calibrate_gyros
-from imurig.flights import ekf, ins
+from imurig.campaigns.turn_table import TurnTableCampaign
+from imurig.flights import ins
 from imurig.kernel import random_streams
+from imurig.kernel.navdata import ImuStream
+from imurig.kernel.units import T_REF_K
 from imurig.rigs.mag_rig import MagRig, Tumble
 from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.rigs.turn_table import TurnTableProtocol
@@ -42,8 +45,7 @@ def calibrations(seed: int, quick: bool = True) -> dict:
     else:
         tp, rp = TiltTableProtocol(), TurnTableProtocol()
     acc = cal_acc(TiltTableCampaign(protocol=tp, seed=seed, pump=False, people=False).simulate())
-    gyro = calibrate_gyros(TurnTableCampaign(protocol=rp, seed=seed).simulate())
-    gyro = gyro[0] if isinstance(gyro, tuple) else gyro
+    gyro = GyroCalibration().fit(TurnTableCampaign(protocol=rp, seed=seed).simulate())
     return {"accelerometers": acc, "gyros": gyro}
 
 
@@ -51,7 +53,7 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
     """Calibration of the flight's magnetometer (the very fluxgate and installation iron of ``lab``)
     on the virtual magnetometer rig: a tumble on the MuJoCo gimbal (:class:`imurig.rigs.mag_rig.Tumble`,
     ``tumble_s`` s), measured through the lab's chain, then the two-step ellipsoid fit
-    (:func:`imurig.calibration.magnetometer.fit_ellipsoid_3d`, [Elk01], paper 3.2 / Fig. 5):
+    (:class:`imurig.calibration.magnetometer.MagnetometerCalibration`, [Elk01], paper 3.2 / Fig. 5):
 
         m_k = A B_C,k + b + e_k,   |B_C,k| = F (IGRF total intensity at the rig)      [T]
         calibrated field  B̂ = T (m − b),  T = A⁻¹ up to a rotation
@@ -70,7 +72,7 @@ def mag_calibration(lab: ImuLab, seed: int, tumble_s: float = 120.0) -> dict:
                                 averaging=10))
     rec = mlab.measure(rig, random_streams.seed_sequence("flight/mag-rig/sensor-chain", seed))
     m = rec.stack(("mag_x", "mag_y", "mag_z")) / 4.0e4
-    e3 = fit_ellipsoid_3d(m, float(rec.meta["igrf_total_T"]))
+    e3 = MagnetometerCalibration("ellipsoid").fit(m, float(rec.meta["igrf_total_T"]))
     # the rotation left free by the fit: Wahba's problem between the calibrated field and the field
     # the lab predicts in the sensor frame from what it knows: the IGRF field at the site (W = ENU)
     # and the gimbal's angle encoders, B_ref = R_WCᵀ B_W, R_WC = Rz(yaw) Ry(pitch) Rx(roll)
@@ -107,9 +109,9 @@ def thermal_calibration(seed: int) -> dict:
     B(T, h) and scale S(T, h) of each accelerometer against its temperature channel T (K) and the
     hysteresis state h (paper section 3.1; :mod:`imurig.calibration.thermal`)."""
     rec = ThermalCampaign(seed=seed).simulate()
-    return {"fit": fit_thermal(step_table(rec)), "width_K": float(rec.truth["sensors"]["accelerometers"]
+    return {"fit": ThermalCalibration().fit(step_table(rec)), "width_K": float(rec.truth["sensors"]["accelerometers"]
                                                                   .get("hysteresis_width_K", 4.0)),
-            "T_ref_K": 298.15}
+            "T_ref_K": T_REF_K}
 
 
 def thermal_terms(th: dict, T_K: np.ndarray, fs: float):
@@ -121,24 +123,13 @@ def thermal_terms(th: dict, T_K: np.ndarray, fs: float):
     h from the measured temperature by the play operator of the sensor's hysteresis width
     (:func:`imurig.sensors.thermal.hysteresis_state`; at switch-on the mid-branch state h = 0, the
     tilt table's). Returns (ΔB, ρ, σ_ΔB): σ_ΔB (n, 3) the fit's standard error of ΔB (delta method
-    on the coefficient covariance)."""
-    fit = th["fit"]
+    on the coefficient covariance; :meth:`imurig.calibration.thermal.ThermalCalibration.compensation`)."""
     T_K = np.asarray(T_K, float)
-    dB, rho, sdB = (np.empty_like(T_K) for _ in range(3))
-    for j, a in enumerate("xyz"):
-        h = hysteresis_state(T_K[:, j], th["width_K"], fs)
-        kb, ks = f"acc_bias_{a}", f"acc_scale_{a}"
-        S0 = float(fit.predict(ks, np.array([th["T_ref_K"]]), 0.0)[0])
-        rho[:, j] = fit.predict(ks, T_K[:, j], h) / S0
-        B0 = float(fit.predict(kb, np.array([th["T_ref_K"]]), 0.0)[0])
-        dB[:, j] = fit.predict(kb, T_K[:, j], h) - rho[:, j] * B0
-        r = fit.results[kb]
-        X = _design(T_K[:, j], fit.order[kb], h) - _design(np.array([th["T_ref_K"]]), fit.order[kb], np.zeros(1))
-        sdB[:, j] = np.sqrt(np.einsum("ni,ij,nj->n", X, r.cov_, X))
-    return dB, rho, sdB
+    h = np.stack([hysteresis_state(T_K[:, j], th["width_K"], fs) for j in range(3)], 1)
+    return th["fit"].compensation(T_K, h, th["T_ref_K"])
 
 
-def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStream:
+def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ImuStream:
     """SI samples for the filter: datasheet-nominal conversions (``cals`` None) or the campaign
     calibrations (inverse models on the indicated values V / nominal sensitivity)."""
     Va = np.stack([volts[f"acc_{a}"] for a in "xyz"], 1)
@@ -166,4 +157,4 @@ def imu_stream(truth, volts: dict, lab: ImuLab, cals: dict | None) -> ekf.ImuStr
         c, s_ = math.cos(mc["heading_offset_rad"]), math.sin(mc["heading_offset_rad"])
         # rotate about body z by the reference-heading offset (FRD: psi = atan2(-h_y, h_x))
         B = np.column_stack([c * B[:, 0] - s_ * B[:, 1], s_ * B[:, 0] + c * B[:, 1], B[:, 2]])
-    return ekf.ImuStream(truth.time_s, w, f, B, Tk, samples=ins.sample_semantics(truth))
+    return ImuStream(time_s=truth.time_s, f_B=f, w_IB_B=w, B_B=B, T_acc_K=Tk, samples=ins.sample_semantics(truth))

@@ -46,7 +46,7 @@ def run_filter(truth, stream, gps, opt, lab: ImuLab, pbar=None, cals: dict | Non
             pbar.update(k - last[0])
         last[0] = k
 
-    return f.run(stream, gps, x0, P0=P0, progress=cb)
+    return f.fit(stream, gps, x0, P0=P0, progress=cb).solution_
 
 
 def alignment_means(truth, stream, window_s: float = ALIGN_WINDOW_S):

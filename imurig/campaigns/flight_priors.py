@@ -171,7 +171,7 @@ def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:
     mc = cals.get("magnetometer")
     if mc is not None:
         e3 = mc["ellipsoid"]
-        out["mag_heading_sigma_rad"] = float(e3.rms_residual_T / mc["H_T"])
+        out["mag_heading_sigma_rad"] = float(e3.rms_residual_T_ / mc["H_T"])
     return out
 
 

@@ -20,7 +20,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from imurig.calibration.magnetometer import compass_swing, fit_ellipse_2d, fit_ellipsoid_3d, heading_from_field, wrap_pi
+from imurig.calibration.heading import heading_from_field, wrap_pi
+from imurig.calibration.magnetometer import MagnetometerCalibration
 from imurig.kernel import random_streams
 from imurig.kernel.recording import Recording
 from imurig.rigs.mag_rig import CompassSwing, LevelCircle, MagRig, Tumble
@@ -104,9 +105,24 @@ def analyse(rec: Recording) -> dict:
     circ = manoeuvre_mask(rec, "level_circle")
     tum = manoeuvre_mask(rec, "tumble")
     val = manoeuvre_mask(rec, "validation_circle")
-    e2 = fit_ellipse_2d(m[circ, 0], m[circ, 1], H)
-    e3 = fit_ellipsoid_3d(m[tum], F)
+    e2 = MagnetometerCalibration("ellipse").fit(m[circ, :2], H)
+    e3 = MagnetometerCalibration("ellipsoid").fit(m[tum], F)
     out["ellipse"], out["ellipsoid"] = e2, e3
+    out["parameters"] = _invariant_rows(rec, e2, e3, circ)
+    # calibrated norm on the tumble
+    cal3 = e3.apply(m[tum])
+    out["norm_std_nT"] = float(np.std(np.linalg.norm(cal3, axis=1)) * 1e9)
+    out["norm_std_manufacturer_nT"] = float(np.std(np.linalg.norm(m[tum], axis=1)) * 1e9)
+    out["noise_nT"] = float(rec.truth["sensors"]["magnetometer"]["noise_T_rms"] * 1e9) if rec.truth else None
+    sw = _headings(rec, m, e2, val, out)
+    out["fig5"] = {"manufacturer": m[val], "calibrated": e3.apply(m[val])}
+    out["swing_mask"] = sw
+    return out
+
+
+def _invariant_rows(rec: Recording, e2, e3, circ) -> list[dict]:
+    """Parameter rows of the 3-D fit (b, A A') and the 2-D fit (b2, A2 A2') with the injected
+    invariants when the recording has its truth."""
     params = []
     truth = true_invariants(rec) if rec.truth else None
     # 3-D: b and the unique entries of A A'
@@ -115,18 +131,18 @@ def analyse(rec: Recording) -> dict:
         AAt = truth["A"] @ truth["A"].T
         inj3 = [AAt[0, 0], AAt[0, 1], AAt[0, 2], AAt[1, 1], AAt[1, 2], AAt[2, 2], *truth["b"]]
     names3 = _aat_names() + ["b_x", "b_y", "b_z"]
-    est3 = [*e3.AAt[np.triu_indices(3)], *e3.b]
-    se3 = np.sqrt(np.diag(e3.invariant_cov))
-    order = list(e3.invariant_names)
+    est3 = [*e3.AAt_[np.triu_indices(3)], *e3.b_]
+    se3 = np.sqrt(np.diag(e3.invariant_cov_))
+    order = list(e3.invariant_names_)
     for k, n in enumerate(names3):
         params.append(_row(f"3d:{n}", "T" if n.startswith("b") else "1", est3[k], _se_for(order, n, se3, k),
                            None if inj3 is None else inj3[k]))
     # 2-D: b2 (with the vertical leak) and A2 A2'
-    A2 = e2.A2
+    A2 = e2.A_
     A2A2 = A2 @ A2.T
     J_rows = _a2a2t_jacobian(e2)
-    cov2 = e2.cov
-    est2 = [A2A2[0, 0], A2A2[0, 1], A2A2[1, 1], e2.b2[0], e2.b2[1]]
+    cov2 = e2.cov_
+    est2 = [A2A2[0, 0], A2A2[0, 1], A2A2[1, 1], e2.b_[0], e2.b_[1]]
     se2 = list(np.sqrt(np.diag(J_rows @ cov2[:3, :3] @ J_rows.T))) + list(np.sqrt(np.diag(cov2)[3:5]))
     inj2 = None
     if truth:
@@ -138,18 +154,18 @@ def analyse(rec: Recording) -> dict:
     for k, n in enumerate(["A2A2t_xx", "A2A2t_xy", "A2A2t_yy", "b2_x", "b2_y"]):
         params.append(_row(f"2d:{n}", "T" if n.startswith("b") else "1", est2[k], se2[k],
                            None if inj2 is None else inj2[k]))
-    out["parameters"] = params
-    # calibrated norm on the tumble
-    cal3 = e3.apply(m[tum])
-    out["norm_std_nT"] = float(np.std(np.linalg.norm(cal3, axis=1)) * 1e9)
-    out["norm_std_manufacturer_nT"] = float(np.std(np.linalg.norm(m[tum], axis=1)) * 1e9)
-    out["noise_nT"] = float(rec.truth["sensors"]["magnetometer"]["noise_T_rms"] * 1e9) if rec.truth else None
+    return params
+
+
+def _headings(rec: Recording, m, e2, val, out: dict):
+    """Headings on the validation circle (manufacturer, two-step 2-D, compass swing, 2-D with one
+    reference heading) and the swing into ``out``; returns the compass-swing mask."""
     # heading: validation circle, true heading from the rig, declination from IGRF
     B_W = np.asarray(rec.meta["igrf_field_W_T"])
     decl = float(np.arctan2(B_W[0], B_W[1]))
     psi_true = rec.truth_signals["heading"][val] if "heading" in rec.truth_signals else None
     heads = {"manufacturer": heading_from_field(m[val, :2], declination_rad=decl, frame="FLU"),
-             "two-step 2-D": heading_from_field(np.column_stack(e2.apply(m[val, 0], m[val, 1])),
+             "two-step 2-D": heading_from_field(e2.apply(m[val, :2]),
                                                 declination_rad=decl, frame="FLU")}
     # the swing: 12 headings on the rose, indicated with the manufacturer's calibration
     sw = manoeuvre_mask(rec, "compass_swing")
@@ -161,23 +177,21 @@ def analyse(rec: Recording) -> dict:
         ind.append(float(np.angle(np.mean(np.exp(1j * heading_from_field(m[s, :2], declination_rad=decl,
                                                                           frame="FLU"))))))
         rose.append(float(seg["heading_set"][i]))
-    swing = compass_swing(np.mod(rose, 2 * np.pi), np.mod(ind, 2 * np.pi))
+    swing = MagnetometerCalibration("swing").fit(np.mod(ind, 2 * np.pi), np.mod(rose, 2 * np.pi))
     out["swing"] = swing
     heads["compass swing"] = swing.correct(heads["manufacturer"])
     # a field-domain fit cannot see a rotation about the vertical (A2 is only known up to one):
     # one reference heading -- the first compass-rose mark -- fixes it
     first = next(i for i, s_ in enumerate(rec.segment_slices()) if seg["manoeuvre"][i] == "compass_swing")
     s0 = rec.segment_slices()[first]
-    psi0 = heading_from_field(np.column_stack(e2.apply(m[s0, 0], m[s0, 1])), declination_rad=decl, frame="FLU")
+    psi0 = heading_from_field(e2.apply(m[s0, :2]), declination_rad=decl, frame="FLU")
     offset = float(np.angle(np.mean(np.exp(1j * (psi0 - seg["heading_set"][first])))))
     out["heading_offset_2d_deg"] = float(np.degrees(offset))
     heads["two-step 2-D + 1 reference heading"] = np.mod(heads["two-step 2-D"] - offset, 2 * np.pi)
     if psi_true is not None:
         out["heading_error_deg"] = {k: _err_stats(v, psi_true) for k, v in heads.items()}
         out["heading_series"] = {"time_s": rec.time_s[val], "true": psi_true, **heads}
-    out["fig5"] = {"manufacturer": m[val], "calibrated": e3.apply(m[val])}
-    out["swing_mask"] = sw
-    return out
+    return sw
 
 
 def _se_for(order, name, se, k):
@@ -186,8 +200,8 @@ def _se_for(order, name, se, k):
 
 def _a2a2t_jacobian(e2) -> np.ndarray:
     """d(A2 A2')_{xx, xy, yy} / d(sx, sy, rho), A2 = [[sx, rho], [0, sy]]."""
-    sx, sy, rho = (e2.params[k] for k in ("sx", "sy", "rho"))
-    order = list(e2.names)[:3]
+    sx, sy, rho = (e2.params_[k] for k in ("sx", "sy", "rho"))
+    order = list(e2.names_)[:3]
     J = {"sx": [2 * sx, 0, 0], "sy": [0, rho, 2 * sy], "rho": [2 * rho, sy, 0]}
     return np.array([J[n] for n in order]).T
 

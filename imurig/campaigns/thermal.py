@@ -11,11 +11,11 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from imurig.calibration.thermal import ThermalFit, branch_gap, fit_thermal, step_table
+from imurig.calibration.thermal import ThermalCalibration, branch_gap, step_table
 from imurig.kernel import random_streams
 from imurig.kernel.recording import Recording
 from imurig.rigs.thermal_chamber import ThermalChamber, ThermalProfile
-from imurig.sensors.accelerometer import QFlexTriad
+from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
@@ -80,8 +80,6 @@ def twin_channels(rec: Recording) -> dict:
     vg = gy.ideal_voltage(w, ts["T_gyro"])
     out = {f"acc_{a}": va[:, j] for j, a in enumerate("xyz")}
     out.update({f"gyro_{a}": vg[:, j] for j, a in enumerate("pqr")})
-    from imurig.sensors.accelerometer import CurrentTemperatureSensor
-
     for name, T in (("temp_acc_x", ts["T_acc"]), ("temp_acc_y", ts["T_acc"]), ("temp_acc_z", ts["T_acc"]),
                     ("temp_box", ts["T_box"])):
         sd = dict(t.get("temperature_sensors", {}).get(name, {}))
@@ -90,11 +88,11 @@ def twin_channels(rec: Recording) -> dict:
     return out
 
 
-def compare(fit: ThermalFit, twin: ThermalFit) -> list[dict]:
+def compare(fit: ThermalCalibration, twin: ThermalCalibration | None = None) -> list[dict]:
     rows = []
     unit = {"acc_bias": "m/s^2", "acc_scale": "1", "gyro_bias": "rad/s"}
-    for key, r in fit.results.items():
-        tw = twin.results.get(key)
+    for key, r in fit.results_.items():
+        tw = None if twin is None else twin.results_.get(key)
         kind = key.rsplit("_", 1)[0]
         for n, est, se in zip(r.names, r.coef_, r.std_error_):
             inj = None if tw is None else float(tw.coef(n))
@@ -109,14 +107,14 @@ def compare(fit: ThermalFit, twin: ThermalFit) -> list[dict]:
 
 def analyse(rec: Recording) -> dict:
     table = step_table(rec)
-    fit = fit_thermal(table)
+    fit = ThermalCalibration().fit(table)
     out = {"table": table, "fit": fit}
     if rec.truth and "T_acc" in rec.truth_signals:
         twin_table = step_table(rec, channels=twin_channels(rec))
-        twin = fit_thermal(twin_table)
+        twin = ThermalCalibration().fit(twin_table)
         out.update(twin_table=twin_table, twin=twin, coefficients=compare(fit, twin))
     else:
-        out["coefficients"] = compare(fit, ThermalFit({}, {}))
+        out["coefficients"] = compare(fit)
     gaps = {}
     for j, a in enumerate("xyz"):
         g = branch_gap(table, "acc_bias", j)
@@ -130,12 +128,12 @@ def analyse(rec: Recording) -> dict:
     for j, a in enumerate("xyz"):
         b = table["acc_bias"][:, j]
         s = np.where(table["branch"] == "up", 0.5, -0.5)
-        corr = b - fit.predict(f"acc_bias_{a}", table["T_acc"][:, j], s) + fit.results[f"acc_bias_{a}"].coef_[0]
+        corr = b - fit.predict(f"acc_bias_{a}", table["T_acc"][:, j], s) + fit.results_[f"acc_bias_{a}"].coef_[0]
         spread[f"acc_bias_{a}"] = {"before_m_s2": float(np.std(b, ddof=1)), "after_m_s2": float(np.std(corr, ddof=1))}
     for j, a in enumerate("pqr"):
         b = table["gyro_bias"][:, j]
         s = np.where(table["branch"] == "up", 0.5, -0.5)
-        corr = b - fit.predict(f"gyro_bias_{a}", table["T_box"], s) + fit.results[f"gyro_bias_{a}"].coef_[0]
+        corr = b - fit.predict(f"gyro_bias_{a}", table["T_box"], s) + fit.results_[f"gyro_bias_{a}"].coef_[0]
         spread[f"gyro_bias_{a}"] = {"before_rad_s": float(np.std(b, ddof=1)), "after_rad_s": float(np.std(corr, ddof=1))}
     out["spread"] = spread
     return out

@@ -12,13 +12,15 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.accelerometer import (AXES, INPUTS, MODELS, AccelerometerCalibration, injected_parameters)
-from imurig.calibration.preprocess import lowpass_downsample
-from imurig.calibration.regression import check_identifiable
+from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
+from imurig.calibration.regression import check_identifiable, fit_ols
+from imurig.calibration.terms import TermLibrary
 from imurig.kernel import random_streams
 from imurig.kernel.errors import RecordingError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol,
                                     reference_with_jacobian, setting_error_covariance, specific_force_C)
+from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
@@ -171,11 +173,6 @@ def coefficient_table(cal: AccelerometerCalibration, rec100: Recording) -> list[
     each position (truth-signal medians), regressed on the same reference. It is None for
     a recording without truth.
     """
-    from imurig.calibration.preprocess import segment_statistic
-    from imurig.calibration.regression import fit_ols
-    from imurig.calibration.terms import TermLibrary
-    from imurig.sensors.accelerometer import QFlexTriad
-
     twin = None
     if rec100.truth and "f_C_x" in rec100.truth_signals:
         t = rec100.truth["sensors"]["accelerometers"]

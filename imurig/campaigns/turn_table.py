@@ -8,7 +8,7 @@
 
     schedule -> TurnTable (MuJoCo + mains factor, slip, ripple, wobble, pulse) -> truth
       -> ImuLab (FOG triad, Q-Flex, slip rings, DAQ, timers) -> Recording
-      -> whole-round windows from a timer -> GLS inverse-model fit -> parameters vs truth
+      -> whole-round windows from a timer -> GLS inverse-model fit (GyroCalibration) -> parameters vs truth
 """
 from __future__ import annotations
 
@@ -17,12 +17,12 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.gyro import (AXIS_OF_MOUNT, INPUTS, MODELS, GyroCalibration, injected_parameters,
-                                     reference_rates, round_windows, segment_covariance,
-                                     timer_difference_sigma)
+                                     reference_rates, round_windows)
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
+from imurig.calibration.simona import MANUFACTURER_SENSITIVITY_V_PER_RAD_S
 from imurig.calibration.terms import TermLibrary
-from imurig.calibration.triad import delta_cov
+from imurig.calibration.gls import delta_cov
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
@@ -110,20 +110,6 @@ class TurnTableCampaign:
 
 
 # ------------------------------------------------------------------- gyro analysis
-def calibrate_gyros(rec: Recording, timer: str = "hp6700", model: str = "physical", gls: bool = True):
-    """Whole-round windows from ``timer``, reference rates, and the (GLS) inverse-model fit.
-
-    Returns (GyroCalibration, windowed recording, table rate per step (rad/s), reference (n,3)).
-    """
-    rw, rate = round_windows(rec, timer)
-    ref = reference_rates(rw, rate)
-    cov = None
-    if gls and model not in ("stepwise", "backward") and "gyro_noise_model" in rec.meta:
-        cov = segment_covariance(rw, rate, rec.meta["gyro_noise_model"], timer_difference_sigma(rec, timer))
-    cal = GyroCalibration(model=model, statistic="mean").fit(rw, ref, response_cov=cov)
-    return cal, rw, rate, ref
-
-
 def gyro_parameters(cal: GyroCalibration, rec: Recording) -> list[dict]:
     """Physical gyro parameters with injected values (effective, including the table wobble) and z."""
     params = cal.physical_parameters()
@@ -270,8 +256,6 @@ class SimonaSetup:
 def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Recording:
     """Run the SIMONA experiment on the virtual C181 and return a row-level Recording in the
     format of :func:`imurig.calibration.simona.read_simona` (first row: table at rest)."""
-    from imurig.calibration.simona import MANUFACTURER_SENSITIVITY_V_PER_RAD_S
-
     s = setup or SimonaSetup()
     rng = random_streams.generator("campaign/simona/lab", seed)
     table = TurnTable(errors=s.table)

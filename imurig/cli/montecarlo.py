@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from imurig.kernel.errors import ConfigError
+
 
 def _floats(text: str) -> list[float]:
     try:
@@ -97,10 +99,13 @@ def _params(args) -> dict:
 
 
 def run_cli(args) -> None:
-    from imurig.kernel.errors import ConfigError
+    # heavy (the campaigns' MuJoCo rigs, dask, matplotlib): loaded when the command runs, not for --help
     from imurig.montecarlo import distributions as dist
     from imurig.montecarlo import registry
+    from imurig.montecarlo.doe import compare_schedules
     from imurig.montecarlo.engine import RUN_FILE, load_study, reproduce_run, run_study
+    from imurig.reports.montecarlo import write_study_outputs
+    from imurig.reports.montecarlo_doe import write_comparison
 
     registry.get(args.campaign)  # an unknown campaign is refused with the list of known ones
     out = Path(args.out or f"imurig-out/montecarlo/{args.campaign}")
@@ -129,15 +134,15 @@ def run_cli(args) -> None:
         print()
         return
     if args.compare_schedules:
-        from imurig.montecarlo.doe import compare_schedules
-
         compare_schedules(args.campaign, args.runs, args.seed, out=out, base_params=params, distributions=user,
                           scheduler=args.scheduler, workers=args.workers, overwrite=args.overwrite,
-                          resume=args.resume, retries=args.retries)
+                          resume=args.resume, retries=args.retries, study_report=write_study_outputs,
+                          report=write_comparison)
         print(f"wrote {out}/report.md")
         return
     st = run_study(args.campaign, args.runs, args.seed, params=params, distributions=user, scheduler=args.scheduler,
-                   workers=args.workers, out=out, overwrite=args.overwrite, resume=args.resume, retries=args.retries)
+                   workers=args.workers, out=out, overwrite=args.overwrite, resume=args.resume, retries=args.retries,
+                   report=write_study_outputs)
     doc = json.loads((out / "summary.json").read_text())
     s = doc["overall"]
     t = st.timing

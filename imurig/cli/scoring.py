@@ -7,12 +7,14 @@ import sys
 from pathlib import Path
 
 from imurig.kernel.errors import ImurigError
+from imurig.reports.scoring import scoreboard_markdown, write_score, write_scoreboard
+from imurig.scoring.files import read_estimates
+from imurig.scoring.score import TruthSet, score_estimates
+from imurig.scoring.specs import CAMPAIGNS, QUICK
 
 
 def add_scoring_parsers(sub) -> None:
     """Register the three subcommands on the ``imurig`` subparsers ``sub``."""
-    from imurig.scoring.campaigns import CAMPAIGNS, QUICK
-
     names = sorted(CAMPAIGNS)
     ex = sub.add_parser("export", help="write a campaign's recording without truth (CSV, .mat) and a separate truth file",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -55,6 +57,7 @@ def add_scoring_parsers(sub) -> None:
 
 
 def _run_export(a):
+    # heavy (the campaigns' MuJoCo rigs, scipy): loaded when the command runs, not for --help
     from imurig.scoring.export import export_campaign
 
     print(f"imurig: exporting {a.campaign} -> {a.out}", file=sys.stderr)
@@ -65,10 +68,6 @@ def _run_export(a):
 
 
 def _run_score(a):
-    from imurig.scoring.files import read_estimates
-    from imurig.reports.scoring import write_score
-    from imurig.scoring.score import TruthSet, score_estimates
-
     truth = TruthSet.load(a.truth)
     est = read_estimates(a.estimates)
     s = score_estimates(truth, est, estimator=a.name or Path(a.estimates).name, source=str(a.estimates),
@@ -95,12 +94,8 @@ def load_factory(spec: str):
 
 
 def _run_scoreboard(a):
-    from imurig.scoring.campaigns import CAMPAIGNS
-    from imurig.scoring.scoreboard import (
-        scoreboard,
-        scoreboard_markdown,
-        write_scoreboard,
-    )
+    # heavy (the campaigns' MuJoCo rigs, scipy): loaded when the command runs, not for --help
+    from imurig.scoring.scoreboard import scoreboard
 
     names = sorted(CAMPAIGNS) if a.campaigns == "all" else [n.strip() for n in a.campaigns.split(",") if n.strip()]
     others = {}

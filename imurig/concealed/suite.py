@@ -15,7 +15,8 @@ import numpy as np
 
 from imurig.kernel import random_streams
 from imurig.rigs.tilt_table import TiltTableProtocol
-from imurig.sensors.effects import AdcCrosstalk
+from imurig.sensors.effects import (AdcCrosstalk, AxisMisalignment, LooseCable, PumpVibration, ScaleNonlinearity,
+                                   recording_truth)
 
 DEG_PER_H_PER_G = math.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
 SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
@@ -51,7 +52,7 @@ def _tilt(seed, **kw):
 
 def _crosstalk(seed, c):
     """Crosstalk of relative size c: choose f_mux so that exp(-1/(f tau)) = c."""
-    tau = 0.59e-6
+    tau = AdcCrosstalk().settling_tau_s
     f = -1.0 / (tau * math.log(c))
     return _tilt(seed, mux_frequency_hz=f)
 
@@ -75,15 +76,11 @@ def _tilt_lab(seed, change_lab, protocol=SMALL_TILT, **camp_kw):
 
 
 def _pump(seed, rms):
-    from imurig.sensors.disturbances import PumpVibration
-
     return _tilt_lab(seed, lambda lab: replace(lab, pump=PumpVibration(rms_m_s2=rms, broadband_rms_m_s2=rms / 3)),
                      start_time="2005-06-14T10:00:00+02:00")
 
 
 def _cable(seed, rate_hz):
-    from imurig.sensors.disturbances import LooseCable
-
     return _tilt_lab(seed, lambda lab: replace(lab, cable=LooseCable(enabled=True, rate_hz=rate_hz)))
 
 
@@ -103,27 +100,6 @@ def _accelerometers(seed, misalignment=None, k2=None, protocol=SMALL_TILT):
         return replace(lab, accelerometers=replace(lab.accelerometers, **kw))
 
     return _tilt_lab(seed, change, protocol=protocol)
-
-
-def _scale_D(rec):
-    """Effective relative scale D = s_true (1 + scale_tempco dT) / s_nom at the campaign's mean temperature."""
-    acc = rec.truth["sensors"]["accelerometers"]
-    dT = float(np.mean(rec.truth_signals["T_imu"])) - acc["reference_temperature_K"]
-    return (np.asarray(acc["sensitivity_V_per_m_s2"]) * (1 + np.asarray(acc["scale_tempco_per_K"]) * dT)
-            / np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"]))
-
-
-def _inverse_linear(rec):
-    """The inverse model's linear coefficients (I + M)^-1 D^-1, D = diag(s_true / s_nom)."""
-    D = _scale_D(rec)
-    acc = rec.truth["sensors"]["accelerometers"]
-    return np.linalg.inv(np.eye(3) + np.asarray(acc["misalignment_rad"])) / D[None, :]
-
-
-def _inverse_k2(rec, j):
-    """The inverse model's coefficient of u_j^2: f_j ~ u_j / D_j - k2_j (u_j / D_j)^2."""
-    D = _scale_D(rec)[j]
-    return -rec.truth["sensors"]["accelerometers"]["k2_per_m_s2"][j] / D**2
 
 
 # the Earth's rate and the g-sensitivity show as a bias present only while the gyro is on the
@@ -199,10 +175,11 @@ def _thermal(seed, bias_hysteresis=None):
 def _thermal_gap_truth(rec, axis="x"):
     """The branch gap H the noise-free twin of the same recording gives (the injected hysteresis
     as the six-position bias sees it through the play operator's state)."""
-    from imurig.calibration.thermal import fit_thermal, step_table
+    from imurig.calibration.thermal import ThermalCalibration, step_table
     from imurig.campaigns.thermal import twin_channels
 
-    return fit_thermal(step_table(rec, channels=twin_channels(rec))).results[f"acc_bias_{axis}"].coef("hysteresis")
+    twin = ThermalCalibration().fit(step_table(rec, channels=twin_channels(rec)))
+    return twin.results_[f"acc_bias_{axis}"].coef("hysteresis")
 
 
 def _channel_param(d, channel, effect):
@@ -281,12 +258,14 @@ CASES = [
     Case("axis_misalignment", "tilt_table", {(a, "axis_misalignment") for a in "xyz"},
          lambda seed, m: _accelerometers(seed, misalignment=m), 1e-3,
          sizes=(2e-6, 5e-6, 1e-5, 2e-5, 5e-5), size_unit="misalignment angle (rad)",
-         truth_param=lambda rec: _inverse_linear(rec)[0, 1], found_param=lambda d: _param(d, "x", "axis_misalignment"),
+         truth_param=lambda rec: AxisMisalignment().fitted(recording_truth(rec), "acc_x")["m_xy"],
+         found_param=lambda d: _param(d, "x", "axis_misalignment"),
          twin={"twin_model": "own_axis"}, null=lambda seed: _accelerometers(seed, misalignment=0.0)),
     Case("scale_nonlinearity", "tilt_table", {(a, "scale_nonlinearity") for a in "xyz"},
          lambda seed, k2: _accelerometers(seed, k2=k2, protocol=WIDE_TILT), 48e-6 / 9.80665,
          sizes=tuple(x * 1e-6 / 9.80665 for x in (5, 10, 20, 30, 48)), size_unit="k2 (1/(m/s^2))",
-         truth_param=lambda rec: _inverse_k2(rec, 0), found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
+         truth_param=lambda rec: ScaleNonlinearity().fitted(recording_truth(rec), "acc_x")["k2"],
+         found_param=lambda d: _param(d, "x", "scale_nonlinearity"),
          twin={"twin_model": "linear"}, null=lambda seed: _accelerometers(seed, k2=0.0, protocol=WIDE_TILT)),
     Case("earth_rate_left_out", "turn_table", {(a, "earth_rate_left_out") for a in "pqr"},
          lambda seed, f: _turn(seed, earth_fraction=f), 1.0, sizes=(0.25, 0.5, 0.75, 1.0, 1.25),

@@ -55,6 +55,7 @@ from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
+from imurig.kernel.units import T_REF_K
 
 AXES = "xyz"
 MAG = ("mag_x", "mag_y", "mag_z")
@@ -606,7 +607,7 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     if tempco_T_per_K is not None:
         T_mag = first_order_lag(rig.truth_signals["T_air"], rig.time_s, lab.thermal_lags.box_sensor_s) \
             if "T_air" in rig.truth_signals else lab.climate.imu_temperature_K(rig.time_s)
-        T_ref = 298.15
+        T_ref = T_REF_K
         off = fluxgate_temperature_offset(T_mag, tempco_T_per_K, T_ref)
         for j, c in enumerate(MAGC):
             rec.channels[c] = rec.channels[c] + off[:, j] * mag.sensitivity_V_per_T[j]

@@ -4,23 +4,22 @@ The twin is the nominal model: the physical accelerometer calibration (linear in
 each axis' own square) fitted to the per-position medians. Two levels are examined:
 
 1. **Position means** (per axis): the residual of the nominal fit, tested by the engine of
-   :mod:`imurig.diagnose.engine` against a library of mean-level effects:
+   :mod:`imurig.diagnose.engine` against the effect library's mean-level effects
+   (:mod:`imurig.sensors.effects`, each offering its columns for a ``PositionView``):
    - ``adc_crosstalk``: the previously scanned channel's voltage leaks in (its per-position
      median is the column; amplitude = the settling residual c);
-   - ``temperature_drift``: bias drifting with the accelerometer temperature / elapsed time;
+   - ``temperature_drift``: bias drifting with the accelerometer temperature;
+   - ``axis_misalignment``, ``scale_nonlinearity``: where the twin lacks them;
    - ``cross_coupling``: products u_j u_k of the other axes.
 2. **Within-position scatter** (per axis): the spread of the 100 Hz samples around each
-   position's median, against the quiet positions' level:
-   - ``building_vibration``: the spread rises in a time window (working hours) and the
-     spectrum holds a peak (the pump's frequency);
+   position's median; each scatter effect runs its own test on a ``ScatterView``:
+   - ``building_vibration``: the spectrum holds a narrow peak (the pump's frequency), located
+     in a time window (working hours), then refitted (amplitude at the peak frequency);
    - ``cable_fault_spikes``: isolated outliers (> 8 robust sigma) on one channel.
 """
 from __future__ import annotations
 
-import datetime as _dt
-
 import numpy as np
-from scipy import signal
 
 from imurig.calibration.accelerometer import AXES, indicated
 from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
@@ -29,7 +28,8 @@ from imurig.diagnose.engine import Candidate, select_effects
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
-from imurig.sensors.effects import AdcCrosstalk, PositionView, for_view
+from imurig.sensors.effects import (AdcCrosstalk, ChannelSkew, LeverArm, PositionView, ScatterView, TemperatureDrift,
+                                   for_view)
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -64,12 +64,13 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position medians", "twin_model": twin_model,
            "axes": {}}
     inputs = {n: u[:, j] for j, n in enumerate(("ax", "ay", "az"))}
-    temp_names = [c for c in ("temp_acc_x", "temp_acc_y", "temp_acc_z", "temp_box") if c in rec100.channels]
-    temps = segment_statistic(rec100, temp_names, "median") if temp_names else None
+    median_cache = {}
 
     def medians(name: str):
         """Per-position median of a recorded channel (V), or None where it is not recorded."""
-        return segment_statistic(rec100, [name], "median")[:, 0] if name in rec100.channels else None
+        if name not in median_cache:
+            median_cache[name] = segment_statistic(rec100, [name], "median")[:, 0] if name in rec100.channels else None
+        return median_cache[name]
     for j, a in enumerate(AXES):
         res = cal.results_[a]
         from imurig.calibration.terms import TermLibrary
@@ -84,28 +85,13 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         ch = f"acc_{a}"
         view = PositionView(channel=ch, axis=a, readings=inputs, channel_median=medians, scan_list=tuple(scan),
                             model_terms=frozenset(res.names))
+        # the mean-level effects of the library (crosstalk, temperature drift, misalignment and
+        # nonlinearity where the twin lacks them, cross-coupling) offer their columns
         lib = [c for cls in for_view(PositionView.kind) for c in cls().candidates(view)]
         prev = AdcCrosstalk.previous_channel(scan, ch)
-        # a drift with temperature can only be named where the temperature moved (> 0.2 K)
-        if temps is not None and np.ptp(temps[:, 0]) * 1e3 * 0.1 > 0.2:  # volts -> K: 1 uA/K over 10 kohm
-            t_dev = temps[:, 0] - np.mean(temps[:, 0])
-            lib.append(Candidate("temperature_drift", "the bias drifts with the sensor's temperature over the "
-                                 "campaign", ("drift",), lambda _, t=t_dev: t))
         alias = _crosstalk_alias_of_drift(lib, X0, prev)
         if alias is not None:
             lib = [c for c in lib if c.name != "adc_crosstalk"]
-        others = [n for n in ("ax", "ay", "az") if n != f"a{a}"]
-        if not set(others) & set(res.names):
-            lib.append(Candidate("axis_misalignment", f"the sensitive axis of acc_{a} leans towards the other two "
-                                 "axes (misalignment; the inverse model's coefficients of the other axes' readings)",
-                                 tuple(f"m_{a}{o[1]}" for o in others),
-                                 lambda _, o=others: np.column_stack([inputs[o[0]], inputs[o[1]]])))
-        if f"a{a}^2" not in res.names:
-            lib.append(Candidate("scale_nonlinearity", f"second-order scale-factor nonlinearity of acc_{a} (the inverse "
-                                 "model's coefficient of its own reading squared, 1/(m/s^2))", ("k2",),
-                                 lambda _, n=f"a{a}": inputs[n] ** 2))
-        lib.append(Candidate("cross_coupling", "cross-coupling of the other two axes (product term)", ("c",),
-                             lambda _, o=others: inputs[o[0]] * inputs[o[1]]))
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
         entry = d.to_dict()
         if alias is not None:
@@ -205,43 +191,21 @@ def _with_survey_nuisance(X0: np.ndarray, names: list, Jj: np.ndarray, rtol: flo
 
 
 def _scatter(rec100: Recording, ch: str, mid: np.ndarray) -> dict:
-    """Within-position scatter: vibration in a time window (with its spectral peak) and spikes."""
-    sl = rec100.segment_slices()
-    x = rec100.channels[ch]
-    robust = np.array([1.4826 * np.median(np.abs(x[s] - np.median(x[s]))) for s in sl])
-    floor = np.median(robust)
-    spikes = np.array([int(np.sum(np.abs(x[s] - np.median(x[s])) > 8 * max(r, floor))) for s, r in zip(sl, robust)])
-    std = np.array([np.std(x[s]) for s in sl])
-    hours = _hours(rec100, mid)
-    out = {"robust_sigma_V": float(floor), "spikes_total": int(spikes.sum()),
-           "positions_with_spikes": int(np.sum(spikes > 0))}
-    # a spike count far above what Gaussian noise gives (P(|z| > 8) ~ 1e-15 per sample)
-    if spikes.sum() >= 3:
-        out["finding_spikes"] = {"effect": "cable_fault_spikes",
-                                 "physics": f"a loose cable or connector spikes '{ch}' (seed 4.3.3)",
-                                 "spikes": int(spikes.sum()), "positions": int(np.sum(spikes > 0))}
-    # vibration: a narrow spectral peak far above the noise floor in the positions' spectra,
-    # then located in time by each position's power in that band
-    fs = rec100.sample_rate_hz
-    nper = int(min(256, min(s_.stop - s_.start for s_ in sl)))
-    psd = np.array([signal.welch(x[s_] - np.median(x[s_]), fs=fs, nperseg=nper)[1] for s_ in sl])
-    f = signal.welch(x[sl[0]], fs=fs, nperseg=nper)[0]
-    band = (f > 2.0) & (f < 0.45 * fs)
-    mean_psd = psd.mean(axis=0)
-    k = np.flatnonzero(band)[np.argmax(mean_psd[band])]
-    ratio = float(mean_psd[k] / np.median(mean_psd[band]))
-    out["spectral_peak_to_median"] = ratio
-    if ratio > 25:
-        pk = psd[:, max(k - 1, 0):k + 2].sum(axis=1)
-        loud = pk > 10 * np.median(psd[:, band], axis=1) * 3
-        out["finding_vibration"] = {"effect": "building_vibration",
-                                    "physics": "narrow-band building vibration (the basement pump) at "
-                                               f"{f[k]:.1f} Hz (seed 4.3.3)",
-                                    "spectral_peak_hz": float(f[k]), "peak_to_median": ratio,
-                                    "positions_affected": int(loud.sum()),
-                                    "window_hours": [float(hours[loud].min()), float(hours[loud].max())]
-                                    if loud.any() else None}
-    _ = std, _dt
+    """Within-position scatter: each scatter effect of the library runs its own test (the pump's
+    spectral peak located in the day, with its refit; the loose cable's spikes) on the samples
+    of every position; a test that fires reports its finding under the effect's key."""
+    j = "xyz".index(ch[-1])
+    sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
+    view = ScatterView(channel=ch, samples=rec100.channels[ch], positions=rec100.segment_slices(),
+                       sample_rate_hz=rec100.sample_rate_hz, hour_of_day=_hours(rec100, mid),
+                       sensitivity_V_per_SI=float(sens[j]) if sens is not None else None)
+    out = {}
+    for cls in for_view(ScatterView.kind):
+        res = dict(cls().test(view))
+        finding = res.pop("finding", None)
+        out.update(res)
+        if finding is not None:
+            out[cls.finding_key] = finding
     return out
 
 
@@ -666,19 +630,16 @@ def null_case_recording(effect: str, seed: int) -> Recording:
 
 
 def truth_param(effect: str, rec: Recording) -> float:
-    acc = rec.truth["sensors"]["accelerometers"]
-    if effect == "time_delay":
-        adc = rec.truth["chain"]["adc"]
-        return list(adc["scan_list"]).index("acc_y") / adc["mux_frequency_hz"]
+    """The injected parameter the case's finding estimates, from the effect's own truth map."""
+    if effect == "time_delay":  # acc_y's multiplexer skew
+        return ChannelSkew().fitted(rec.truth, "acc_y")["tau_s"]
     if effect == "lever_arm":
-        return float(acc["position_C_m"][0])
+        return LeverArm().fitted(rec.truth)["dr_x_m"]
     if effect == "wrong_local_gravity":
         return rec.meta["site"]["gravity_m_s2"] / rec.truth["site_gravity_m_s2"] - 1.0
     if effect == "temperature_drift":
-        # inverse model: f = ... - kb dT / D_x, the column being the temp_acc_x volts (10 mV/K)
-        from imurig.concealed.suite import _scale_D
-
-        return -acc["bias_tempco_m_s2_per_K"][0] / _scale_D(rec)[0] / 0.01
+        # inverse model: f = u / D - b - kb dT, the column being the temp_acc_x volts (10 mV/K)
+        return TemperatureDrift().fitted(rec.truth, "acc_x")["drift"]
     raise ConfigError(f"no truth for '{effect}'")
 
 

@@ -33,3 +33,11 @@ class OutputExistsError(ImurigError, FileExistsError):
 
 class ConfigError(ImurigError, ValueError):
     """A rig, sensor or acquisition setting is impossible (e.g. too many ADC channels)."""
+
+
+class NotFittedError(ImurigError, ValueError, AttributeError):
+    """An estimator's ``apply`` (or a fitted result) was asked for before ``fit`` ran.
+
+    Raised by :meth:`imurig.kernel.estimator.Estimator.check_fitted`; the message names the
+    estimator and says to call ``fit(...)`` first.
+    """

@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from imurig.kernel.errors import RecordingError
-from imurig.kernel.recording import Recording, atomic_write
+from imurig.kernel.outputs import atomic_write
+from imurig.kernel.recording import Recording
 from imurig.kernel.units import from_si, split_column, to_si
 
 INDEX_COLUMNS = ("segment", "run")

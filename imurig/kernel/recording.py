@@ -15,21 +15,21 @@ A Recording holds
   with ``true_`` or ending in ``_true`` are truth and are dropped by ``without_truth``.
 
 Storage: HDF5 (h5py), see :func:`save_h5`; lab exchange: CSV with ``# key: value``
-metadata lines, see :mod:`imurig.kernel.labcsv`.
+metadata lines, see :mod:`imurig.kernel.labcsv`; either by its suffix:
+:func:`imurig.kernel.files.load`.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from imurig.kernel.errors import OutputExistsError, RecordingError
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.outputs import atomic_write, to_json
 
 FORMAT_NAME = "imurig-recording"
 FORMAT_VERSION = 1
@@ -152,49 +152,12 @@ class Recording:
 
 
 # ---------------------------------------------------------------------- HDF5
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.bool_):
-        return bool(o)
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o)}")
-
-
-def to_json(obj) -> str:
-    return json.dumps(obj, default=_json_default, sort_keys=True)
-
-
-def atomic_write(path: Path, writer, overwrite: bool) -> Path:
-    """Run ``writer(tmp_path)`` then rename onto ``path``; never leaves a half-written file.
-
-    Raises OutputExistsError if ``path`` exists and ``overwrite`` is false.
-    """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path} exists; pass overwrite=True (CLI: --overwrite) to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
-    os.close(fd)
-    try:
-        writer(Path(tmp))
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    return path
-
-
 def _write_group(grp, arrays: Mapping[str, np.ndarray], units: Mapping[str, str],
                  quantum: Mapping[str, float] | None = None):
     for name, x in arrays.items():
         x = np.asarray(x)
         if x.dtype.kind in "US":
-            import h5py
+            import h5py  # heavy: loaded when a file is written, not when the CLI starts
 
             ds = grp.create_dataset(name, data=x.astype(str).astype(object), dtype=h5py.string_dtype())
             ds.attrs["unit"] = units.get(name, "")
@@ -238,7 +201,7 @@ def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
     each with an attribute ``unit``. ADC channels whose values are exact multiples of their
     quantum (one LSB, attribute ``quantum``) are stored as integer codes, which is lossless.
     """
-    import h5py
+    import h5py  # heavy: loaded when a file is written, not when the CLI starts
 
     rec.validate()
 
@@ -260,7 +223,7 @@ def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
 
 def load_h5(path) -> Recording:
     """Load a recording written by :func:`save_h5` (bit-exact)."""
-    import h5py
+    import h5py  # heavy: loaded when a file is read, not when the CLI starts
 
     path = Path(path)
     if not path.exists():
@@ -279,14 +242,3 @@ def load_h5(path) -> Recording:
                      segment_units=seg_units, meta=meta, truth=truth, truth_signals=tsig,
                      truth_units=tunits, channel_quantum=quantum, events=events)
 
-
-def load(path) -> Recording:
-    """Load a recording from ``.h5`` (project format) or ``.csv`` (lab format)."""
-    p = Path(path)
-    if p.suffix.lower() in (".h5", ".hdf5"):
-        return load_h5(p)
-    if p.suffix.lower() == ".csv":
-        from imurig.kernel.labcsv import read_csv
-
-        return read_csv(p)
-    raise RecordingError(f"unknown recording type '{p.suffix}' for {p}; use .h5 or .csv")

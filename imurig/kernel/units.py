@@ -20,6 +20,9 @@ ARCMIN = math.pi / (180 * 60)  # rad
 ARCSEC = ARCMIN / 60  # rad
 DEG = math.pi / 180  # rad
 MICRO_G = 1e-6 * G_STANDARD  # m/s^2
+#: K, the reference temperature of the sensor models and of the thermal fits (25 C, the Q-Flex
+#: datasheet's: its temperature sensor gives 298.2 uA there); dT = T - T_REF_K everywhere
+T_REF_K = 298.15
 
 
 @dataclass(frozen=True)

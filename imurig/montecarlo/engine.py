@@ -4,7 +4,8 @@
     run i: the registry stream "montecarlo/run" of (master, i)  (imurig.kernel.random_streams)
       -> campaign.run(params, seed, distributions, estimator)   on a Dask worker
       -> runs/run_<i>.json written atomically as soon as the run returns
-    all runs -> results.h5 (columnar results table) -> statistics -> report
+    all runs -> statistics -> report(study, campaign), when given: results.h5, summary.json,
+                report.md, figures (imurig.reports.montecarlo.write_study_outputs, as the CLI does)
 
 Nothing is lost: each finished run is on disk before the next result is taken; ``resume``
 skips the runs already on disk and refuses a study whose settings differ; a run whose task
@@ -14,7 +15,9 @@ scheduler (``distributed.scheduler.allowed-failures``, 3 by default).
 Python API (used by the CLI and by the bring-your-own-estimator scorer)::
 
     from imurig.montecarlo import run_study
-    study = run_study("tilt-table", runs=200, master_seed=1, out="mc", estimator=my_fn)
+    from imurig.reports.montecarlo import write_study_outputs
+    study = run_study("tilt-table", runs=200, master_seed=1, out="mc", estimator=my_fn,
+                      report=write_study_outputs)
     study.rows        # {run index: [parameter rows]}
     study.stats       # per-parameter bias, RMS, CRLB, coverage
 """
@@ -23,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import resource
 import shutil
@@ -37,9 +41,10 @@ import numpy as np
 
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError, ImurigError, OutputExistsError
+from imurig.kernel.progress import progress
 from imurig.montecarlo import distributions as _dist
 from imurig.montecarlo import registry
-from imurig.kernel.progress import progress
+from imurig.montecarlo.stats import parameter_stats
 
 FORMAT = 2   # 2: run seeds from the stream registry (format 1 used SeedSequence(master, spawn_key=(i,)))
 RUN_FILE = "run_{:06d}.json"
@@ -93,9 +98,7 @@ class Study:
         return {i: r["rows"] for i, r in sorted(self.runs.items())}
 
     @property
-    def stats(self) -> dict:
-        from imurig.montecarlo.stats import parameter_stats
-
+    def stats(self) -> list[dict]:
         return parameter_stats(self.rows)
 
 
@@ -169,7 +172,7 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
     if client is not None:
         yield client
         return
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster  # dask: heavy, loaded when a cluster is needed
 
     if scheduler:
         try:
@@ -186,8 +189,6 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
     n = workers or min(2, os.cpu_count() or 1)
     if n < 1:
         raise ConfigError(f"--workers must be >= 1, got {n}")
-    import logging
-
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=processes, memory_limit=memory_limit,
                            dashboard_address=":0", silence_logs=logging.ERROR)
     c = Client(cluster)
@@ -201,7 +202,7 @@ def dask_client(client=None, scheduler: str | None = None, workers: int | None =
 def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = None, distributions: dict | None = None,
               estimator=None, client=None, scheduler: str | None = None, workers: int | None = None,
               out=None, overwrite: bool = False, resume: bool = False, retries: int = 2,
-              processes: bool = True, stop_after: int | None = None, report: bool = True,
+              processes: bool = True, stop_after: int | None = None, report=None,
               desc: str | None = None) -> Study:
     """Run (or resume) a Monte-Carlo study; see the module doc.
 
@@ -213,8 +214,11 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
         campaign's calibration (runs on the workers; must be picklable).
     client / scheduler / workers : an existing dask Client, a scheduler address, or the size
         of the local cluster (default: 2 worker processes, one thread each).
-    out : study folder (streamed run files, results.h5, report). Without ``out`` the runs are
+    out : study folder (study.json and the streamed run files). Without ``out`` the runs are
         kept in memory only.
+    report : optional ``report(study, campaign)``, called with ``out`` complete, writing the
+        study's outputs into it (e.g. :func:`imurig.reports.montecarlo.write_study_outputs`:
+        results.h5, summary.json, report.md, figures, study.rrd).
     stop_after : stop after this many new runs (test hook for interrupted studies).
     """
     camp = registry.get(campaign) if isinstance(campaign, str) else campaign
@@ -230,54 +234,64 @@ def run_study(campaign, runs: int, master_seed: int = 0, params: dict | None = N
     need_client = any(i not in peek for i in range(runs))
     study = Study(config=cfg, path=out)
     t0 = time.perf_counter()
-    t_sub = t_end = None
-    new = 0
+    sub = None
     # connect first: an unreachable scheduler must fail before anything is written
     with (dask_client(client, scheduler, workers, processes=processes) if need_client
           else contextlib.nullcontext(None)) as c:
         done = _prepare_out(out, cfg, runs, overwrite, resume) if out is not None else set()
         todo = [i for i in range(runs) if i not in done]
         if todo:
-            from distributed import as_completed
-
-            # unique per session: a cancelled future of an interrupted session must not share a key
-            key = f"{_fingerprint(cfg)}-{uuid.uuid4().hex[:8]}"
-            t_sub = time.perf_counter()
-            futures = [c.submit(execute_run, camp, p, dist, master_seed, i, estimator, key=f"imurig-mc-{key}-{i}",
-                                retries=retries, pure=False) for i in todo]
-            try:
-                with progress(total=runs, desc=desc or f"Monte-Carlo {camp.name}", unit="run",
-                              initial=len(done & set(range(runs)))) as bar:
-                    for fut in as_completed(futures):
-                        res = fut.result()
-                        if out is not None:
-                            _atomic_json(out / "runs" / RUN_FILE.format(res["index"]), res)
-                        study.runs[res["index"]] = res
-                        new += 1
-                        bar.update(1)
-                        t_end = time.perf_counter()
-                        if stop_after is not None and new >= stop_after:
-                            raise StudyInterrupted(f"stopped after {new} new runs (stop_after); {out} holds them: "
-                                                   "resume with --resume")
-            finally:
-                for f in futures:
-                    if not f.done():
-                        f.cancel()
+            bar = {"total": runs, "desc": desc or f"Monte-Carlo {camp.name}", "unit": "run",
+                   "initial": len(done & set(range(runs)))}
+            sub = _collect(c, study, camp, p, dist, master_seed, todo, estimator, retries, stop_after, bar)
     wall = time.perf_counter() - t0
     if out is not None:
         for i in range(runs):
             if i not in study.runs:
                 study.runs[i] = json.loads((out / "runs" / RUN_FILE.format(i)).read_text())
-    compute = (t_end - t_sub) if new else None
+    new = sub["new"] if sub else 0
+    compute = (sub["t_end"] - sub["t_sub"]) if new else None
     study.timing = {"wall_s": wall, "compute_s": compute, "new_runs": new,
                     "runs_per_min": 60 * new / compute if compute else None,
                     "runs_per_min_incl_startup": 60 * new / wall if new and wall > 0 else None,
                     "workers": _n_workers(client, scheduler, workers)}
     if out is not None and report:
-        from imurig.reports.montecarlo import write_study_outputs
-
-        write_study_outputs(study, camp)
+        report(study, camp)
     return study
+
+
+def _collect(c, study: Study, camp, p: dict, dist: dict, master_seed: int, todo: list[int], estimator, retries: int,
+             stop_after: int | None, bar: dict) -> dict:
+    """Submit runs ``todo`` to the client ``c`` and take each result as it comes: on disk
+    (``study.path``) before the next is taken; ``bar``: the progress bar's settings. Returns
+    the count and the submit/last-result times."""
+    from distributed import as_completed  # dask: heavy, loaded when a cluster is needed
+
+    out = study.path
+    # unique per session: a cancelled future of an interrupted session must not share a key
+    key = f"{_fingerprint(study.config)}-{uuid.uuid4().hex[:8]}"
+    t_sub = time.perf_counter()
+    futures = [c.submit(execute_run, camp, p, dist, master_seed, i, estimator, key=f"imurig-mc-{key}-{i}",
+                        retries=retries, pure=False) for i in todo]
+    new, t_end = 0, None
+    try:
+        with progress(**bar) as shown:
+            for fut in as_completed(futures):
+                res = fut.result()
+                if out is not None:
+                    _atomic_json(out / "runs" / RUN_FILE.format(res["index"]), res)
+                study.runs[res["index"]] = res
+                new += 1
+                shown.update(1)
+                t_end = time.perf_counter()
+                if stop_after is not None and new >= stop_after:
+                    raise StudyInterrupted(f"stopped after {new} new runs (stop_after); {out} holds them: "
+                                           "resume with --resume")
+    finally:
+        for f in futures:
+            if not f.done():
+                f.cancel()
+    return {"new": new, "t_sub": t_sub, "t_end": t_end}
 
 
 def _n_workers(client, scheduler, workers):

@@ -56,9 +56,9 @@ from imurig.flights import ekf, ins
 from imurig.flights.imu import measure_flight
 from imurig.flights.plan import AlphaDotSTurns, FlightPlan, Level, simulate_flight
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.navdata import ImuStream
 from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.montecarlo.distributions import Source
-from imurig.montecarlo.registry import register
 from imurig.sensors.chain import ImuLab
 
 DEG = math.pi / 180
@@ -273,7 +273,7 @@ def calibrated_stream(truth, rec, lab: ImuLab, residual: dict):
         B = np.column_stack([c * B[:, 0] - s * B[:, 1], s * B[:, 0] + c * B[:, 1], B[:, 2]])
     sensor = lab.temp_sensors["temp_acc_x"]
     Tk = np.stack([sensor.temperature_K(rec.channels[f"temp_acc_{a}"]) for a in "xyz"], 1)
-    return ekf.ImuStream(truth.time_s, w_C, f_C, B, Tk, samples=ins.sample_semantics(truth))
+    return ImuStream(time_s=truth.time_s, f_B=f_C, w_IB_B=w_C, B_B=B, T_acc_K=Tk, samples=ins.sample_semantics(truth))
 
 
 # -------------------------------------------------------------------- GPS and filter
@@ -298,7 +298,7 @@ def navigate(truth, stream, gps, opt, lab: ImuLab, p: dict) -> dict:
                            **gps_error_model(gps))
     decl = flight_declination(truth)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
-    res = f.run(stream, gps, align(truth, stream, gps, decl))
+    res = f.fit(stream, gps, align(truth, stream, gps, decl)).solution_
     return summarise(errors(res, truth), res, settle_s=p["settle_s"])
 
 
@@ -338,4 +338,4 @@ def budget(rows_by_run: dict, configurations: list[str]) -> dict:
     return out
 
 
-FLIGHT = register(FlightMC())
+FLIGHT = FlightMC()

@@ -15,10 +15,12 @@ the campaign, estimates and returns parameter rows ``{name, unit, injected, esti
 std_error, z, within_bound, crlb}`` (the project's parameter-row schema plus the run's
 Cramér-Rao bound). ``estimator`` (optional) replaces the campaign's own calibration:
 ``estimator(recording) -> [{name, estimate, std_error}, ...]``; the campaign fills in the
-injected values, z and the bound for the names it knows.
+injected values, z and the bound for the names it knows (:mod:`imurig.montecarlo.rows`).
 
-Register a new campaign (e.g. flights) with :func:`register`; ``imurig montecarlo NAME``
-then runs it.
+The registry is a plain table: the built-in campaigns are registered by the one list in
+:mod:`imurig.montecarlo` (the package), so importing any part of the package fills it.
+Register a new campaign (e.g. your own rig) with :func:`register`; ``imurig montecarlo
+NAME`` then runs it.
 """
 from __future__ import annotations
 
@@ -34,20 +36,10 @@ def register(campaign) -> object:
 
 
 def get(name: str):
-    _load_builtin()
     if name not in CAMPAIGNS:
         raise ConfigError(f"unknown Monte-Carlo campaign {name!r}; available: {sorted(CAMPAIGNS)}")
     return CAMPAIGNS[name]
 
 
 def names() -> list[str]:
-    _load_builtin()
     return sorted(CAMPAIGNS)
-
-
-def _load_builtin() -> None:
-    from imurig.montecarlo import (
-        flight,  # noqa: F401  (registers "flight")
-        tilt,  # noqa: F401  (registers "tilt-table")
-        turn,  # noqa: F401  (registers "turn-table")
-    )

@@ -1,77 +1,27 @@
-"""Report helpers: output folders written atomically, Markdown tables, published seed figures."""
+"""Report helpers: Markdown tables, published seed figures, a campaign's recording and rerun files.
+
+Output folders written atomically (``OutputFolder``) and strict JSON (``clean_json``) live in
+:mod:`imurig.kernel.outputs`; they are imported here for the report modules that still take
+them from this module.
+"""
 from __future__ import annotations
 
-import json
-import os
-import shutil
-import tempfile
 import tomllib
 from importlib import resources
-from pathlib import Path
 
 import numpy as np
 
-from imurig.kernel.errors import OutputExistsError
-from imurig.kernel.recording import to_json
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.kernel.recording import save_h5
+
+__all__ = ["OutputFolder", "clean_json", "fmt", "md_figures_and_run", "md_table", "published_figures",
+           "save_products"]
 
 
 def published_figures() -> dict:
     """The seed's published figures (assets/published_figures.toml)."""
     text = resources.files("imurig.assets").joinpath("published_figures.toml").read_text()
     return tomllib.loads(text)
-
-
-class OutputFolder:
-    """Write a report folder atomically: everything goes to a hidden temp folder that is
-    renamed onto ``path`` on success. An existing ``path`` is refused unless ``overwrite``."""
-
-    def __init__(self, path, overwrite: bool = False):
-        self.path = Path(path)
-        self.overwrite = overwrite
-        if self.path.exists() and not overwrite:
-            raise OutputExistsError(f"{self.path} exists; choose another --out or pass --overwrite to replace it")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix="." + self.path.name + ".", dir=self.path.parent))
-
-    def file(self, name: str) -> Path:
-        return self.tmp / name
-
-    def write_json(self, name: str, obj) -> Path:
-        p = self.file(name)
-        p.write_text(json.dumps(json.loads(to_json(obj)), indent=2, allow_nan=False) + "\n")
-        return p
-
-    def write_text(self, name: str, text: str) -> Path:
-        p = self.file(name)
-        p.write_text(text)
-        return p
-
-    def commit(self) -> Path:
-        if self.path.exists():
-            if not self.overwrite:
-                raise OutputExistsError(f"{self.path} appeared while writing; pass --overwrite")
-            old = self.path.with_name("." + self.path.name + ".old")
-            if old.exists():
-                shutil.rmtree(old)
-            os.replace(self.path, old)
-            os.replace(self.tmp, self.path)
-            shutil.rmtree(old)
-        else:
-            os.replace(self.tmp, self.path)
-        return self.path
-
-    def abort(self):
-        shutil.rmtree(self.tmp, ignore_errors=True)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self.commit()
-        else:
-            self.abort()
-        return False
 
 
 def fmt(v, digits: int = 6) -> str:
@@ -97,28 +47,11 @@ def md_table(header: list[str], rows: list[list]) -> str:
     return "\n".join(out) + "\n"
 
 
-def clean_json(obj):
-    """Replace non-finite floats by None so that summary.json is strict JSON."""
-    if isinstance(obj, dict):
-        return {k: clean_json(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [clean_json(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.ndarray):
-        return clean_json(obj.tolist())
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
-
-
 def save_products(out: OutputFolder, rec, res, write_rrd, save_recording: bool = True, rrd: bool = True,
                   stage=None) -> dict:
     """Write the recording (HDF5) and the rerun file of a campaign into ``out``; returns the
     files written. ``write_rrd(path, rec, res)`` is the campaign's own rerun writer;
     ``stage(name)`` is called before each (progress display)."""
-    from imurig.kernel.recording import save_h5
-
     files = {}
     if save_recording:
         if stage:

@@ -7,7 +7,8 @@ import numpy as np
 from imurig.diagnose.rate_table import SEED_SAYS, diagnose_rate_rows
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_table
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_table
 
 
 def effect_steps(y: np.ndarray, X0: np.ndarray, names0: list, candidates: list, diag, cov: np.ndarray | None = None,

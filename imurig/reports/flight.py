@@ -8,7 +8,8 @@ import numpy as np
 
 from imurig.campaigns.flight import FlightOptions, FlightStudy, fly
 from imurig.flights import earth as E
-from imurig.reports.common import OutputFolder, md_table, published_figures
+from imurig.kernel.outputs import OutputFolder
+from imurig.reports.common import md_table, published_figures
 
 COLOURS = {"uncalibrated": "tab:red", "calibrated": "tab:blue"}
 

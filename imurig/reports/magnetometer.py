@@ -11,12 +11,14 @@ from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.rigs.mujoco_rig import load_model
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, save_products
 
 
 def _fig5(out, res) -> str:
     """Paper Fig. 5: X and Y field and the field norm, manufacturer vs our calibration."""
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -43,7 +45,7 @@ def _fig5(out, res) -> str:
 
 
 def _fig_heading(out, res) -> str:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     hs = res["heading_series"]
     fig, ax = plt.subplots(figsize=(8, 3.8))
@@ -60,11 +62,11 @@ def _fig_heading(out, res) -> str:
 
 
 def _fig_ellipse(out, rec, res) -> str:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     m = indicated_field(rec) * 1e9
     circ = manoeuvre_mask(rec, "level_circle")
-    hx, hy = res["ellipse"].apply(m[circ, 0] / 1e9, m[circ, 1] / 1e9)
+    hx, hy = res["ellipse"].apply(m[circ, :2] / 1e9).T
     fig, ax = plt.subplots(figsize=(5.5, 5.5))
     ax.plot(m[circ, 0], m[circ, 1], ",", label="measured (manufacturer)")
     ax.plot(hx * 1e9, hy * 1e9, ",", label="two-step 2-D")
@@ -113,9 +115,9 @@ def calibration_dict(res) -> dict:
     e2, e3 = res["ellipse"], res["ellipsoid"]
     return {"kind": "imurig.magnetometer_calibration", "version": 1,
             "equation": "B_cal = T (m - b), m = volts / nominal sensitivity [T]",
-            "three_d": {"T": e3.T.tolist(), "b_T": e3.b.tolist()},
-            "two_d": {"T2": e2.T2.tolist(), "b2_T": e2.b2.tolist(), "heading_offset_deg": res["heading_offset_2d_deg"]},
-            "swing": {"terms": list(res["swing"].names), "coef_rad": res["swing"].coef_.tolist()}}
+            "three_d": {"T": e3.T_.tolist(), "b_T": e3.b_.tolist()},
+            "two_d": {"T2": e2.T_.tolist(), "b2_T": e2.b_.tolist(), "heading_offset_deg": res["heading_offset_2d_deg"]},
+            "swing": {"terms": list(res["swing"].names_), "coef_rad": res["swing"].coef_.tolist()}}
 
 
 def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:
@@ -151,9 +153,9 @@ def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_rec
 def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
     """The gimbal turning the IMU; the measured field (ellipsoid) against the calibrated one
     (on the IGRF sphere), in uT; X, Y and norm over time."""
-    from imurig.rigs.mujoco_rig import load_model
+    # rerun (reports.viz): heavy, loaded for the .rrd only
     from imurig.reports.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
-                            log_scalars, log_sphere, log_text)
+                                    log_scalars, log_sphere, log_text)
 
     model = load_model("mag_rig.xml")
     k = max(1, int(round(rec.sample_rate_hz / 10)))

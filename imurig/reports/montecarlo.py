@@ -1,91 +1,33 @@
-"""Outputs of a Monte-Carlo study: results.h5 (results table), summary.json, report.md with
-figures, study.rrd. Every file is written to a temporary name and renamed when complete.
-
-results.h5 (the project's binary format, h5py; one row per run, one column per parameter):
-
-    /run                (N,)      run index i (its seed: the stream "montecarlo/run" of (master_seed, i))
-    /parameters         (P,)      parameter names;  attrs units (P,)
-    /estimate, /std_error, /injected, /crlb, /z   (N, P) float64 (NaN where absent)
-    /info/<key>         (N,)      per-run wall time, samples, ...
-    attrs["config"]     JSON of the study config (campaign, params, master seed, distributions)
+"""Outputs of a Monte-Carlo study: summary.json, report.md with figures, study.rrd, and the
+results table results.h5 (:mod:`imurig.montecarlo.results`). Every file is written to a
+temporary name and renamed when complete.
 """
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from imurig.kernel.outputs import atomic_write, clean_json
+from imurig.montecarlo.results import atomic_text, write_results_h5
 from imurig.montecarlo.stats import error_matrix, parameter_stats, table_arrays
-from imurig.reports.common import clean_json, fmt, md_table
+from imurig.reports.common import fmt, md_table
 from imurig.reports.flight_budget import budget_report
+
+
+def save_fig(fig, path: Path) -> None:
+    """Save a matplotlib figure as PNG through a temporary file renamed when complete."""
+    atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=110, format="png"), overwrite=True)
 
 
 #: a campaign's own report section: name -> (study, folder, save_fig) -> {markdown, summary, figures}
 EXTRA_REPORTS = {"flight": budget_report}
 
 
-def _tmp_for(path: Path) -> Path:
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
-
-
-def write_results_h5(path: Path, study) -> Path:
-    import h5py
-
-    idx, names, units, A = table_arrays(study.rows)
-    tmp = _tmp_for(path)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["config"] = json.dumps(study.config)
-            f.attrs["format"] = "imurig.montecarlo.results v1"
-            f.create_dataset("run", data=idx)
-            f.create_dataset("parameters", data=np.array(names, dtype=h5py.string_dtype()))
-            f["parameters"].attrs["units"] = np.array(units, dtype=h5py.string_dtype())
-            for k, v in A.items():
-                f.create_dataset(k, data=v, compression="gzip")
-            g = f.create_group("info")
-            keys = sorted({k for r in study.runs.values() for k, v in r["info"].items()
-                           if isinstance(v, (int, float))})
-            for k in keys:
-                g.create_dataset(k, data=np.array([float(study.runs[i]["info"].get(k, np.nan)) for i in idx]))
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
-
-
-def read_results_h5(path) -> dict:
-    """The results table as numpy arrays (names, run, estimate, ...)."""
-    import h5py
-
-    with h5py.File(path, "r") as f:
-        out = {k: f[k][()] for k in ("run", "estimate", "std_error", "injected", "crlb", "z")}
-        out["parameters"] = [s.decode() if isinstance(s, bytes) else s for s in f["parameters"][()]]
-        out["config"] = json.loads(f.attrs["config"])
-        out["info"] = {k: f["info"][k][()] for k in f["info"]}
-    return out
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    tmp = _tmp_for(path)
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def _save_fig(fig, path: Path) -> None:
-    tmp = _tmp_for(path)
-    fig.savefig(tmp, dpi=110, format="png")
-    os.replace(tmp, path)
-
-
 def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[str, str]:
     """Error histograms, RMS vs CRLB, coverage with its binomial band."""
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -116,7 +58,7 @@ def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[st
     fig.suptitle(f"Estimation error (estimate - injected), {len(study.rows)} runs", fontsize=10)
     fig.tight_layout()
     out["errors"] = f"{prefix}fig_errors.png"
-    _save_fig(fig, folder / out["errors"])
+    save_fig(fig, folder / out["errors"])
     plt.close(fig)
 
     fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
@@ -134,7 +76,7 @@ def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[st
     ax[1].set_xlabel("RMS error / RMS reported standard error (1 = honest SEs)")
     fig.tight_layout()
     out["rms_crlb"] = f"{prefix}fig_rms_crlb.png"
-    _save_fig(fig, folder / out["rms_crlb"])
+    save_fig(fig, folder / out["rms_crlb"])
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(11, 3.5))
@@ -152,7 +94,7 @@ def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[st
     ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     out["coverage"] = f"{prefix}fig_coverage.png"
-    _save_fig(fig, folder / out["coverage"])
+    save_fig(fig, folder / out["coverage"])
     plt.close(fig)
     return out
 
@@ -190,7 +132,7 @@ def write_study_outputs(study, campaign) -> dict:
     write_results_h5(folder / "results.h5", study)
     figs = figures(study, stats, folder) if getattr(campaign, "generic_figures", True) else {}
     own = EXTRA_REPORTS.get(campaign.name)
-    extra = (own(study, folder, _save_fig) if own
+    extra = (own(study, folder, save_fig) if own
              else campaign.extra_report(study, folder) if hasattr(campaign, "extra_report") else None)
     if extra:
         figs.update(extra.get("figures", {}))
@@ -207,9 +149,9 @@ def write_study_outputs(study, campaign) -> dict:
                "files": {"results": "results.h5", "runs": "runs/", **{k: v for k, v in figs.items()}}}
     if extra:
         summary.update(extra.get("summary", {}))
-    _atomic_text(folder / "summary.json", json.dumps(clean_json(summary), indent=2, allow_nan=False) + "\n")
+    atomic_text(folder / "summary.json", json.dumps(clean_json(summary), indent=2, allow_nan=False) + "\n")
     _write_rrd(folder / "study.rrd", study, stats)
-    _atomic_text(folder / "report.md", render_report(study, stats, figs, lab, per_run,
+    atomic_text(folder / "report.md", render_report(study, stats, figs, lab, per_run,
                                                      extra.get("markdown", "") if extra else "",
                                                      getattr(campaign, "lab_time_note", LAB_NOTE)))
     return summary
@@ -259,7 +201,7 @@ def render_report(study, stats, figs, lab, per_run, extra_md: str = "", lab_note
 
 
 def _write_rrd(path: Path, study, stats) -> None:
-    from imurig.reports.viz import RrdWriter, log_scalars, log_text
+    from imurig.reports.viz import RrdWriter, log_scalars, log_text  # rerun: heavy, loaded for the .rrd only
 
     idx, names, units, A = table_arrays(study.rows)
     with RrdWriter(path, recording_name="Monte-Carlo study", overwrite=True, blueprint=None) as w:

@@ -1,11 +1,13 @@
-"""Score reports: report.md (tables and a z-score figure), summary.json."""
+"""Score reports: report.md (tables and a z-score figure), summary.json; the scoreboard
+(scoreboard.md, scoreboard.json) and the Monte-Carlo score table."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from imurig.reports.common import OutputFolder, clean_json, md_table
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_table
 from imurig.scoring.score import Score
 
 
@@ -38,7 +40,7 @@ def score_markdown(s: Score, fig: str | None = None) -> str:
 
 
 def plot_z(path: Path, s: Score) -> None:
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -67,3 +69,40 @@ def write_score(out, s: Score, overwrite: bool = False, figure: bool = True) -> 
         folder.write_text("report.md", score_markdown(s, fig))
     return Path(out)
 
+
+def scoreboard_markdown(rows: list[dict]) -> str:
+    """The scoreboard rows (:func:`imurig.scoring.scoreboard.scoreboard`) as a Markdown table."""
+
+    def f(v, d=2):
+        return "–" if v is None else f"{v:.{d}f}"
+
+    body = []
+    for r in rows:
+        if "error" in r:
+            body.append([r["campaign"], r["estimator"], "**error**", r["error"].splitlines()[0][:80], "", "", "", "", ""])
+            continue
+        body.append([r["campaign"], r["estimator"], "PASS" if r["passed"] else "**FAIL**", r["within"], f(r["rms_z"]),
+                     f"{r['max_abs_z']:.2f} ({r['max_abs_z_parameter']})", f(r["median_se_ratio"]),
+                     f(r["residual_over_floor"], 3), f(r["fit_wall_s"], 2)])
+    return md_table(["campaign", "estimator", "result", "within 4 SE", "RMS z", "max |z|", "SE / bench",
+                     "residual / floor", "fit s"], body)
+
+
+def write_scoreboard(out, rows: list[dict], overwrite: bool = False) -> Path:
+    """Write scoreboard.json and scoreboard.md into the folder ``out`` atomically."""
+    with OutputFolder(out, overwrite=overwrite) as folder:
+        folder.write_json("scoreboard.json", clean_json({"rows": rows}))
+        folder.write_text("scoreboard.md", "# imurig scoreboard\n\n" + scoreboard_markdown(rows) + "\n")
+    return Path(out)
+
+
+def monte_carlo_table(result: dict) -> str:
+    """A Monte-Carlo score (:func:`imurig.scoring.montecarlo.score_monte_carlo`) as a Markdown table."""
+
+    def f(v, d=3):
+        return "–" if v is None else f"{v:.{d}g}"
+
+    return md_table(["parameter", "unit", "bias", "RMS", "CRLB", "RMS/CRLB", "RMS/SE", "95 % coverage", "band ok"],
+                    [[s["name"], s["unit"], f(s.get("bias")), f(s.get("rms")), f(s.get("crlb")),
+                      f(s.get("rms_over_crlb")), f(s.get("rms_over_se")), f(s.get("coverage")), s.get("coverage_ok")]
+                     for s in result["parameters"]])

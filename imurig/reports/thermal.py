@@ -12,11 +12,12 @@ from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, save_products
 
 
 def _figs(out, rec: Recording, res: dict) -> dict:
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -100,7 +101,7 @@ def thermal_calibration_dict(res: dict) -> dict:
             "equation": "q(T) = sum_k coef_k dT^k + coef_h h, dT = T_sensor - T0, h = +1/2 heating, -1/2 cooling",
             "models": {k: {"terms": r.names, "coef": r.coef_.tolist(), "std_error": r.std_error_.tolist(),
                            "temperature_sensor": "temp_box" if k.startswith("gyro") else f"temp_acc_{k[-1]}"}
-                       for k, r in res["fit"].results.items()}}
+                       for k, r in res["fit"].results_.items()}}
 
 
 def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:
@@ -117,7 +118,7 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
             out.write_json("thermal_calibration.json", thermal_calibration_dict(res))
             files = {"report": "report.md", "summary": "summary.json", "calibration": "thermal_calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            from imurig.reports.thermal_rrd import write_rrd
+            from imurig.reports.thermal_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
             bar.update()

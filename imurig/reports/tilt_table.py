@@ -20,7 +20,8 @@ from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, 
 from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""
@@ -77,7 +78,7 @@ def _coef_table(cal: AccelerometerCalibration) -> str:
 
 
 def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -272,7 +273,7 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             figs = make_figures(out, rec, res)
             files.update({f"figure_{k}": v for k, v in figs.items()})
             bar.update()
-            from imurig.reports.tilt_table_rrd import write_rrd
+            from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
             bar.update(int(save_recording) + int(rrd))

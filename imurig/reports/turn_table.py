@@ -11,28 +11,30 @@ import time
 import numpy as np
 
 import imurig
-from imurig.calibration.gyro import AXES
-from imurig.calibration.simona import fit_simona, plot_fig_4_19, read_simona, simona_markdown
+from imurig.calibration.gyro import AXES, GyroCalibration
+from imurig.calibration.simona import SimonaCalibration, read_simona
+from imurig.calibration.simona_report import plot_fig_4_19, simona_markdown
 from imurig.reports.tilt_table import peak_rss_bytes
-from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study, calibrate_gyros,
+from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study,
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.reports.common import OutputFolder, clean_json, md_figures_and_run, md_table, published_figures, save_products
+from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
 
 
 def analyse(rec: Recording, timer: str = "hp6700", model: str = "physical") -> dict:
-    cal, rw, rate, ref = calibrate_gyros(rec, timer, model)
-    return {"main": cal, "windows": rw, "rate": rate, "reference": ref,
+    cal = GyroCalibration(model=model, timer=timer).fit(rec)
+    return {"main": cal, "windows": cal.windows_, "rate": cal.table_rate_, "reference": cal.reference_,
             "parameters": gyro_parameters(cal, rec),
-            "seed_final": calibrate_gyros(rec, timer, "seed_final", gls=False)[0]}
+            "seed_final": GyroCalibration(model="seed_final", timer=timer, gls=False).fit(rec)}
 
 
 def _fig_timers(out, ts: dict):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
     hp = ts["timers"]["hp6700"]
@@ -56,7 +58,7 @@ def _fig_timers(out, ts: dict):
 
 
 def _fig_residuals(out, res: dict):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     cal = res["main"]
     rate = np.degrees(res["rate"])
@@ -79,7 +81,7 @@ def _fig_residuals(out, res: dict):
 
 def _fig_slip_ring(out, rec: Recording):
     """Seed Fig. 4.16: a temperature channel at 1 kHz while the table turns; noise periodic in angle."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     seg = rec.segments
     i = int(np.argmax(np.abs(seg["rate_dial"])))
@@ -101,7 +103,7 @@ def _fig_slip_ring(out, rec: Recording):
 
 
 def _fig_arm(out, arm: dict):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     g = np.abs(np.asarray(arm["f_ref_m_s2"])) / 9.81242231
     fig, ax = plt.subplots(figsize=(8, 3.5))
@@ -184,7 +186,7 @@ def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
 
 
 def _fig_z(out, params):
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when figures are drawn, not when the CLI starts
 
     ps = [p for p in params if p.get("z") is not None]
     fig, ax = plt.subplots(figsize=(8, 3.8))
@@ -203,7 +205,7 @@ def _fig_z(out, params):
 
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
         studies: bool = True) -> dict:
-    import matplotlib
+    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     out = OutputFolder(out_dir, overwrite=overwrite)
@@ -234,7 +236,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 stage("SIMONA")
                 real = read_simona()
                 virt = simona_virtual(camp.seed)
-                simona = {"real": fit_simona(real), "virtual": fit_simona(virt),
+                simona = {"real": SimonaCalibration().fit(real).summary_, "virtual": SimonaCalibration().fit(virt).summary_,
                           "real_rounds": real.channels["measured_round"].tolist(),
                           "virtual_rounds": virt.channels["measured_round"].tolist()}
                 plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
@@ -252,7 +254,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             bar.update()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            from imurig.reports.turn_table_rrd import write_rrd
+            from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
             bar.update(int(save_recording) + int(rrd))

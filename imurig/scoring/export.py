@@ -22,10 +22,14 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy.io import savemat
 
+from imurig.calibration.gyro import reference_rates, round_windows
+from imurig.campaigns.tilt_table import tilt_table_reference
 from imurig.kernel.errors import ImurigError, OutputExistsError
-from imurig.kernel.recording import Recording, atomic_write, to_json
-from imurig.reports.common import OutputFolder
+from imurig.kernel.labcsv import write_csv
+from imurig.kernel.outputs import OutputFolder, atomic_write, to_json
+from imurig.kernel.recording import Recording
 from imurig.scoring.campaigns import BenchCampaign, campaign
 
 MAT_LAYOUT = """recording.mat (MATLAB v5, load('recording.mat') or Octave load):
@@ -53,8 +57,6 @@ def segment_table(c: BenchCampaign, rec: Recording) -> tuple[list[str], np.ndarr
     seg = rec.segments
     cols: dict[str, np.ndarray] = {"segment": np.arange(rec.n_segments)}
     if c.kind == "turn-table":
-        from imurig.calibration.gyro import reference_rates, round_windows
-
         rw, rate = round_windows(rec, "hp6700")
         ref = reference_rates(rw, rate)
         cols.update(start_s=rw.segments["start_s"], stop_s=rw.segments["stop_s"], run=seg["run"],
@@ -71,8 +73,6 @@ def segment_table(c: BenchCampaign, rec: Recording) -> tuple[list[str], np.ndarr
             unit = rec.segment_units.get(k, "1")
             cols[f"{k}_deg" if unit == "rad" else k] = np.degrees(v) if unit == "rad" else v
         if c.kind == "tilt-table":
-            from imurig.campaigns.tilt_table import tilt_table_reference
-
             ref, _, _ = tilt_table_reference(rec)
             cols.update({f"ref_f_{a}_m_s2": ref[:, j] for j, a in enumerate("xyz")})
     names = list(cols)
@@ -84,8 +84,6 @@ def _string_columns(rec: Recording) -> dict:
 
 
 def write_mat(path: Path, c: BenchCampaign, rec: Recording, seg_names, seg_table, template) -> None:
-    from scipy.io import savemat
-
     col = lambda x: np.asarray(x, float).reshape(-1, 1)
     segs = {k: col(seg_table[:, j]) for j, k in enumerate(seg_names)}
     for k, v in _string_columns(rec).items():
@@ -116,8 +114,6 @@ def _readme(c: BenchCampaign, truth_path: Path, template) -> str:
 def export_campaign(name: str, out, seed: int | None = None, truth_out=None, overwrite: bool = False,
                     mat: bool = True) -> dict:
     """Write the export folder ``out`` and the truth file (module doc). Returns the manifest."""
-    from imurig.kernel.labcsv import write_csv
-
     c = campaign(name, seed)
     out = Path(out)
     truth_path = Path(truth_out) if truth_out else out.with_name(out.name + ".truth.json")

@@ -22,7 +22,7 @@ import json
 import math
 from pathlib import Path
 
-from imurig.kernel.recording import atomic_write
+from imurig.kernel.outputs import atomic_write
 from imurig.scoring.interface import (
     EstimatesError,
     ParameterEstimate,

@@ -40,15 +40,16 @@ from imurig.flights import earth as E
 from imurig.flights import ekf
 from imurig.flights.plan import DoubleDoublet, FlightPlan, Level, simulate_flight
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.estimator import Estimator
+from imurig.kernel.navdata import GpsFixes, ImuStream
 from imurig.kernel.site import decimal_year, parse_time
 from imurig.scoring.interface import (
     EstimatesError,
-    GpsStream,
-    ImuStream,
     MagStream,
     NavFilter,
     NavSolution,
     NavStreams,
+    fitted_solution,
 )
 from imurig.scoring.nav import quat_mul, rotvec_to_quat, score_navigation
 from imurig.sensors.chain import ImuLab
@@ -88,7 +89,7 @@ class _Opt:   # what imurig.campaigns.flight.gps_fixes reads and writes
 
 
 def simulate_truth(plan=None, duration_s: float | None = None):
-    """The flight's :class:`imurig.flights.truth.FlightTruth`, cut to ``duration_s`` if given."""
+    """The flight's :class:`imurig.kernel.navdata.FlightTruth`, cut to ``duration_s`` if given."""
     tr = simulate_flight(plan or default_plan(), progress_bar=False)
     if duration_s is not None:
         if duration_s <= 10:
@@ -147,9 +148,11 @@ def flight_streams(seed: int, duration_s: float | None = None, plan=None, *, cal
         "initial_r_N": (g_r[0]).tolist(), "initial_v_N": g_v[0].tolist(), "initial_time_s": float(gps.time_s[valid][0]),
     }
     streams = NavStreams(
-        imu=ImuStream(np.array(st.time_s, float), np.array(st.f_B, float), np.array(st.w_IB_B, float)),
-        gps=GpsStream(np.array(gps.time_s, float)[valid], g_r, g_v, np.array(gps.sigma_pos_N, float)[valid],
-                      np.array(gps.sigma_vel_N, float)[valid]),
+        imu=ImuStream(time_s=np.array(st.time_s, float), f_B=np.array(st.f_B, float),
+                      w_IB_B=np.array(st.w_IB_B, float), samples=st.samples),
+        gps=GpsFixes(time_s=np.array(gps.time_s, float)[valid], r_N=g_r, v_N=g_v,
+                     sigma_pos_N=np.array(gps.sigma_pos_N, float)[valid],
+                     sigma_vel_N=np.array(gps.sigma_vel_N, float)[valid]),
         mag=MagStream(np.array(st.time_s, float), np.array(st.B_B, float)),
         meta=stream_meta)
     r, v, q = to_fixed_frame(origin, tr.lat_rad, tr.lon_rad, tr.h_m, v_N=tr.v_N, q_NB=tr.q_NB)
@@ -180,7 +183,7 @@ def trim_solution(sol: NavSolution, t_start: float) -> NavSolution:
 def score_nav_filter_on_flight(nav_filter: NavFilter, seed: int = 2005, duration_s: float | None = None,
                                plan=None, *, settle_s: float = 10.0, calibrated: bool = False,
                                streams=None) -> dict:
-    """Run ``nav_filter`` on the flight's streams (:func:`flight_streams`) and score it with
+    """Fit ``nav_filter`` on the flight's streams (:func:`flight_streams`) and score it with
     :func:`imurig.scoring.nav.score_navigation` after ``settle_s`` s of alignment transient.
 
     Returns ``{"position"|"velocity"|"attitude": {rms, max_abs, rms_norm, unit, [anees, nees_interval,
@@ -188,10 +191,8 @@ def score_nav_filter_on_flight(nav_filter: NavFilter, seed: int = 2005, duration
     """
     s, truth, meta = streams if streams is not None else flight_streams(seed, duration_s, plan, calibrated=calibrated)
     t0 = time.perf_counter()
-    sol = nav_filter.run(s)
+    sol = fitted_solution(nav_filter, s)
     wall = time.perf_counter() - t0
-    if not isinstance(sol, NavSolution):
-        raise EstimatesError(f"{type(nav_filter).__name__}.run() must return a NavSolution, got {type(sol).__name__}")
     out = score_navigation(trim_solution(sol, float(s.imu.time_s[0]) + settle_s), truth)
     out["meta"] = {**{k: v for k, v in meta.items() if k != "plan"}, "settle_s": settle_s, "filter_wall_s": wall,
                    "filter": type(nav_filter).__name__}
@@ -227,7 +228,7 @@ def assert_nav_meets(score: dict, max_rms_norm: dict | None = None, *, consisten
 
 
 # ------------------------------------------------------------------------------------ baseline
-class ProjectEKF:
+class ProjectEKF(Estimator):
     """The project's loosely coupled 18-state EKF (:class:`imurig.flights.ekf.LooseEKF`), set up
     as ``imurig flight`` sets it up (25 Hz, magnetic heading σ 2 deg, IGRF declination along the route,
     GPS latency and Gauss-Markov error states, accelerometer-levelling + compass alignment over the
@@ -236,13 +237,20 @@ class ProjectEKF:
 
     ``use_gps=False`` gives the same filter without GPS (dead reckoning + compass), a deliberately
     poor filter for tests. Covariances P_r, P_v, P_att are reported (rotated into N0).
+    Fitted: ``solution_`` (:class:`NavSolution` in N0) and ``filter_`` (the fitted LooseEKF).
     """
 
     def __init__(self, use_gps: bool = True, nav_rate_hz: float | None = None):
         self.use_gps = use_gps
         self.nav_rate_hz = nav_rate_hz
 
-    def run(self, streams: NavStreams) -> NavSolution:
+    def apply(self) -> NavSolution:
+        """The filtered solution in N0 (``solution_``)."""
+        self.check_fitted()
+        return self.solution_
+
+    def fit(self, streams: NavStreams) -> ProjectEKF:
+        self._clear_fitted()
         m = streams.meta
         lat0, lon0 = math.radians(m["origin_deg"][0]), math.radians(m["origin_deg"][1])
         origin = (lat0, lon0, float(m["origin_deg"][2]))
@@ -250,17 +258,14 @@ class ProjectEKF:
         B = None
         if streams.mag is not None:
             B = np.stack([np.interp(t, streams.mag.time_s, streams.mag.B_B[:, j]) for j in range(3)], 1)
-        imu = ekf.ImuStream(t, np.asarray(streams.imu.w_IB_B, float), np.asarray(streams.imu.f_B, float), B, None)
+        imu = ImuStream(time_s=t, f_B=np.asarray(streams.imu.f_B, float), w_IB_B=np.asarray(streams.imu.w_IB_B, float),
+                        B_B=B, samples=streams.imu.samples)
         g = streams.gps
         lat, lon, h = E.geodetic_from_ned(np.asarray(g.r_N, float), *origin)
         C = C_N0N(lat, lon, lat0, lon0)
         v_loc = np.einsum("kji,kj->ki", C, np.asarray(g.v_N, float))
-        k = g.time_s.size
-        sp = np.broadcast_to(np.asarray(g.sigma_r_m, float).reshape(-1, 3) if np.ndim(g.sigma_r_m) == 2
-                             else np.asarray(g.sigma_r_m, float).reshape(-1, 1), (k, 3)).copy()
-        sv = np.broadcast_to(np.asarray(g.sigma_v_m_s, float).reshape(-1, 3) if np.ndim(g.sigma_v_m_s) == 2
-                             else np.asarray(g.sigma_v_m_s, float).reshape(-1, 1), (k, 3)).copy()
-        gps = ekf.SimpleGps(np.asarray(g.time_s, float), lat, lon, h, v_loc, sp, sv, mode=m.get("gps_mode", ""))
+        gps = GpsFixes(time_s=np.asarray(g.time_s, float), lat_rad=lat, lon_rad=lon, h_m=h, v_N=v_loc,
+                       sigma_pos_N=g.sigma_pos_N, sigma_vel_N=g.sigma_vel_N, mode=m.get("gps_mode", ""))
         extra = {}
         if m.get("gps_pos_tau_s"):
             extra = {"gps_pos_tau_s": float(m["gps_pos_tau_s"]),
@@ -277,7 +282,8 @@ class ProjectEKF:
             decl = ekf.IgrfDeclination(decimal_year(parse_time(m["start_time"])))
         f = ekf.LooseEKF(cfg, noise, lever_gps_B=lever, declination=decl)
         x0 = study.align(SimpleNamespace(rate_hz=m["imu_rate_hz"], lever_gps_B=lever), imu, gps, decl)
-        res = f.run(imu, gps if self.use_gps else None, x0)
+        self.filter_ = f.fit(imu, gps if self.use_gps else None, x0)
+        res = f.solution_
         r, v, q = to_fixed_frame(origin, res.lat_rad, res.lon_rad, res.h_m, v_N=res.v_N, q_NB=res.q_NB)
         Cn = C_N0N(res.lat_rad, res.lon_rad, lat0, lon0)
         Pn = np.asarray(res.P_nav, float)
@@ -285,19 +291,26 @@ class ProjectEKF:
         def rot(Pb):
             return np.einsum("kij,kjl,kml->kim", Cn, Pb, Cn)
 
-        return NavSolution(np.asarray(res.time_s, float), r, v, q, P_r=rot(Pn[:, 0:3, 0:3]),
-                           P_v=rot(Pn[:, 3:6, 3:6]), P_att=rot(Pn[:, 6:9, 6:9]))
+        self.solution_ = NavSolution(np.asarray(res.time_s, float), r, v, q, P_r=rot(Pn[:, 0:3, 0:3]),
+                                     P_v=rot(Pn[:, 3:6, 3:6]), P_att=rot(Pn[:, 6:9, 6:9]))
+        return self
 
 
-@dataclass
-class AttitudeOffset:
+class AttitudeOffset(Estimator):
     """Wraps a filter and rotates its attitude by a fixed body-frame offset ``rotvec_B`` (rad):
-    q_NB' = q_NB ⊗ q(rotvec_B). A deliberately biased filter for tests."""
+    q_NB' = q_NB ⊗ q(rotvec_B). A deliberately biased filter for tests (fits ``inner`` in place)."""
 
-    inner: object
-    rotvec_B: tuple = (0.0, 0.0, 2.0 * DEG)
+    def __init__(self, inner, rotvec_B: tuple = (0.0, 0.0, 2.0 * DEG)):
+        self.inner = inner
+        self.rotvec_B = rotvec_B
 
-    def run(self, streams: NavStreams) -> NavSolution:
-        s = self.inner.run(streams)
+    def fit(self, streams: NavStreams) -> AttitudeOffset:
+        self._clear_fitted()
+        s = fitted_solution(self.inner, streams)
         dq = rotvec_to_quat(np.asarray(self.rotvec_B, float))
-        return replace(s, q_NB=quat_mul(np.asarray(s.q_NB, float), np.broadcast_to(dq, s.q_NB.shape)))
+        self.solution_ = replace(s, q_NB=quat_mul(np.asarray(s.q_NB, float), np.broadcast_to(dq, s.q_NB.shape)))
+        return self
+
+    def apply(self) -> NavSolution:
+        self.check_fitted()
+        return self.solution_

@@ -1,17 +1,19 @@
-"""The contract between the bench and a user's estimator.
+"""The contract between the bench and a user's estimator: the bench's own estimator contract
+(:mod:`imurig.kernel.estimator`; settings in ``__init__``, ``fit`` returns ``self``, fitted values
+in attributes ending in ``_``, a separate ``apply``). Two kinds of estimator take part:
 
-Two kinds of estimator take part:
-
-**Calibrator** (anything with these methods; no base class needed)::
+**Calibrator** (the :class:`~imurig.kernel.estimator.Estimator` base class is optional)::
 
     class MyCalibrator:
-        def fit(self, recording: Recording) -> Estimates: ...
+        def fit(self, recording: Recording) -> "MyCalibrator":      # sets self.estimates_
+            ...
+            return self
         def apply(self, recording: Recording) -> Recording: ...      # optional
 
 ``fit`` receives the campaign's recording *without truth* (:meth:`Recording.without_truth`,
-1 kHz SI channels, segments with set-points, metadata) and returns estimates of the
-campaign's parameters (:func:`imurig.scoring.campaigns.parameter_template` lists names and
-units) as any of
+1 kHz SI channels, segments with set-points, metadata), returns ``self`` and leaves estimates
+of the campaign's parameters (:func:`imurig.scoring.campaigns.parameter_template` lists names and
+units) in ``estimates_``, as any of
 
 - a list of parameter rows ``{"name", "unit", "estimate" | "value", "std_error"}``
   (the bench's own row format, e.g. ``TriadCalibration.physical_parameters()``);
@@ -26,16 +28,20 @@ calibrated output against the true input.
 **NavFilter**::
 
     class MyFilter:
-        def run(self, streams: NavStreams) -> NavSolution: ...
+        def fit(self, streams: NavStreams) -> "MyFilter": ...       # sets self.solution_
+        def apply(self) -> NavSolution: ...                           # the filtered solution
 
-takes IMU, GPS and magnetometer streams and returns time-stamped position, velocity and
-attitude estimates, optionally with their covariances; :mod:`imurig.scoring.nav` scores
-the errors and, where covariances are given, the filter's consistency (NEES).
+takes IMU, GPS and magnetometer streams, returns ``self`` and leaves time-stamped position,
+velocity and attitude estimates, optionally with their covariances, in ``solution_`` (a
+:class:`NavSolution`); :mod:`imurig.scoring.nav` scores the errors and, where covariances are
+given, the filter's consistency (NEES).
 
 Frames, as in :mod:`imurig.flights`: N is the local navigation frame north-east-down at a
 fixed origin (positions ``r_N`` are metres from that origin), B the body frame
 front-right-down. Quaternions are scalar first (w, x, y, z); ``q_NB`` maps body to
-navigation coordinates, x_N = C(q_NB) x_B.
+navigation coordinates, x_N = C(q_NB) x_B. The IMU stream and the GPS fixes are the
+project's one type each (:class:`imurig.kernel.navdata.ImuStream`,
+:class:`imurig.kernel.navdata.GpsFixes`, the fixes here given as ``r_N`` with ``v_N`` in N axes).
 """
 from __future__ import annotations
 
@@ -46,6 +52,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from imurig.kernel.errors import ImurigError
+from imurig.kernel.navdata import GpsFixes, ImuStream
 from imurig.kernel.recording import Recording
 
 
@@ -68,31 +75,9 @@ class ParameterEstimate:
 
 @runtime_checkable
 class Calibrator(Protocol):
-    """fit(recording without truth) -> estimates (see module doc)."""
+    """fit(recording without truth) -> self, with the estimates in ``estimates_`` (module doc)."""
 
     def fit(self, recording: Recording) -> Any: ...
-
-
-@dataclass
-class ImuStream:
-    """IMU samples: specific force ``f_B`` (n, 3) m/s^2 and angular rate ``w_IB_B`` (n, 3) rad/s
-    at times ``time_s`` (n,)."""
-
-    time_s: np.ndarray
-    f_B: np.ndarray
-    w_IB_B: np.ndarray
-
-
-@dataclass
-class GpsStream:
-    """GPS fixes: position ``r_N`` (m, 3) m in the local NED frame N (metres from its origin),
-    optional velocity ``v_N`` (m, 3) m/s, and their 1-sigma accuracies (m,) or (m, 3)."""
-
-    time_s: np.ndarray
-    r_N: np.ndarray
-    v_N: np.ndarray | None = None
-    sigma_r_m: np.ndarray | float | None = None
-    sigma_v_m_s: np.ndarray | float | None = None
 
 
 @dataclass
@@ -109,7 +94,7 @@ class NavStreams:
     (site, origin of N, initial conditions the bench gives every filter, e.g. ``initial_r_N``)."""
 
     imu: ImuStream
-    gps: GpsStream | None = None
+    gps: GpsFixes | None = None
     mag: MagStream | None = None
     meta: dict = field(default_factory=dict)
 
@@ -131,9 +116,34 @@ class NavSolution:
 
 @runtime_checkable
 class NavFilter(Protocol):
-    """run(streams) -> NavSolution."""
+    """fit(streams) -> self, with the filtered solution in ``solution_`` (a :class:`NavSolution`)."""
 
-    def run(self, streams: NavStreams) -> NavSolution: ...
+    def fit(self, streams: NavStreams) -> Any: ...
+
+
+def _fitted(estimator, what: str, attribute: str):
+    """``estimator``'s fitted ``attribute`` after its ``fit`` returned ``what``; refuses anything that
+    does not follow the contract (fit returns self, fitted values in ``<name>_``)."""
+    name = type(estimator).__name__
+    if what is not estimator:
+        raise EstimatesError(f"{name}.fit() must return the estimator itself (the bench's estimator contract: "
+                             f"fit returns self and leaves its results in '{attribute}'), got {type(what).__name__}")
+    if not hasattr(estimator, attribute):
+        raise EstimatesError(f"{name}.fit() left no '{attribute}': put the results there before returning self")
+    return getattr(estimator, attribute)
+
+
+def fitted_estimates(calibrator, recording: Recording):
+    """Fit ``calibrator`` on ``recording`` and return its ``estimates_`` (module doc)."""
+    return _fitted(calibrator, calibrator.fit(recording), "estimates_")
+
+
+def fitted_solution(nav_filter, streams: NavStreams) -> NavSolution:
+    """Fit ``nav_filter`` on ``streams`` and return its ``solution_``, a :class:`NavSolution`."""
+    sol = _fitted(nav_filter, nav_filter.fit(streams), "solution_")
+    if not isinstance(sol, NavSolution):
+        raise EstimatesError(f"{type(nav_filter).__name__}.solution_ must be a NavSolution, got {type(sol).__name__}")
+    return sol
 
 
 def _float(v, what: str) -> float:
@@ -167,7 +177,7 @@ def normalise_estimates(est, default_units: Mapping[str, str] | None = None) -> 
     elif isinstance(est, (list, tuple)):
         items = list(est)
     else:
-        raise EstimatesError(f"a calibrator's fit() must return parameter rows or a mapping name -> (value, "
+        raise EstimatesError(f"a calibrator's estimates_ must be parameter rows or a mapping name -> (value, "
                              f"std_error), got {type(est).__name__}")
     for r in items:
         if isinstance(r, ParameterEstimate):

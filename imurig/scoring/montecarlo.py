@@ -16,20 +16,20 @@ errors). The calibrator must be picklable (it runs on the workers).
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
-from imurig.scoring.interface import normalise_estimates
+from imurig.kernel.errors import ImurigError
+from imurig.montecarlo.engine import run_study
+from imurig.scoring.interface import fitted_estimates, normalise_estimates
 from imurig.scoring.score import TruthSet, check_estimates
+from imurig.scoring.specs import ACC_UNITS, triad_names
 
 
 def _template_units(kind: str) -> dict[str, str]:
-    from imurig.scoring.campaigns import ACC_UNITS, _triad_names
-
     if kind != "tilt-table":
-        from imurig.kernel.errors import ImurigError
-
         raise ImurigError(f"Monte-Carlo scoring knows the tilt-table campaign only so far, not {kind!r}")
-    return {n: ACC_UNITS[n.split("_")[0]] for n in _triad_names(("x", "y", "z"))}
+    return {n: ACC_UNITS[n.split("_")[0]] for n in triad_names(("x", "y", "z"))}
 
 
 @dataclass
@@ -42,12 +42,10 @@ class CalibratorEstimator:
     kind: str = "tilt-table"
 
     def __call__(self, recording) -> list[dict]:
-        import copy
-
         units = _template_units(self.kind)
         truth = TruthSet(self.kind, 0, [{"name": n, "unit": u, "injected": 0.0} for n, u in units.items()])
         cal = copy.deepcopy(self.calibrator)
-        est = check_estimates(truth, normalise_estimates(cal.fit(recording), units),
+        est = check_estimates(truth, normalise_estimates(fitted_estimates(cal, recording), units),
                               f"{type(self.calibrator).__name__}.fit()")
         return [{"name": n, "unit": units[n], "estimate": est[n].value, "std_error": est[n].std_error} for n in units]
 
@@ -57,13 +55,11 @@ def score_monte_carlo(calibrator, runs: int, master_seed: int = 0, campaign: str
     """Run ``calibrator`` on ``runs`` seeded virtual labs and summarise per parameter.
 
     ``engine_kw`` go to :func:`imurig.montecarlo.run_study` (``client``, ``workers``, ``out``,
-    ``scheduler``, ``processes`` ...). Returns {"parameters": [...], "timing": {...},
+    ``scheduler``, ``processes``, ``report`` ...). Returns {"parameters": [...], "timing": {...},
     "study": Study}; each parameter row has bias, rms, crlb, rms_over_crlb, mean_se,
-    rms_over_se, coverage, coverage_band, coverage_ok, within_bound_fraction.
+    rms_over_se, coverage, coverage_band, coverage_ok, within_bound_fraction (as a Markdown
+    table: :func:`imurig.reports.scoring.monte_carlo_table`).
     """
-    from imurig.montecarlo.engine import run_study
-
-    engine_kw.setdefault("report", False)
     study = run_study(campaign, runs, master_seed=master_seed, params=params,
                       estimator=CalibratorEstimator(calibrator, campaign), **engine_kw)
     stats = study.stats
@@ -76,15 +72,3 @@ def score_monte_carlo(calibrator, runs: int, master_seed: int = 0, campaign: str
         s["within_bound_fraction"] = sum(w) / len(w) if w else None
     return {"campaign": campaign, "runs": runs, "master_seed": master_seed, "estimator": type(calibrator).__name__,
             "parameters": stats, "timing": study.timing, "study": study}
-
-
-def monte_carlo_table(result: dict) -> str:
-    from imurig.reports.common import md_table
-
-    def f(v, d=3):
-        return "–" if v is None else f"{v:.{d}g}"
-
-    return md_table(["parameter", "unit", "bias", "RMS", "CRLB", "RMS/CRLB", "RMS/SE", "95 % coverage", "band ok"],
-                    [[s["name"], s["unit"], f(s.get("bias")), f(s.get("rms")), f(s.get("crlb")),
-                      f(s.get("rms_over_crlb")), f(s.get("rms_over_se")), f(s.get("coverage")), s.get("coverage_ok")]
-                     for s in result["parameters"]])

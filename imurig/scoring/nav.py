@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from imurig.scoring.interface import EstimatesError, NavFilter, NavSolution, NavStreams
+from imurig.scoring.interface import EstimatesError, NavFilter, NavSolution, NavStreams, fitted_solution
 
 
 def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -122,8 +122,5 @@ def score_navigation(sol: NavSolution, truth: NavSolution) -> dict:
 
 
 def score_filter(nav_filter: NavFilter, streams: NavStreams, truth: NavSolution) -> dict:
-    """Run ``nav_filter`` on ``streams`` and score its solution against ``truth``."""
-    sol = nav_filter.run(streams)
-    if not isinstance(sol, NavSolution):
-        raise EstimatesError(f"{type(nav_filter).__name__}.run() must return a NavSolution, got {type(sol).__name__}")
-    return score_navigation(sol, truth)
+    """Fit ``nav_filter`` on ``streams`` and score its ``solution_`` against ``truth``."""
+    return score_navigation(fitted_solution(nav_filter, streams), truth)

@@ -23,11 +23,14 @@ standard error, e.g.::
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import pytest
 
-from imurig.scoring.bench import score_calibrator
-from imurig.scoring.campaigns import BenchCampaign, campaign
 from imurig.scoring.score import Score
+
+if TYPE_CHECKING:
+    from imurig.scoring.campaigns import BenchCampaign
 
 
 class CalibratorBoundError(AssertionError):
@@ -52,6 +55,9 @@ def assert_calibrator_meets(calibrator, camp: BenchCampaign | str, seed: int | N
     Returns the :class:`Score`; raises :class:`CalibratorBoundError` (an AssertionError)
     naming each parameter that missed.
     """
+    # heavy (the campaigns' MuJoCo rigs, scipy): loaded when used, not when pytest starts this plugin
+    from imurig.scoring.bench import score_calibrator
+
     s = score_calibrator(calibrator, camp, seed, z_bound=z_bound)
     problems = []
     if not s.passed:
@@ -80,6 +86,9 @@ def assert_calibrator_meets(calibrator, camp: BenchCampaign | str, seed: int | N
 @pytest.fixture(scope="session")
 def imurig_campaign():
     """Factory ``imurig_campaign(name, seed=None) -> BenchCampaign`` (simulated once per session)."""
+    # heavy (the campaigns' MuJoCo rigs, scipy): loaded when used, not when pytest starts this plugin
+    from imurig.scoring.campaigns import campaign
+
     return campaign
 
 

@@ -9,7 +9,7 @@ campaigns). Because a huge standard error passes any z bound, the score also giv
 RMS of the z-scores (about 1 for honest standard errors) and each standard error over the
 bench's own (``se_ratio``: below 1 is more precise than the bench).
 
-Residuals: where the campaign defines them (:mod:`imurig.scoring.campaigns`), the
+Residuals: where the campaign defines them (:mod:`imurig.scoring.residuals`), the
 estimated parameters are put into the sensor's forward model with the true input of each
 segment, and the measured output is compared with that prediction; the RMS per axis is
 reported beside the same figure with the injected parameters (the floor set by the noise).
@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.scoring.interface import EstimatesError, ParameterEstimate
+from imurig.scoring.interface import EstimatesError, ParameterEstimate, normalise_estimates
+from imurig.scoring.residuals import compute_residuals
 from imurig.scoring.units import UnitError, conversion_factor
 
 TRUTH_FORMAT = "imurig-truth"
@@ -39,7 +40,7 @@ class TruthSet:
     campaign: str
     seed: int
     parameters: list[dict]                 # {name, unit, injected}
-    residuals: dict | None = None          # see imurig.scoring.campaigns.residuals
+    residuals: dict | None = None          # see imurig.scoring.truth.RESIDUALS
     bench: list[dict] | None = None        # the bench's estimates {name, unit, estimate, std_error}
     z_bound: float = Z_BOUND
     notes: str = ""
@@ -198,9 +199,6 @@ class Score:
 def score_estimates(truth: TruthSet, estimates, estimator: str = "estimator", source: str = "estimates",
                     z_bound: float | None = None) -> Score:
     """Score estimates (any form :func:`normalise_estimates` accepts) against ``truth``."""
-    from imurig.scoring.campaigns import compute_residuals
-    from imurig.scoring.interface import normalise_estimates
-
     est = check_estimates(truth, normalise_estimates(estimates, truth.units), source)
     zb = truth.z_bound if z_bound is None else float(z_bound)
     bench = {b["name"]: b for b in (truth.bench or [])}

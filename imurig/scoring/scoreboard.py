@@ -5,6 +5,7 @@ One row per (campaign, estimator): pass/fail at the z bound, parameters within i
 (about 1 for honest standard errors), the largest |z| and its parameter, the median of the
 estimator's standard errors over the bench's (below 1: more precise), the residual RMS
 over its floor with the injected parameters (mean over axes), and the fit's wall time.
+The table and its files: :func:`imurig.reports.scoring.write_scoreboard`.
 """
 from __future__ import annotations
 
@@ -14,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from imurig.kernel.errors import ImurigError
-from imurig.reports.common import OutputFolder, clean_json, md_table
 from imurig.scoring.baselines import baseline_for
 from imurig.scoring.bench import score_calibrator
 from imurig.scoring.campaigns import QUICK, campaign
+from imurig.scoring.files import read_estimates
 from imurig.scoring.score import Score, score_estimates
 
 
@@ -54,8 +55,6 @@ def scoreboard(campaigns=QUICK, others: dict | None = None, seed: int | None = N
                         continue
                     est = how[name]
                     if isinstance(est, (str, Path)):
-                        from imurig.scoring.files import read_estimates
-
                         est = read_estimates(est)
                     s = score_estimates(c.truth(), est, estimator=label, source=f"{label} on {name}")
                 else:
@@ -67,26 +66,3 @@ def scoreboard(campaigns=QUICK, others: dict | None = None, seed: int | None = N
             except ImurigError as e:
                 rows.append({"campaign": name, "seed": c.seed, "estimator": label, "passed": False, "error": str(e)})
     return rows
-
-
-def scoreboard_markdown(rows: list[dict]) -> str:
-    def f(v, d=2):
-        return "–" if v is None else f"{v:.{d}f}"
-
-    body = []
-    for r in rows:
-        if "error" in r:
-            body.append([r["campaign"], r["estimator"], "**error**", r["error"].splitlines()[0][:80], "", "", "", "", ""])
-            continue
-        body.append([r["campaign"], r["estimator"], "PASS" if r["passed"] else "**FAIL**", r["within"], f(r["rms_z"]),
-                     f"{r['max_abs_z']:.2f} ({r['max_abs_z_parameter']})", f(r["median_se_ratio"]),
-                     f(r["residual_over_floor"], 3), f(r["fit_wall_s"], 2)])
-    return md_table(["campaign", "estimator", "result", "within 4 SE", "RMS z", "max |z|", "SE / bench",
-                     "residual / floor", "fit s"], body)
-
-
-def write_scoreboard(out, rows: list[dict], overwrite: bool = False) -> Path:
-    with OutputFolder(out, overwrite=overwrite) as folder:
-        folder.write_json("scoreboard.json", clean_json({"rows": rows}))
-        folder.write_text("scoreboard.md", "# imurig scoreboard\n\n" + scoreboard_markdown(rows) + "\n")
-    return Path(out)

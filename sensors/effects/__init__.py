@@ -1,13 +1,39 @@
 """The effect library: one module per physical effect, each an :class:`~imurig.sensors.effects.base.Effect`.
 
-``LIBRARY`` lists every effect class once; the sensor chain, the diagnosis, the bounds and the
-filter priors find effects here and nowhere else (README, "Adding an effect").
+``LIBRARY`` holds every effect class of this package, found by importing each of its modules, so
+a new effect is one new file here (README, "Adding an effect"): the sensor chain, the diagnosis,
+the bounds and the filter priors find it through ``LIBRARY``, ``by_name`` and ``for_view`` and
+nowhere else. Each class is also an attribute of this package (``from imurig.sensors.effects
+import AdcCrosstalk``).
 """
-from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
-from imurig.sensors.effects.adc_quantisation import AdcQuantisation
-from imurig.sensors.effects.base import STAGES, Candidate, ChainContext, Effect, Param, PositionView, ScanSlot
+from __future__ import annotations
 
-LIBRARY: tuple[type[Effect], ...] = (AdcCrosstalk, AdcQuantisation)
+import importlib
+import pkgutil
+
+from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, Param, PositionView,  # noqa: F401
+                                         ScanSlot, ScatterView, recording_truth)
+
+
+def _discover() -> tuple[type[Effect], ...]:
+    """Every named Effect subclass defined in a module of this package, by (``order``, name): the
+    diagnosis offers candidates in that order (position means: crosstalk, drift, axes, square, product)."""
+    found = {}
+    for info in pkgutil.iter_modules(__path__):
+        if info.name == "base" or info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        for obj in vars(module).values():
+            if isinstance(obj, type) and issubclass(obj, Effect) and obj.name and obj.__module__ == module.__name__:
+                if obj.name in found and found[obj.name] is not obj:
+                    raise TypeError(f"two effects are called '{obj.name}': {found[obj.name].__module__} and "
+                                    f"{module.__name__}; an effect's name is its identity, rename one")
+                found[obj.name] = obj
+    return tuple(sorted(found.values(), key=lambda c: (c.order, c.name)))
+
+
+LIBRARY: tuple[type[Effect], ...] = _discover()
+globals().update({cls.__name__: cls for cls in LIBRARY})
 
 
 def by_name(name: str) -> type[Effect]:
@@ -21,7 +47,3 @@ def by_name(name: str) -> type[Effect]:
 def for_view(kind: str) -> list[type[Effect]]:
     """The effect classes that offer diagnosis candidates for views of ``kind`` ("positions", ...)."""
     return [cls for cls in LIBRARY if kind in cls.views]
-
-
-__all__ = ["LIBRARY", "STAGES", "AdcCrosstalk", "AdcQuantisation", "Candidate", "ChainContext", "Effect", "Param",
-           "PositionView", "ScanSlot", "by_name", "for_view"]

@@ -38,6 +38,7 @@ class AdcCrosstalk(Effect):
     params: ClassVar[tuple] = (Param("settling_tau_s", "s", note="c = exp(-1/(f_mux tau)); fitted as c"),
                                Param("c", "m/s^2/V", note="inverse-model coefficient on the previous channel"))
     views: ClassVar[tuple] = ("positions",)
+    order: ClassVar[int] = 10
 
     def coefficient(self, mux_frequency_hz: float) -> float:
         """c = exp(-1 / (f_mux tau)): the fraction of the previous slot's difference left (0 when off)."""

@@ -4,8 +4,10 @@ An :class:`Effect` is a small dataclass of SI parameters with class-level facts 
 behaviours, each optional:
 
     inject(x, ctx, rng) -> x'       the sensor chain: add the effect to the signal of its ``stage``
-    candidates(view)    -> [Candidate]   the diagnosis: regression columns (or a test statistic)
-                                     with any scanned nonlinear parameter, for one diagnosis view
+    candidates(view)    -> [Candidate]   the diagnosis: regression columns with any scanned
+                                     nonlinear parameter, for one diagnosis view
+    test(view)          -> {statistics, "finding": ...}   the diagnosis where no regression
+                                     serves (a spectral peak, spikes): the effect's own test statistic
     noise_variance(ctx) -> float    the noise covariance: per-sample variance the effect adds to
                                      one channel, in that channel's unit (bounds, budgets, priors)
     fitted(truth, channel) -> {param: value}   the map from injected truth (the recording's
@@ -13,12 +15,22 @@ behaviours, each optional:
 
 and the class-level facts: ``name`` (the one name used by the truth, the diagnosis findings and
 the filter states), ``stage``, ``physics`` (plain words), ``seed_section`` and ``seed_says``
-(the sentence of the seed that supports it), and ``params`` (unit, datasheet and seed priors).
+(the sentence of the seed that supports it), ``params`` (unit, datasheet and seed priors),
+``stream`` (the name of the effect's random stream, ``child_rng(seed, stream)``, the same for
+the life of the project so that a seed reproduces its data) and ``impulsive`` (rare non-Gaussian
+transients that the medians reject: the Gaussian bounds leave them out).
+
+Effects of the "sensor" stage are parameters of the sensor model itself (the Q-Flex triad's
+misalignment, nonlinearity, temperature coefficients): the triad injects them; the effect object
+owns their diagnosis and truth map, and its ``inject`` applies the parameter to a signal (tests).
+Effects of the "analog" stage act per line: ``lines(names, ctx)`` says which analog lines they
+touch and ``line_stream(line)`` names each line's random stream.
 
 The chain composes a list of effects per stage, as dm_control composes corruptors
 ``corruptor(value, random_state)``; the diagnosis asks the same objects for candidates; the
 Cramér-Rao bounds and Monte-Carlo budgets ask them for ``noise_variance``. A new effect is one
-new module of :mod:`imurig.sensors.effects` registered in its ``LIBRARY``.
+new module of :mod:`imurig.sensors.effects` registered in its ``LIBRARY``. Effect modules import
+the kernel, :mod:`imurig.sensors.noise` and this module only (the sensor models import them).
 """
 from __future__ import annotations
 
@@ -75,7 +87,10 @@ class ChainContext:
     time_s (n,) s; sample_rate_hz; hour_of_day (n,) local hours (working-hours schedules);
     truth_signals: the rig's truth (f_C_*, w_C_*, spin_angle ...); adc: the converter settings
     (:class:`imurig.sensors.adc.DAQ6036E`) or None; sensitivity_V_per_SI: nominal sensitivity per
-    channel name, so an effect can state its size in the sensor's unit.
+    channel name, so an effect can state its size in the sensor's unit; imu_lines: the analog
+    lines that leave the IMU (they cross the slip rings; the rig's own lines do not);
+    window_samples: for ``noise_variance``, the observation is the mean of this many consecutive
+    logged samples (1: one sample; more: the long-window limit, the noise's power at DC / N).
     """
 
     time_s: np.ndarray
@@ -84,6 +99,15 @@ class ChainContext:
     truth_signals: Mapping[str, np.ndarray] = field(default_factory=dict)
     adc: object | None = None
     sensitivity_V_per_SI: Mapping[str, float] = field(default_factory=dict)
+    imu_lines: tuple[str, ...] = ()
+    window_samples: int = 1
+
+    def working_fraction(self, start_h: float, stop_h: float) -> float:
+        """The fraction of the samples whose local hour lies in [start_h, stop_h) (1 without a clock)."""
+        if self.hour_of_day is None:
+            return 1.0
+        h = np.asarray(self.hour_of_day, float)
+        return float(np.mean((h >= start_h) & (h < stop_h))) if h.size else 0.0
 
 
 @dataclass
@@ -121,6 +145,29 @@ class PositionView:
     kind: ClassVar[str] = "positions"
 
 
+@dataclass
+class ScatterView:
+    """The diagnosis' view of the samples inside each static position, for one channel.
+
+    samples (n,) V: the channel's record; positions: one slice of ``samples`` per position (m);
+    sample_rate_hz; hour_of_day (m,): local hours at each position's middle; sensitivity_V_per_SI:
+    the channel's nominal sensitivity (V per m/s^2 ...), to state sizes in SI, or None.
+    """
+
+    channel: str
+    samples: np.ndarray
+    positions: list
+    sample_rate_hz: float
+    hour_of_day: np.ndarray
+    sensitivity_V_per_SI: float | None = None
+    kind: ClassVar[str] = "position_scatter"
+
+    def centred(self, i: int) -> np.ndarray:
+        """Position i's samples about their median (V)."""
+        x = self.samples[self.positions[i]]
+        return x - np.median(x)
+
+
 class Effect:
     """Base of every effect (see the module docstring for the contract).
 
@@ -134,8 +181,14 @@ class Effect:
     seed_section: ClassVar[str] = ""
     seed_says: ClassVar[str] = ""
     params: ClassVar[tuple[Param, ...]] = ()
-    #: the diagnosis views this effect offers candidates for (PositionView.kind, ...)
+    #: the diagnosis views this effect offers candidates or a test for (PositionView.kind, ...)
     views: ClassVar[tuple[str, ...]] = ()
+    #: where the diagnosis offers this effect's candidates among the others (lower first; ties by name)
+    order: ClassVar[int] = 100
+    #: the name of the effect's random stream in the chain (child_rng(seed, stream))
+    stream: ClassVar[str] = ""
+    #: rare, non-Gaussian transients (the medians reject most): the Gaussian bounds leave them out
+    impulsive: ClassVar[bool] = False
 
     def inject(self, x: np.ndarray, ctx: ChainContext, rng: np.random.Generator) -> np.ndarray:
         """The signal with the effect added (default: unchanged)."""
@@ -144,6 +197,19 @@ class Effect:
     def candidates(self, view) -> list[Candidate]:
         """Candidate columns for the diagnosis view ``view`` (default: none)."""
         return []
+
+    def test(self, view) -> dict:
+        """The effect's own test on ``view`` (default: none): statistics to report, with the
+        finding under "finding" when the test fires."""
+        return {}
+
+    def lines(self, names, ctx: ChainContext) -> list[str]:
+        """Analog stage: the lines of ``names`` the effect acts on (default: none)."""
+        return []
+
+    def line_stream(self, line: str) -> str:
+        """Analog stage: the random stream of ``line`` (default: the effect's one stream)."""
+        return self.stream
 
     def noise_variance(self, ctx: ChainContext) -> float:
         """Per-sample variance the effect adds to a channel, in the channel's unit squared (default 0)."""
@@ -168,3 +234,15 @@ class Effect:
                 "seed_says": cls.seed_says,
                 "parameters": [{"name": p.name, "unit": p.unit, "datasheet": p.datasheet, "seed": p.seed,
                                 "note": p.note} for p in cls.params]}
+
+
+def recording_truth(rec) -> dict:
+    """The truth mapping the effects' ``fitted`` read, from a Recording: its ``truth`` dict plus,
+    under "conditions", what the measurement itself fixed: the accelerometers' mean temperature
+    over the record (K, truth signal T_imu, or T_acc in a chamber) and the nominal sensitivities
+    the lab converts volts with (V per m/s^2)."""
+    ts = rec.truth_signals
+    T = ts["T_imu"] if "T_imu" in ts else ts.get("T_acc")
+    cond = {"mean_temperature_K": None if T is None else float(np.mean(T)),
+            "acc_nominal_sensitivity_V_per_m_s2": rec.meta.get("acc_nominal_sensitivity_V_per_m_s2")}
+    return {**(rec.truth or {}), "conditions": cond}

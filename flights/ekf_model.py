@@ -1,0 +1,320 @@
+"""The error-state model of the GPS/INS filter: F, Q, the initial and the alignment covariance, the
+attitude reset, and the propagation from one navigation epoch to the next.
+
+Sensor model used by the filter (per axis, SI):
+
+    f_in = (1 + s_a) f_B + b_a + k_T (T_a − T_ref) + n_a       [m/s²]   n_a: VRW
+    w_in = (1 + s_g) w_IB_B + b_g + n_g                         [rad/s]  n_g: ARW
+    b_g: first-order Gauss-Markov (σ, τ) on top of a turn-on bias; b_a: random walk; T_a: random walk
+
+Linearised error dynamics (ω_in = ω_IE + ω_EN), :func:`error_dynamics`:
+
+    δṙ = δv
+    δv̇ = [f_N×] ψ − C δb_a − C diag(k_T) δT_a − C diag(f_B) δs_a − (2ω_IE + ω_EN) × δv
+         − (2 δω_IE + δω_EN) × v + [0, 0, 2γ/R δr_d]
+    ψ̇ = −ω_in × ψ + δω_in + C δb_g + C diag(w_B) δs_g
+
+The covariance is propagated with Φ = I + F T + ½ (F T)² and Q_d = ½(Φ Q Φᵀ + Q) T (:func:`propagate`).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from imurig.flights import earth as E
+from imurig.flights import ins
+from imurig.flights.compass import mag_heading_jacobian, mag_iron_hessian, mag_iron_jacobian
+from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, ImuNoise, P, V
+
+
+def error_dynamics(cfg: FilterConfig, noise: ImuNoise, x: ins.NavState, f_B, w_B, C, thermal=None) -> np.ndarray:
+    """F (n, n) of the linearised error dynamics ẋ = F x + noise at the navigation state ``x`` with the
+    corrected specific force ``f_B`` (3,) m/s², rate ``w_B`` (3,) rad/s, C = C_NB and, with the
+    thermal-term states, ``thermal`` = (ΔT, Δh) of the step (equations in :mod:`imurig.flights.ekf`)."""
+    n = cfg.n_states
+    F = np.zeros((n, n))
+    lat, h, v = x.lat_rad, x.h_m, x.v_N
+    w_ie, w_en, g, R_N, R_E = ins._rates(lat, h, v)
+    w_in = w_ie + w_en
+    f_N = C @ f_B
+    sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
+    # δω_IE, δω_EN as functions of δr (via δlat = δr_n/(R_N+h)) and δv
+    dwin_dr = np.zeros((3, 3))
+    dwin_dr[:, 0] = np.array([-E.OMEGA_E_RAD_S * sl, 0.0,
+                              -E.OMEGA_E_RAD_S * cl - v[1] / (R_E + h) / cl ** 2]) / (R_N + h)
+    dwie_dr = np.zeros((3, 3))
+    dwie_dr[:, 0] = np.array([-E.OMEGA_E_RAD_S * sl, 0.0, -E.OMEGA_E_RAD_S * cl]) / (R_N + h)
+    dwen_dv = np.array([[0.0, 1.0 / (R_E + h), 0.0],
+                        [-1.0 / (R_N + h), 0.0, 0.0],
+                        [0.0, -tl / (R_E + h), 0.0]])
+    F[P, V] = np.eye(3)
+    Sv = ins._skew(v)
+    F[V, A] = ins._skew(f_N)
+    F[V, BA] = -C
+    F[V, TA] = -C * cfg.thermal_slope_m_s2_per_K
+    F[V, V] = -ins._skew(2 * w_ie + w_en) + Sv @ dwen_dv
+    F[V, P] = Sv @ (2 * dwie_dr + (dwin_dr - dwie_dr))
+    F[V.start + 2, P.start + 2] += 2.0 * g[2] / (math.sqrt(R_N * R_E) + h)
+    F[A, A] = -ins._skew(w_in)
+    F[A, P] = dwin_dr
+    F[A, V] = dwen_dv
+    F[A, BG] = C
+    _sensor_error_columns(F, cfg, noise, f_B, w_B, C, thermal)
+    return F
+
+
+def _sensor_error_columns(F: np.ndarray, cfg: FilterConfig, noise: ImuNoise, f_B, w_B, C, thermal) -> None:
+    """The columns of F that couple the optional sensor-error states into δv and ψ, and their own
+    dynamics (Gauss-Markov decay of the gyro instability and of the receiver's error)."""
+    if cfg.gyro_bias_gm_states:
+        GM = cfg.gyro_gm_slice()
+        F[A, GM] = C
+        F[GM, GM] = -np.eye(3) / noise.gyro_bias_tau_s
+    else:
+        F[BG, BG] = -np.eye(3) / noise.gyro_bias_tau_s
+    if cfg.estimate_scale_factors:
+        F[V, SA] = -C * f_B
+        F[A, SG] = C * w_B
+    if cfg.estimate_misalignments:
+        MA, MG = cfg.mis_slices()
+        for p_, (i, j) in enumerate(MIS_PAIRS):
+            F[V, MA.start + p_] = -C[:, i] * f_B[j]
+            F[A, MG.start + p_] = C[:, i] * w_B[j]
+    if cfg.estimate_nonlinearity:
+        F[V, cfg.k2_slice()] = -C * f_B ** 2
+    if cfg.estimate_thermal_terms and thermal is not None:
+        dT, dh = thermal
+        TH = cfg.thermal_slice()
+        for p_, reg in enumerate((dT, f_B * dT, dh, f_B * dh)):
+            F[V, TH.start + 3 * p_: TH.start + 3 * p_ + 3] = -C * reg
+    if cfg.augment_gps:
+        G = cfg.gps_slice()
+        F[G, G] = -np.eye(3) / cfg.gps_pos_tau_s
+
+
+
+def process_noise(cfg: FilterConfig, noise: ImuNoise, gps_gm_var) -> np.ndarray:
+    """Diagonal (n,) of the continuous process-noise intensity Q: white noise of the sensors, the
+    random walks and Gauss-Markov drives; ``gps_gm_var`` (3,) m² the receiver's correlated error."""
+    nz = noise
+    q = np.zeros(cfg.n_states)
+    q[V] = nz.vrw ** 2
+    q[A] = nz.arw ** 2
+    q[BA] = nz.acc_bias_rw ** 2
+    if cfg.gyro_bias_gm_states:
+        q[cfg.gyro_gm_slice()] = 2 * nz.gyro_bias_sigma ** 2 / nz.gyro_bias_tau_s
+    else:
+        q[BG] = 2 * nz.gyro_bias_sigma ** 2 / nz.gyro_bias_tau_s
+    q[TA] = nz.temp_rw ** 2
+    if cfg.estimate_scale_factors:
+        q[SA] = q[SG] = nz.scale_rw ** 2
+    if cfg.estimate_misalignments:
+        MA, MG = cfg.mis_slices()
+        q[MA] = q[MG] = nz.scale_rw ** 2
+    if cfg.estimate_nonlinearity:
+        q[cfg.k2_slice()] = 0.0
+    if cfg.estimate_thermal_terms:
+        q[cfg.thermal_slice()] = 0.0
+    if cfg.augment_gps:
+        q[cfg.gps_slice()] = 2.0 * gps_gm_var / cfg.gps_pos_tau_s
+    return q
+
+
+
+def initial_covariance(cfg: FilterConfig, noise: ImuNoise, gps_gm_var=None) -> np.ndarray:
+    """P0 (n, n) from the configured initial 1σ (diagonal; the iron states' correlated prior);
+    ``gps_gm_var`` (3,) m² the variance of the receiver's Gauss-Markov error (zero if None)."""
+    gps_gm_var = np.zeros(3) if gps_gm_var is None else np.asarray(gps_gm_var, float)
+    c = cfg
+    s = np.zeros(c.n_states)
+    s[P] = c.sigma0_pos_m
+    s[V] = c.sigma0_vel_m_s
+    s[A] = [c.sigma0_tilt_rad, c.sigma0_tilt_rad, c.sigma0_heading_rad]
+    s[BA] = c.sigma0_acc_bias_m_s2
+    s[BG] = c.sigma0_gyro_bias_rad_s
+    s[TA] = c.sigma0_temp_K
+    if c.estimate_scale_factors:
+        s[SA] = c.sigma0_acc_scale
+        s[SG] = c.sigma0_gyro_scale
+    if c.estimate_misalignments:
+        MA, MG = c.mis_slices()
+        s[MA] = c.sigma0_acc_misalignment_rad
+        s[MG] = c.sigma0_gyro_misalignment_rad
+    if c.estimate_nonlinearity:
+        s[c.k2_slice()] = c.sigma0_acc_nonlinearity_s2_m
+    if c.estimate_thermal_terms:
+        s[c.thermal_slice()] = np.repeat(np.asarray(c.sigma0_acc_thermal, float), 3)
+    if c.augment_gps:
+        s[c.gps_slice()] = np.sqrt(gps_gm_var)
+    if c.gyro_bias_gm_states:
+        s[c.gyro_gm_slice()] = noise.gyro_bias_sigma
+    if c.mag_error_state:
+        s[c.mag_index()] = c.mag_error_sigma_rad
+    P0 = np.diag(s ** 2)
+    if c.mag_iron_states:
+        MI = c.mag_iron_slice()
+        P0[MI, MI] = np.asarray(c.mag_iron_prior_cov, float)
+    return P0
+
+
+
+def alignment_covariance(cfg: FilterConfig, noise: ImuNoise, lever_gps_B, x0: ins.NavState, f_B, B_B, gps, *,
+                         window_s: float, sigma_mag_rad: float, sigma_level_f_m_s2: float | None = None) -> np.ndarray:
+    """P0 (n, n) of a static alignment, by propagating the alignment's own errors.
+
+    The alignment (:func:`imurig.flights.report.align`) levels with the mean specific force
+    ``f_B`` (3,) m/s² over ``window_s`` s, takes the heading of the mean field ``B_B`` (3,)
+    levelled with that roll and pitch, and position/velocity from the first valid fix (antenna
+    minus the lever arm). Sources, independent, with the filter's own priors: the sensor-error
+    states x_s (biases, scale factors, misalignments, temperatures, the receiver's Gauss-Markov
+    error), the white noise of the levelling mean (σ_f = ``sigma_level_f_m_s2``, default
+    VRW/√window), the compass's heading error e_m (σ ``sigma_mag_rad``), the fix's white error
+    e_r and velocity error e_v. The filter's specific-force error is δf_B = J_f x_s (J_f = −I on
+    δb_a, −diag(f) on δs_a, −e_i f_j on the misalignments, −diag(k_T) on δT_a), and levelling
+    makes the horizontal part of Ĉ f̂ vanish, [f_N×]ψ = −C δf_B on the north and east rows:
+
+        ψ_n = (C δf_B)_e / g,   ψ_e = −(C δf_B)_n / g          (tilt = −bias/g)
+        ψ_d = h_n ψ_n + h_e ψ_e − e_m                           (z_mag = 0 at the alignment)
+        δr = e_r − δb_gps − [(C l)×] ψ,   δv = e_v
+
+    with h the magnetic-heading Jacobian (:func:`mag_heading_jacobian`, h_n = tan I cos D).
+    P0 = A Σ Aᵀ: the tilt is fully correlated with the accelerometer errors, so the filter knows
+    that a static IMU cannot tell them apart (see docs/flights-navigation.md)."""
+    c = cfg
+    n = c.n_states
+    f_B = np.asarray(f_B, float)
+    g = float(np.linalg.norm(f_B))
+    C = E.C_from_q(x0.q_NB)
+    valid = np.asarray(gps.valid, bool)
+    i0 = int(np.flatnonzero(valid)[0])
+    s_pos2 = np.asarray(gps.sigma_pos_N[i0], float) ** 2
+    s_vel2 = np.asarray(gps.sigma_vel_N[i0], float) ** 2
+    gps_gm_var = None
+    if c.augment_gps:
+        s_w2 = np.minimum(np.asarray(c.gps_pos_sigma_white_N_m, float) ** 2, s_pos2)
+        gps_gm_var = np.maximum(s_pos2 - s_w2, 0.0)
+    else:
+        s_w2 = s_pos2
+    P_prior = initial_covariance(cfg, noise, gps_gm_var)
+    var = np.diag(P_prior).copy()
+    if sigma_level_f_m_s2 is None:
+        sigma_level_f_m_s2 = noise.vrw / math.sqrt(window_s)
+    var[P] = s_w2
+    var[V] = s_vel2
+    var[A] = [(sigma_level_f_m_s2 / g) ** 2] * 2 + [sigma_mag_rad ** 2]
+    Cf = C @ _specific_force_jacobian(c, f_B)
+    Amap = np.eye(n)
+    Amap[6] += Cf[1] / g
+    Amap[7] -= Cf[0] / g
+    h = mag_heading_jacobian(C, B_B)
+    Amap[8] = h[0] * Amap[6] + h[1] * Amap[7] - np.eye(n)[8]
+    if c.mag_error_state:           # ψ_m = ψ + e_m: z = hᵀψ + δe_m = 0, δe_m = ê_m − e_m = −e_m
+        Amap[8, c.mag_index()] = 1.0
+    if c.mag_iron_states:           # z = hᵀψ + H_θ δθ = 0 (θ̂ = 0 at the alignment)
+        roll, pitch, _ = E.euler_from_C(C)
+        MI = c.mag_iron_slice()
+        Amap[8, MI] = mag_iron_jacobian(B_B, np.zeros(12), roll, pitch)
+        # the heading is quadratic in θ at the priors' size: the part of the alignment's heading
+        # error that is not H_θ δθ has variance ½ tr(Hs P Hs P) (as in the compass update)
+        HP = mag_iron_hessian(B_B, np.zeros(12), roll, pitch) @ P_prior[MI, MI]
+        var[8] += 0.5 * float(np.sum(HP * HP.T))
+    Cl = C @ np.asarray(lever_gps_B, float)
+    Amap[P] -= ins._skew(Cl) @ Amap[A]
+    if c.augment_gps:
+        Amap[P, c.gps_slice()] -= np.eye(3)
+    Sig = np.diag(var)
+    if c.mag_iron_states:     # the iron states' prior is correlated (symmetric soft iron)
+        MI = c.mag_iron_slice()
+        Sig[MI, MI] = P_prior[MI, MI]
+    P0 = Amap @ Sig @ Amap.T
+    # second order: the levelling fixes the tilt in the body frame; mapped to NED with the
+    # compass's heading (error ψ_d) the linear map above carries an extra −½ ψ_d e_z × ψ_tilt
+    # (BCH of the heading and tilt rotations). Its variance (Isserlis, zero-mean Gaussians),
+    # uncorrelated with the linear terms: ¼ J (σ_d² Σ_tt + 2 c cᵀ) Jᵀ, J = [[0, −1], [1, 0]],
+    # c = cov(ψ_tilt, ψ_d)
+    Jz = np.array([[0.0, -1.0], [1.0, 0.0]])
+    cz = P0[6:8, 8]
+    P0[6:8, 6:8] += 0.25 * Jz @ (P0[8, 8] * P0[6:8, 6:8] + 2.0 * np.outer(cz, cz)) @ Jz.T
+    return P0
+
+
+def _specific_force_jacobian(c: FilterConfig, f_B: np.ndarray) -> np.ndarray:
+    """J_f (3, n): the filter's specific-force error δf_B = J_f x_s at the specific force ``f_B``
+    (−I on δb_a, −diag(k_T) on δT_a, −diag(f) on δs_a, −e_i f_j on the misalignments, −diag(f²) on δk2)."""
+    Jf = np.zeros((3, c.n_states))
+    Jf[:, BA] = -np.eye(3)
+    Jf[:, TA] = -np.diag(np.asarray(c.thermal_slope_m_s2_per_K, float) * np.ones(3))
+    if c.estimate_scale_factors:
+        Jf[:, SA] = -np.diag(f_B)
+    if c.estimate_misalignments:
+        MA, _ = c.mis_slices()
+        for p_, (i, j) in enumerate(MIS_PAIRS):
+            Jf[i, MA.start + p_] = -f_B[j]
+    if c.estimate_nonlinearity:
+        Jf[:, c.k2_slice()] = -np.diag(f_B ** 2)
+    return Jf
+
+
+def attitude_reset_jacobian(psi_hat) -> np.ndarray:
+    """G (3, 3) of the attitude error's reset when the estimate ``psi_hat`` (3,) rad is injected,
+    C_new = exp([ψ̂×]) Ĉ. With the error defined by Ĉ = exp(−[ψ×]) C, BCH gives the error after the
+    injection ψ' = ψ − ψ̂ + ½ ψ̂ × ψ + O(|ψ|³), so the covariance becomes G P Gᵀ with
+
+        G = I + ½ [ψ̂×]
+
+    Without it a large heading correction (the uncalibrated compass's ~4 deg, resolved by the
+    first GPS velocities) leaves the tilt's correlation with the accelerometer biases rotated by
+    the heading error: the biases' tilt then leaks into the final attitude (1.5 mrad on one IMU)."""
+    return np.eye(3) + 0.5 * ins._skew(np.asarray(psi_hat, float))
+
+
+def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
+    """Advance the filter state ``st`` (:class:`imurig.flights.ekf_state.FilterState`) from epoch k to
+    k+1 on the corrected increments of ``ep`` (:class:`imurig.flights.ekf_state.EpochData`), C = C_NB
+    at epoch k: the INS step (:func:`imurig.flights.ins.nav_step`) with
+
+        Δθ = (Δθ_in − b̂_g T)(1 − ŝ_g),   Δv = (Δv_in − (b̂_a + k_T (T̂_a − T_ref)) T)(1 − ŝ_a) − ...
+
+    (misalignments, nonlinearity and thermal terms removed likewise), and the covariance
+    P ← Φ P Φᵀ + Q_d, Φ = I + F T + ½ (F T)², Q_d = ½(Φ Q Φᵀ + Q) T."""
+    c, lay, T = st.cfg, st.lay, ep.T
+    fB, wB = ep.f_B[k], ep.w_B[k]
+    dth = (ep.dtheta_B[k] - st.bg * T) * (1.0 - st.sg)
+    f_corr = st.ba + np.asarray(c.thermal_slope_m_s2_per_K, float) * (st.Ta - c.reference_temperature_K)
+    dv = (ep.dv_B[k] - f_corr * T) * (1.0 - st.sa)
+    if c.estimate_nonlinearity:
+        dv = dv - st.k2 * ep.f2_B[k] * T
+    thermal = None
+    if c.estimate_thermal_terms:
+        f_st = ep.dv_B[k] / T
+        thermal = (ep.dT[k], ep.dh[k])
+        th = st.th
+        dv = dv - (th[0:3] * ep.dT[k] + th[3:6] * f_st * ep.dT[k] + th[6:9] * ep.dh[k]
+                   + th[9:12] * f_st * ep.dh[k]) * T
+    if c.estimate_misalignments:
+        dth = dth - st.Mg @ dth
+        dv = dv - st.Ma @ dv
+    F = error_dynamics(c, noise, st.x, (fB - f_corr) * (1 - st.sa), (wB - st.bg) * (1 - st.sg), C, thermal)
+    st.x = ins.nav_step(st.x, dth, dv, T)
+    if lay.G is not None:
+        st.bgps = st.bgps * math.exp(-T / c.gps_pos_tau_s)
+    if lay.GM is not None:          # the expected Gauss-Markov part decays with τ
+        phi_bgm = math.exp(-T / noise.gyro_bias_tau_s)
+        st.bg = st.bg - st.bgm * (1.0 - phi_bgm)
+        st.bgm = st.bgm * phi_bgm
+    FT = F * T
+    Phi = st.I_n + FT + 0.5 * FT @ FT
+    Qd = 0.5 * (Phi * st.qc) @ Phi.T * T + 0.5 * np.diag(st.qc) * T
+    if lay.mag is not None:
+        # Gauss-Markov in the body's rotation angle relative to NED over the step
+        w_ie_, w_en_, *_ = ins._rates(st.x.lat_rad, st.x.h_m, st.x.v_N)
+        dang = float(np.linalg.norm(dth - C.T @ (w_ie_ + w_en_) * T))
+        phm = math.exp(-dang / c.mag_error_corr_rad)
+        im = lay.mag
+        Phi[im, :] = 0.0
+        Phi[im, im] = phm
+        Qd[im, :] = 0.0
+        Qd[:, im] = 0.0
+        Qd[im, im] = c.mag_error_sigma_rad ** 2 * (1.0 - phm ** 2)
+        st.emag *= phm
+    st.P = Phi @ st.P @ Phi.T + Qd
