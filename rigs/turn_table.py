@@ -14,6 +14,9 @@ tilted against the local vertical.
 The optical index sensor gives a pulse (5 V) while the table angle theta (mod 2 pi) lies
 in [0, pulse_width); its rising edges are the once-per-round events.
 
+The mains factor and the slip are the effects ``mains_rate_factor`` and ``table_slip`` of
+:mod:`imurig.sensors.effects` (which own their diagnosis and truth maps); the table applies them.
+
 Truth at the IMU comes from MuJoCo's site sensors; the Earth's rotation is added to the
 gyro truth (MuJoCo's world does not rotate).
 """
@@ -30,6 +33,8 @@ from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
 from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y, rotate_to_body
 from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCSEC, DEG
+from imurig.sensors.effects.mains_rate_factor import MainsRateFactor
+from imurig.sensors.effects.table_slip import TableSlip
 
 #: R_MC: IMU case frame C -> mount frame M (M's z is the spin axis). '<axis>_up' puts that
 #: IMU axis (p = x, q = y, r = z of C) along +z of the table, '_down' along -z.
@@ -122,11 +127,11 @@ class TurnTableErrors:
 
     @property
     def mains_factor(self) -> float:
-        return self.mains_hz / self.motor_design_hz
+        return MainsRateFactor(self.mains_hz, self.motor_design_hz).factor
 
     def slip(self, dial_dps) -> np.ndarray:
         eff = np.abs(np.asarray(dial_dps, float)) * self.mains_factor
-        return self.slip_const + self.slip_coeff * eff ** (-self.slip_exp)
+        return TableSlip(self.slip_const, self.slip_coeff, self.slip_exp).shortfall(eff)
 
     def true_rate_dps(self, dial_dps, setting_error=0.0) -> np.ndarray:
         """Mean true rate (deg/s, signed) for a dial setting, before ripple."""
@@ -307,7 +312,8 @@ class TurnTable:
                 "arm_radius_m": radius_known, "arm_radius_sigma_m": self.radius_measurement_sigma_m,
                 "pulse_threshold_V": 0.5 * e.pulse_high_V,
                 "frames": "W: local level ENU; C: IMU case (site 'imu'); rates and specific force in C"}
-        truth_d = {"rig": {"turn_table": e.to_dict(), "dial_setting_error": {m: set_err[m].tolist() for m in mounts},
+        truth_d = {"rig": {"turn_table": e.to_dict(), "site": self.site.to_dict(),
+                           "dial_setting_error": {m: set_err[m].tolist() for m in mounts},
                            "arm_radius_m": protocol.radius_m,
                            "true_mean_rate_dps": [float(e.true_rate_dps(s.dial_dps, set_err[s.mount][i]))
                                                   for i, s in enumerate(steps)]}}

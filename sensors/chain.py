@@ -205,7 +205,7 @@ class ImuLab:
 
     def _magnetometer_volts(self, rig, ctx, f_dist, temps, seed):
         B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
-        v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"))
+        v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"), temps.box)
         return v, np.gradient(v, rig.time_s, axis=0)  # fluxgate noise is small: no separate noise-free path
 
     def _gyro_volts(self, rig, ctx, f_dist, temps, seed):

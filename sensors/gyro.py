@@ -11,9 +11,10 @@ w_C: true angular rate of the IMU case frame C, including the Earth's rotation. 
 misalignment / cross-axis sensitivity (zero diagonal, rad). b: turn-on bias. b_gm: bias
 instability, first-order Gauss-Markov (sigma, tau). k2: scale-factor nonlinearity
 (1/(rad/s)). G: g-sensitivity ((rad/s)/(m/s^2), zero by default; f_C the specific force at
-the IMU, m/s^2). c: product cross-coupling (seed eq. 4.39-4.41 terms w_p w_q ...; zero by
-default). SF: scale factor (V per rad/s). n: angle random walk, white rate noise with
-Allan deviation sigma(tau) = N / sqrt(tau); per sample sigma = N sqrt(fs).
+the IMU, m/s^2; applied by the effect ``g_sensitivity`` of :mod:`imurig.sensors.effects`). c:
+product cross-coupling (seed eq. 4.39-4.41 terms w_p w_q ...; zero by default). SF: scale
+factor (V per rad/s). n: angle random walk, white rate noise with Allan deviation
+sigma(tau) = N / sqrt(tau); per sample sigma = N sqrt(fs).
 
 Datasheet units (mV/(deg/s), deg/s, deg/s/sqrt(Hz), %) appear only in ``from_datasheet``.
 """
@@ -25,6 +26,7 @@ import numpy as np
 from scipy import signal
 
 from imurig.kernel.units import DEG, T_REF_K
+from imurig.sensors.effects.g_sensitivity import GSensitivity
 
 AXES = ("p", "q", "r")
 
@@ -96,7 +98,7 @@ class FOGTriad:
             pairs = np.stack([w_S[:, 0] * w_S[:, 1], w_S[:, 0] * w_S[:, 2], w_S[:, 1] * w_S[:, 2]], axis=1)
             w = w + pairs @ self.cross_coupling_per_rad_s.T
         if f_C is not None and np.any(self.g_sensitivity_rad_s_per_m_s2):
-            w = w + np.asarray(f_C, float) @ self.g_sensitivity_rad_s_per_m_s2.T
+            w = w + GSensitivity(self.g_sensitivity_rad_s_per_m_s2).rate_error(f_C)
         return self.scale_V_per_rad_s * (1 + self.scale_tempco_per_K * dT) * w
 
     def noise_rate(self, n: int, fs: float, rng: np.random.Generator) -> np.ndarray:

@@ -12,13 +12,17 @@ Measurement equation of an event timer, per event k:
 
     t_k,meas = q * round((t_k + d + e_k) / q),   e_k ~ N(0, jitter^2)      [s]
 
-with q the resolution, d a constant latency (irrelevant to round times), e the jitter.
+with q the resolution, d a constant latency (irrelevant to round times), e the jitter: the
+effect ``timer_quantisation`` of :mod:`imurig.sensors.effects`, which also states its variance
+(q^2/12 + jitter^2 per tag) and its truth map.
 """
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
 import numpy as np
+
+from imurig.sensors.effects.timer_quantisation import TimerQuantisation
 
 
 @dataclass
@@ -28,11 +32,13 @@ class EventTimer:
     jitter_s: float = 0.0
     latency_s: float = 0.0
 
+    def effect(self) -> TimerQuantisation:
+        """The timer's quantisation and jitter as an effect object."""
+        return TimerQuantisation(resolution_s=self.resolution_s, jitter_s=self.jitter_s, latency_s=self.latency_s)
+
     def measure(self, true_times_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        t = np.asarray(true_times_s, float) + self.latency_s
-        if self.jitter_s > 0:
-            t = t + self.jitter_s * rng.standard_normal(t.shape)
-        return np.round(t / self.resolution_s) * self.resolution_s
+        """Measured time tags (s) of the true event times (s)."""
+        return self.effect().inject(true_times_s, None, rng)
 
     def settings(self) -> dict:
         return asdict(self)

@@ -366,3 +366,323 @@ def test_loose_cable_spikes_variance_and_test():
     res = cable.test(replace(view, samples=x))
     assert res["finding"]["spikes"] == 3 and res["finding"]["positions"] == 3
     assert res["robust_sigma_V"] == pytest.approx(1e-4, rel=0.05)
+# ------------------------------------------------------------------ turn table, rate rows, thermal, magnetometer
+from imurig.kernel.site import EARTH_RATE_RAD_S, Site  # noqa: E402
+from imurig.kernel.units import T_REF_K  # noqa: E402
+from imurig.sensors.effects import (EarthRateLeftOut, GSensitivity, GyroRowDrift, GyroScaleNonlinearity,  # noqa: E402
+                                    HardIron, InstrumentRangeChange, LocalFieldAnomaly, MagMisalignment,
+                                    MagScaleNonlinearity, MagTemperatureDrift, MagTimeDelay, MagTimeDrift, MagView,
+                                    MainsRateFactor, RateProportionalError, RateRowView, RateShortfallView,
+                                    SlipRingNoise, SoftIron, TableSlip, TemperatureHysteresis, ThermalView,
+                                    TimerQuantisation, TurnSampleView, TurnView, VoltmeterRowView, for_view)
+from imurig.sensors.effects.base import ChainContext  # noqa: E402
+from imurig.sensors.effects.views import across_field  # noqa: E402
+from imurig.sensors.gyro import FOGTriad  # noqa: E402
+
+
+def _mag_view(nb=40, twin_model="nominal", temperature=True, seed=5):
+    rng = np.random.default_rng(seed)
+    R = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(nb)])
+    R *= np.sign(np.linalg.det(R))[:, None, None]
+    B_W = np.array([0.0, 18_000.0, -45_000.0])
+    B = np.einsum("nij,j->ni", R, B_W)
+    return MagView(twin_model=twin_model, field_nT=B, rate_nT_s=rng.normal(0, 50, (nb, 3)), R_CW=R,
+                   time_s=np.arange(nb, dtype=float), igrf_W_nT=B_W, calibration=np.diag([1.01, 0.99, 1.02]),
+                   temperature_K=295 + np.linspace(0, 3, nb) if temperature else None)
+
+
+def _views():
+    """One synthetic view of every kind the turn-table, rate-row, thermal and magnetometer effects serve."""
+    rng = np.random.default_rng(4)
+    r = np.linspace(1.0, 100.0, 20)
+    e = np.repeat([1.0, 0.0, -1.0], 4)
+    return [(TurnView("gyro_p", "p", on_axis=e, specific_force_m_s2=9.8 * e + rng.normal(0, 0.1, 12),
+                      earth_rate_in_twin=False), 12),
+            (RateShortfallView(r), 20), (RateRowView("gyro_p", r, first_rows=(5, 6, 7)), 20),
+            (VoltmeterRowView(("p", "q", "r"), r, first_rows=(5, 6), scale_V_per_dps=(5e-3, 5.1e-3, 4.9e-3)), 60),
+            (ThermalView("acc_x", "m/s^2", branch=np.tile([0.5, -0.5], 8)), 16),
+            (_mag_view(), 120), (_mag_view(twin_model="calibrated"), 120)]
+
+
+@pytest.mark.parametrize("view,m", _views(), ids=lambda v: getattr(v, "kind", str(v)))
+def test_new_views_candidates_have_one_row_per_observation(view, m):
+    """Every effect offered for a view kind gives columns with one row per observation and one
+    column per parameter at every scan value, under the name the diagnosis reports it by."""
+    cands = [c for cls in for_view(view.kind) for c in cls().candidates(view)]
+    assert cands
+    names = {cls.finding_name() for cls in for_view(view.kind)}
+    for cand in cands:
+        assert cand.name in names
+        for th in cand.scan:
+            assert cand.design(th).shape == (m, len(cand.param_names))
+
+
+def test_candidates_follow_the_twin():
+    """The Earth's rate only for a twin without it; hard and soft iron and misalignment only for the
+    nominal (gains-only) magnetometer twin; the fluxgate's temperature drift only where T moved."""
+    v = _views()[0][0]
+    assert EarthRateLeftOut().candidates(replace(v, earth_rate_in_twin=True)) == []
+    np.testing.assert_array_equal(EarthRateLeftOut().candidates(v)[0].design(None)[:, 0], -v.on_axis)
+    np.testing.assert_array_equal(GSensitivity().candidates(v)[0].design(None)[:, 0], -v.specific_force_m_s2)
+    cal = _mag_view(twin_model="calibrated")
+    assert [c.name for cls in for_view(MagView.kind) for c in cls().candidates(cal)] == \
+        ["local_field_anomaly", "temperature_drift", "time_drift", "scale_nonlinearity", "time_delay"]
+    assert MagTemperatureDrift().candidates(_mag_view(temperature=False)) == []
+    flat = replace(_mag_view(), temperature_K=np.full(40, 300.0) + np.linspace(0, 0.15, 40))
+    assert MagTemperatureDrift().candidates(flat) == []
+
+
+def test_g_sensitivity_in_the_gyro_model_and_its_truth_map():
+    """The FOG adds G f_C through the effect (machine precision); with a diagonal G the twin's
+    residual against the candidate column -f gives back G_jj, the effect's truth map."""
+    G = np.diag([3e-5, -2e-5, 1e-5]) + 1e-6
+    g = FOGTriad(scale_V_per_rad_s=[0.3, 0.34, 0.35], g_sensitivity_rad_s_per_m_s2=G)
+    rng = np.random.default_rng(0)
+    w, f = rng.normal(0, 0.5, (30, 3)), rng.normal(0, 9.8, (30, 3))
+    np.testing.assert_allclose(g.ideal_voltage(w, f_C=f), g.scale_V_per_rad_s * (w + f @ G.T), rtol=1e-14)
+    ctx = ChainContext(time_s=np.arange(30.0), sample_rate_hz=1.0, truth_signals={f"f_C_{a}": f[:, j]
+                                                                                 for j, a in enumerate("xyz")})
+    np.testing.assert_allclose(GSensitivity(G).inject(w, ctx), w + f @ G.T, rtol=0, atol=1e-15)
+    g = replace(g, g_sensitivity_rad_s_per_m_s2=np.diag(np.diag(G)))  # the diagnosis fits the diagonal
+    truth = {"sensors": {"gyros": g.truth()}}
+    for j, a in enumerate("pqr"):
+        u = g.ideal_voltage(w, f_C=f)[:, j] / g.scale_V_per_rad_s[j]  # the indicated rate; the reference is w
+        col = GSensitivity().candidates(TurnView(f"gyro_{a}", a, np.zeros(30), f[:, j]))[0].design(None)
+        coef = np.linalg.lstsq(col, w[:, j] - u, rcond=None)[0][0]
+        assert coef == pytest.approx(GSensitivity().fitted(truth, f"gyro_{a}")["G"], rel=1e-9)
+
+
+def test_earth_rate_truth_map_is_the_sites_vertical_rate():
+    for lat in (0.0, 30.0, 52.0, 80.0):
+        site = Site(latitude_deg=lat)
+        truth = {"rig": {"site": site.to_dict()}}
+        assert EarthRateLeftOut().fitted(truth)["Omega_vertical"] == pytest.approx(site.earth_rate_W()[2],
+                                                                                   rel=1e-15, abs=1e-25)
+    e = np.array([1.0, 0.0, -1.0])
+    eff = EarthRateLeftOut(latitude_rad=math.radians(52.0))
+    np.testing.assert_allclose(eff.inject(np.zeros(3), TurnView("gyro_r", "r", e, e)),
+                               e * EARTH_RATE_RAD_S * math.sin(math.radians(52.0)), rtol=1e-15)
+
+
+def test_table_rate_law_and_its_truth_maps():
+    """The rig's table applies the effects' law (machine precision); the shortfall d of the slipping
+    table against the column r^-alpha gives -s1 to first order in the slip (|error| < 2 alpha s_max)."""
+    from imurig.rigs.turn_table import TurnTableErrors
+
+    e = TurnTableErrors()
+    dial = np.array([1.0, 2.0, 4.0, 8.0, 10.0, 20.0, 40.0, 80.0, 100.0])
+    slip, mains = TableSlip(e.slip_const, e.slip_coeff, e.slip_exp), MainsRateFactor(e.mains_hz, e.motor_design_hz)
+    np.testing.assert_array_equal(e.slip(dial), slip.shortfall(dial * mains.factor))
+    assert e.mains_factor == mains.factor == 5 / 6
+    np.testing.assert_allclose(e.true_rate_dps(dial), slip.inject(mains.inject(dial)), rtol=1e-15)
+    truth = {"turn_table": e.to_dict()}
+    assert MainsRateFactor().fitted(truth) == {"factor": 5 / 6}
+    r = slip.inject(mains.inject(dial))
+    d = r / (mains.factor * dial) - 1
+    (cand,) = slip.candidates(RateShortfallView(r))
+    coef = np.linalg.lstsq(np.column_stack([np.ones(dial.size), cand.design(e.slip_exp)]), d, rcond=None)[0]
+    s1 = slip.fitted(truth)["s1"]
+    assert abs(coef[1] / s1 - 1) < 2 * e.slip_exp * slip.shortfall(dial * mains.factor).max()
+    rp = RateProportionalError(c_per_dps=2e-5)
+    (cand,) = rp.candidates(RateShortfallView(dial))
+    np.testing.assert_allclose(rp.inject(dial), dial * (1 + 2e-5 * cand.design(None)[:, 0]), rtol=1e-15)
+    assert rp.fitted(truth) == {"c": 0.0}
+
+
+def test_timer_quantisation_through_the_effect():
+    """EventTimer measures through the effect (same draws, machine precision); a round time's error
+    has variance q^2/6 + 2 jitter^2 within 4.5 standard errors; the truth maps."""
+    from imurig.sensors.timers import EventTimer, gps_mark_timer
+
+    t = np.cumsum(np.random.default_rng(1).uniform(3.0, 4.0, 200_001))
+    tm = gps_mark_timer()
+    eff = TimerQuantisation(tm.resolution_s, tm.jitter_s, tm.latency_s)
+    np.testing.assert_array_equal(tm.measure(t, np.random.default_rng(2)), eff.inject(t, None, np.random.default_rng(2)))
+    coarse = EventTimer("adc", resolution_s=1e-3)
+    err = np.diff(coarse.measure(t, np.random.default_rng(3))) - np.diff(t)
+    var, m4 = np.var(err), np.mean((err - err.mean()) ** 4)
+    assert abs(var - coarse.effect().round_time_variance_s2()) < 4.5 * math.sqrt((m4 - var**2) / err.size)
+    assert TimerQuantisation().fitted({"timer": {"resolution_s": 0.01}})["sigma_T_s"] == 0.01 / math.sqrt(12)
+    chain = {"chain": {"timers": {"gps_mark": tm.settings()}}}
+    assert TimerQuantisation().fitted(chain, "gps_mark")["sigma_T_s"] == pytest.approx(
+        math.sqrt(tm.resolution_s**2 / 6 + 2 * tm.jitter_s**2), rel=1e-15)
+
+
+def test_range_change_nonlinearity_and_drift_recovered_exactly():
+    """Noise-free appendix-B rows: the voltmeter's range change (joint over the gyros), and each
+    gyro's k2 and a drift in row order, are recovered by the nominal model plus the effects' columns
+    to machine precision and equal the truth maps."""
+    r = np.geomspace(1.0, 100.0, 24)  # rows in rising rate, not linear in the row index
+    k, step = 15, -0.006
+    SF = np.array([5.4e-3, 5.5e-3, 5.3e-3]) * 180 / math.pi  # V per rad/s
+    w = np.radians(r)[:, None] * np.ones(3)
+    truth = {"voltmeter": {"gain": [1.0, 1.0 + step, 1.0 + step]}}
+    rc = InstrumentRangeChange(first_row=k, gain_step=step, offset_step_V=2e-4)
+    V = FOGTriad(scale_V_per_rad_s=SF).ideal_voltage(w)
+    Vs = np.column_stack([rc.inject(V[:, j]) for j in range(3)])
+    jv = VoltmeterRowView(("p", "q", "r"), r, first_rows=(k,), scale_V_per_dps=tuple(SF * math.radians(1.0)))
+    X0 = np.zeros((72, 6))
+    for j in range(3):
+        X0[j * 24:(j + 1) * 24, 2 * j], X0[j * 24:(j + 1) * 24, 2 * j + 1] = 1.0, r
+    (cand,) = rc.candidates(jv)
+    coef = np.linalg.lstsq(np.column_stack([X0, cand.design(k)]), Vs.T.reshape(-1), rcond=None)[0]
+    assert coef[6] == pytest.approx(rc.fitted(truth)["relative_gain_step"], rel=1e-9)
+    assert coef[7] == pytest.approx(2e-4, rel=1e-9)
+
+    g = FOGTriad(scale_V_per_rad_s=SF, k2_per_rad_s=[4e-4, -3e-4, 2e-4])
+    V = g.ideal_voltage(w)
+    view = RateRowView("gyro_p", r, first_rows=(k,))
+    for j, a in enumerate("pqr"):
+        y = GyroRowDrift(drift_V_per_row=3e-5).inject(V[:, j])
+        X = np.column_stack([np.ones(24), r] + [c.design(k) for cls in (GyroScaleNonlinearity, GyroRowDrift)
+                                                for c in cls().candidates(view)])
+        c = np.linalg.lstsq(X, y, rcond=None)[0]
+        assert c[2] == pytest.approx(GyroScaleNonlinearity().fitted({"gyros": g.truth()}, a)["k2"], rel=1e-9)
+        assert c[3] == pytest.approx(3e-5, rel=1e-9)
+    assert GyroRowDrift().fitted(truth) == {"drift": 0.0}
+    np.testing.assert_allclose(GyroScaleNonlinearity(g.k2_per_rad_s).inject(w), w + g.k2_per_rad_s * w**2, rtol=1e-15)
+
+
+def test_temperature_hysteresis_gap_in_the_six_position_bias():
+    """A Q-Flex with a bias hysteresis Hb: the six-position mean of the indicated readings on the
+    heating branch (h = +1/2) less the cooling branch (h = -1/2) is D (1 + ks dT) Hb, the effect's
+    truth map, to machine precision; the candidate is the branch sign; inject adds Hb h."""
+    from imurig.sensors.accelerometer import QFlexTriad
+
+    acc = QFlexTriad(bias_m_s2=[1e-3, -2e-3, 5e-4], k1_A_per_m_s2=np.array([1.01, 0.99, 1.003]) * 1.33e-3 / 9.80665,
+                     k2_per_m_s2=[1e-5, -2e-5, 3e-6], scale_tempco_per_K=[1e-4, -2e-4, 5e-5],
+                     bias_hysteresis_m_s2=[5e-3, -3e-3, 2e-3])
+    g = 9.80665
+    six = np.vstack([np.eye(3), -np.eye(3)]) * g
+    T = 283.15
+    truth = {"sensors": {"accelerometers": acc.truth()}, "conditions": {"mean_temperature_K": T}}
+    bias = {h: (acc.ideal_voltage(six, np.full(6, T), np.full(6, h)) / acc.nominal_sensitivity_V_per_m_s2()).mean(0)
+            for h in (0.5, -0.5)}
+    for j, a in enumerate("xyz"):
+        assert bias[0.5][j] - bias[-0.5][j] == pytest.approx(TemperatureHysteresis().fitted(truth, f"acc_{a}")["H"],
+                                                             rel=1e-9)
+    assert TemperatureHysteresis().fitted(truth, "gyro_p") == {"H": 0.0}
+    s = np.tile([0.5, -0.5], 5)
+    (cand,) = TemperatureHysteresis().candidates(ThermalView("acc_x", "m/s^2", s))
+    np.testing.assert_array_equal(cand.design(None)[:, 0], s)
+    h = np.linspace(-0.5, 0.5, 7)
+    ctx = ChainContext(time_s=np.arange(7.0), sample_rate_hz=1.0, truth_signals={"h_acc": h})
+    np.testing.assert_allclose(TemperatureHysteresis([1.0, 2.0, 3.0]).inject(np.zeros((7, 3)), ctx),
+                               h[:, None] * [1.0, 2.0, 3.0], rtol=1e-15)
+
+
+def test_slip_ring_profile_once_per_record_and_noise_variance():
+    """The profile is computed once per angle record and reused for every line (the same draws as
+    rms P n); the per-sample variance rms^2 <P^2> holds within 4.5 SE."""
+    eff = SlipRingNoise(rms_V=20e-6)
+    ang = np.mod(np.linspace(0.0, 40 * np.pi, 200_000), 2 * np.pi)
+    P = eff.profile(ang)
+    assert eff.profile(ang) is P                       # cached for the record
+    assert eff.profile(ang.copy()) is not P            # a different record is computed afresh
+    ctx = ChainContext(time_s=np.arange(ang.size) / 1e3, sample_rate_hz=1e3, truth_signals={"spin_angle": ang})
+    v = eff.inject(np.zeros_like(ang), ctx, np.random.default_rng(7))
+    np.testing.assert_array_equal(v, 20e-6 * P * np.random.default_rng(7).standard_normal(ang.size))
+    var, m4 = np.mean(v**2), np.mean(v**4)
+    assert abs(var - eff.noise_variance(ctx)) < 4.5 * math.sqrt((m4 - var**2) / v.size)
+    assert eff.round_average_variance_V2() == pytest.approx(eff.noise_variance(ctx), rel=1e-3)
+    assert SlipRingNoise(enabled=False).noise_variance(ctx) == 0.0
+
+
+def test_slip_ring_test_and_refit_against_the_truth_map():
+    """A turning table (1 kHz, 60 deg/s) with white line noise and slip-ring noise, the fast residual
+    taken as the diagnosis takes it: the test fires, flags the rough spots, and the refit's peak
+    excess noise lies within 4 SE of the truth map; without the rings the test stays quiet."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(11)
+    t = np.arange(600_000) / 1000.0
+    ang = np.mod(math.radians(60.0) * t, 2 * np.pi)
+    eff = SlipRingNoise()
+    h = eff.window // 2
+
+    def view(rings):
+        x = 60e-6 * rng.standard_normal(t.size) + rings.voltage(ang, rng)
+        r = x - ndimage.uniform_filter1d(x, eff.window, mode="nearest")
+        return TurnSampleView("gyro_p", ang[h:-h], r[h:-h], alpha=0.01)
+
+    assert "finding" not in SlipRingNoise().test(view(SlipRingNoise(enabled=False)))
+    f = eff.test(view(eff))["finding"]
+    est, se = f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
+    truth = {"chain": {"slip_rings": eff.settings()}}
+    assert abs(est - eff.fitted(truth, "gyro_p")["peak_excess_noise_rms_V"]) < 4 * se, (est, se)
+    spots = np.degrees(eff.spots_rad)
+    assert all(np.min(np.abs((np.array(f["angles_deg"]) - s_ + 180) % 360 - 180)) <= 10 for s_ in spots)
+
+
+def test_fluxgate_measurement_equation_through_its_effects():
+    """The fluxgate model composes misalignment, soft iron, hard iron and the new temperature term:
+    V = s (S (I + M) B + b + c (T - T_ref)) to machine precision, each part the effect's inject."""
+    from imurig.sensors.magnetometer import FluxgateTriad
+
+    rng = np.random.default_rng(3)
+    S = np.eye(3) + 0.01 * np.array([[0.0, 1.0, -0.6], [1.0, 0.0, 0.4], [-0.6, 0.4, 0.0]])
+    M = 1e-3 * np.array([[0.0, 1.0, -2.0], [-1.0, 0.0, 0.5], [2.0, -0.5, 0.0]])
+    c = np.array([2e-9, -1e-9, 1.5e-9])
+    mag = FluxgateTriad(sensitivity_V_per_T=[4.1e4, 3.9e4, 4.0e4], hard_iron_T=[1e-6, -2e-6, 5e-7], soft_iron=S,
+                        misalignment_rad=M, noise_T_rms=0.0, tempco_T_per_K=c)
+    B, T = rng.normal(0, 3e-5, (50, 3)), 290.0 + rng.uniform(0, 10, 50)
+    expect = (B @ (S @ (np.eye(3) + M)).T + mag.hard_iron_T + (T - T_REF_K)[:, None] * c) * mag.sensitivity_V_per_T
+    np.testing.assert_allclose(mag.output_voltage(B, rng, T), expect, rtol=1e-12)
+    ctx = ChainContext(time_s=np.arange(50.0), sample_rate_hz=1.0, truth_signals={"T_box": T})
+    parts = MagTemperatureDrift(c).inject(HardIron(mag.hard_iron_T).inject(SoftIron(S).inject(
+        MagMisalignment(M).inject(B))), ctx)
+    np.testing.assert_allclose(parts * mag.sensitivity_V_per_T, expect, rtol=1e-12)
+    np.testing.assert_array_equal(mag.output_voltage(B, rng), replace(mag, tempco_T_per_K=np.zeros(3))
+                                  .output_voltage(B, rng, T))  # no temperature term without a tempco
+    truth = {"sensors": {"magnetometer": mag.truth()}}
+    gain = mag.sensitivity_V_per_T / 4.0e4
+    assert HardIron().fitted(truth)["b_y_nT"] == pytest.approx(gain[1] * -2e-6 * 1e9, rel=1e-15)
+    assert SoftIron().fitted(truth) == {"s_xy": S[0, 1], "s_xz": S[0, 2], "s_yz": S[1, 2]}
+    assert MagMisalignment().fitted(truth)["w_xz_rad"] == M[0, 2]
+    assert MagTemperatureDrift().fitted(truth)["c_z_nT_per_K"] == pytest.approx(gain[2] * c[2] * 1e9, rel=1e-15)
+
+
+def test_magnetometer_columns_recover_the_truth_maps_exactly():
+    """Indicated block means from the field with an offset drift with temperature (and a hard iron),
+    or from an IGRF field plus a local anomaly: the twin's model plus the effects' columns recover
+    the truth maps to machine precision (the anomaly's along-field part absorbed by the gains)."""
+    v = _mag_view()
+    nb = v.n_blocks
+    gain = np.diag(v.calibration)
+    c_T, b_T = np.array([2e-9, -1e-9, 1.5e-9]), np.array([3e-7, -1e-7, 2e-7])
+    truth = {"sensors": {"magnetometer": {"sensitivity_V_per_T": list(gain * 4e4), "nominal_sensitivity_V_per_T": 4e4,
+                                          "hard_iron_T": list(b_T), "tempco_T_per_K": list(c_T)}}}
+    m = gain * (v.field_nT + 1e9 * (b_T + (v.temperature_K - T_REF_K)[:, None] * c_T))
+    X0 = np.column_stack([v.on_axis(j, v.field_nT[:, j]) for j in range(3)])
+    C = [cand.design(None) for cls in (HardIron, MagTemperatureDrift) for cand in cls().candidates(v)]
+    coef = np.linalg.lstsq(np.column_stack([X0] + C), v.stacked(m), rcond=None)[0]
+    np.testing.assert_allclose(coef[6:9], list(MagTemperatureDrift().fitted(truth).values()), rtol=1e-8)
+
+    B_W = v.igrf_W_nT * 1e-9
+    u1, u2 = across_field(B_W)
+    dB = 300e-9 * u1 - 200e-9 * u2 + 500e-9 * B_W / np.linalg.norm(B_W)
+    truth = {"magnetometer_diagnosis": {"anomaly_W_T": list(dB), "igrf_field_W_T": list(B_W)}}
+    m = np.einsum("nij,j->ni", v.R_CW, LocalFieldAnomaly(dB).inject(B_W)) * 1e9
+    a = 1 + dB @ B_W / np.linalg.norm(B_W) ** 2
+    cal = replace(v, twin_model="calibrated", calibration=a * np.eye(3))
+    X0 = np.column_stack([cal.on_axis(j, cal.field_nT[:, k]) for j in range(3) for k in range(3)]
+                         + [cal.on_axis(j, np.ones(nb)) for j in range(3)])
+    (cand,) = LocalFieldAnomaly().candidates(cal)
+    coef = np.linalg.lstsq(np.column_stack([X0, cand.design(None)]), cal.stacked(m), rcond=None)[0]
+    np.testing.assert_allclose(coef[12:], list(LocalFieldAnomaly().fitted(truth).values()), rtol=1e-6)
+
+
+def test_magnetometer_delay_drift_and_nonlinearity_closed_form():
+    """The delay shifts a ramp by -rate tau inside a block; the drift and the nonlinearity add
+    d (t - t0) and k2 B^2; the truth maps of what no chain injects are zero."""
+    t = np.arange(200) / 100.0
+    x = np.column_stack([3.0 + 2.0 * t, -1.0 * t, 0.5 * t])
+    ctx = ChainContext(time_s=t, sample_rate_hz=100.0)
+    y = MagTimeDelay(0.05).inject(x, ctx)
+    np.testing.assert_allclose(y[10:], x[10:] - 0.05 * np.array([2.0, -1.0, 0.5]), rtol=0, atol=1e-12)
+    assert MagTimeDelay().fitted({"magnetometer_diagnosis": {"delay_s": 2e-3}}) == {"tau_s": 2e-3}
+    np.testing.assert_allclose(MagTimeDrift([1e-9, 0, -1e-9]).inject(np.zeros((200, 3)), ctx)[:, 0], 1e-9 * t,
+                               rtol=1e-15)
+    np.testing.assert_allclose(MagScaleNonlinearity([1e3, 0, 0]).inject(x)[:, 0], x[:, 0] + 1e3 * x[:, 0] ** 2,
+                               rtol=1e-15)
+    assert set(MagTimeDrift().fitted({}).values()) == {0.0} == set(MagScaleNonlinearity().fitted({}).values())

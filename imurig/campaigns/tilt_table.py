@@ -51,11 +51,14 @@ class TiltTableCampaign:
     people: bool = True
     loose_cable: bool = False
     scan_list: tuple = DEFAULT_SCAN
+    #: further lab disturbances (effect objects of stage specific_force or analog), e.g. a lab's own
+    lab_effects: tuple = ()
     site: Site = field(default_factory=Site)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["scan_list"] = list(self.scan_list)
+        d["lab_effects"] = [{"effect": e.name, **e.settings()} for e in self.lab_effects]
         return d
 
     # ---------------------------------------------------------------- setup
@@ -75,7 +78,7 @@ class TiltTableCampaign:
                       adc=DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,
                                    grounding=self.grounding, crosstalk_enabled=self.crosstalk),
                       pump=PumpVibration(enabled=self.pump), people=PeopleTransients(enabled=self.people),
-                      cable=LooseCable(enabled=self.loose_cable))
+                      cable=LooseCable(enabled=self.loose_cable), effects=tuple(self.lab_effects))
         return table, lab, random_streams.seed_sequence("campaign/tilt-table/sensor-chain", self.seed)
 
     def check_identifiable(self) -> None:

@@ -15,8 +15,9 @@ import numpy as np
 
 from imurig.kernel import random_streams
 from imurig.rigs.tilt_table import TiltTableProtocol
-from imurig.sensors.effects import (AdcCrosstalk, AxisMisalignment, LooseCable, PumpVibration, ScaleNonlinearity,
-                                   recording_truth)
+from imurig.sensors.effects import (AdcCrosstalk, AxisMisalignment, EarthRateLeftOut, GSensitivity,
+                                   InstrumentRangeChange, LooseCable, PumpVibration, ScaleNonlinearity, SlipRingNoise,
+                                   TimerQuantisation, recording_truth)
 
 DEG_PER_H_PER_G = math.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
 SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
@@ -151,6 +152,12 @@ def _gyro_param(d, gyro, effect):
     return None
 
 
+def _slip_ring_param(d, gyro):
+    """(estimate, std_error) of the slip-ring refit (the noisiest angle bin's excess noise) on ``gyro``."""
+    f = d["gyros"][gyro].get("scatter", {}).get("finding")
+    return None if f is None else (f["parameters"][0]["estimate"], f["parameters"][0]["std_error"])
+
+
 SHORT_THERMAL = {"low_C": -40, "high_C": 40, "step_C": 20, "soak_s": 2400, "attitude_dwell_s": 40}
 
 
@@ -270,26 +277,28 @@ CASES = [
     Case("earth_rate_left_out", "turn_table", {(a, "earth_rate_left_out") for a in "pqr"},
          lambda seed, f: _turn(seed, earth_fraction=f), 1.0, sizes=(0.25, 0.5, 0.75, 1.0, 1.25),
          size_unit="fraction of Delft's vertical Earth rate (latitude moved)",
-         truth_param=lambda rec: 7.292115e-5 * math.sin(math.radians(rec.meta["site"]["latitude_deg"])),
+         truth_param=lambda rec: EarthRateLeftOut().fitted(rec.truth)["Omega_vertical"],
          found_param=lambda d: _gyro_param(d, "p", "earth_rate_left_out"),
          twin={"earth_rate": False}, null=lambda seed: _turn(seed), null_twin={"earth_rate": True},
          notes="g_sensitivity is named as indistinguishable"),
     Case("g_sensitivity", "turn_table", {(a, "g_sensitivity") for a in "pqr"},
          lambda seed, gs: _turn(seed, gs), 10 * DEG_PER_H_PER_G,
          sizes=tuple(x * DEG_PER_H_PER_G for x in (1, 2, 5, 10, 20)), size_unit="G (rad/s per m/s^2)",
-         truth_param=lambda rec: rec.truth["sensors"]["gyros"]["g_sensitivity_rad_s_per_m_s2"][0][0],
+         truth_param=lambda rec: GSensitivity().fitted(rec.truth, "gyro_p")["G"],
          found_param=lambda d: _gyro_param(d, "p", "g_sensitivity"), null=lambda seed: _turn(seed)),
     Case("slip_ring_noise", "turn_table", {(a, "slip_ring_noise") for a in "pqr"},
          lambda seed, rms: _turn(seed, slip_rms_V=rms), 20e-6, sizes=(1e-6, 2e-6, 5e-6, 1e-5, 2e-5),
          size_unit="ring contact noise rms (V), depth 8 at the rough spots (the seed's rings: 20 uV)",
-         null=lambda seed: _turn(seed)),
+         truth_param=lambda rec: SlipRingNoise().fitted(rec.truth, "gyro_p")["peak_excess_noise_rms_V"],
+         found_param=lambda d: _slip_ring_param(d, "p"), null=lambda seed: _turn(seed),
+         notes="parameter: the excess noise rms of the noisiest 10-degree angle bin over the median bin (V)"),
     Case("temperature_hysteresis", "thermal", {(f"acc_{a}", "temperature_hysteresis") for a in "xyz"},
          _thermal, 5e-3, sizes=(2e-5, 5e-5, 1e-4, 3e-4, 1e-3), size_unit="bias hysteresis (m/s^2)",
          truth_param=_thermal_gap_truth, found_param=lambda d: _channel_param(d, "acc_x", "temperature_hysteresis"),
          null=lambda seed: _thermal(seed, 0.0)),
     Case("instrument_range_change", "rate_table_rows", {("voltmeter", "instrument_range_change")}, _range_change, 0.01,
          sizes=(0.0005, 0.001, 0.002, 0.005, 0.01), size_unit="gain step (relative)",
-         truth_param=lambda rec: rec.truth["voltmeter"]["gain"][1] - 1.0,
+         truth_param=lambda rec: InstrumentRangeChange().fitted(rec.truth)["relative_gain_step"],
          found_param=lambda d: _voltmeter_param(d, "instrument_range_change", "relative_gain_step")),
     Case("mains_rate_factor", "rate_table_rows", {("rate", "mains_rate_factor")}, _mains, 1.0),
     Case("table_slip", "rate_table_rows", {("rate", "table_slip")}, _slip, 0.03,
@@ -331,7 +340,7 @@ def _timer_param(d):
 CASES += [
     Case("timer_quantisation", "rate_table_rows", {("rate", "timer_quantisation")}, _timer, 0.01,
          sizes=(0.005, 0.007, 0.01, 0.015, 0.02, 0.03), size_unit="stopwatch resolution q (s); table setting error 3e-4",
-         truth_param=lambda rec: rec.truth["timer"]["sigma_T_s"], found_param=_timer_param,
+         truth_param=lambda rec: TimerQuantisation().fitted(rec.truth)["sigma_T_s"], found_param=_timer_param,
          estimate_param=lambda d: (d["timer_resolution"]["test"]["sigma_T_s"], d["timer_resolution"]["test"]["sigma_T_se_s"]),
          null=lambda seed: _timer(seed, 1e-6),
          notes="the twin times rounds exactly; parameter = the round-time error sigma_T (s) "

@@ -50,12 +50,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
-from imurig.diagnose.engine import Candidate, select_effects
+from imurig.diagnose.engine import select_effects
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
-from imurig.kernel.units import T_REF_K
+from imurig.sensors.effects import ChainContext, LocalFieldAnomaly, MagTimeDelay, MagView, by_name, for_view
 
 AXES = "xyz"
 MAG = ("mag_x", "mag_y", "mag_z")
@@ -76,12 +76,7 @@ class AnomalousSite(Site):
     anomaly_W_T: tuple = (0.0, 0.0, 0.0)
 
     def magnetic_field_W(self, when):
-        return super().magnetic_field_W(when) + np.asarray(self.anomaly_W_T, float)
-
-
-def fluxgate_temperature_offset(T_K: np.ndarray, tempco_T_per_K, T_ref_K: float) -> np.ndarray:
-    """Offset drift of the fluxgate (n, 3) [T]: b(T) = c (T - T_ref), c (3,) [T/K], T (n,) [K]."""
-    return (np.asarray(T_K, float) - T_ref_K)[:, None] * np.asarray(tempco_T_per_K, float)[None, :]
+        return LocalFieldAnomaly(self.anomaly_W_T).inject(super().magnetic_field_W(when))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -274,55 +269,13 @@ def diagnose_magnetometer(rec: Recording, rng: np.random.Generator, alpha: float
     T = _temperature_K(rec)
     Tb = None if T is None else T[idx].mean(1)
 
+    view0 = MagView(twin_model=twin_model, field_nT=Bb, rate_nT_s=dBb, R_CW=Rb, time_s=tb, igrf_W_nT=tw.B_W,
+                    calibration=A_fit, temperature_K=Tb)
+
     def library(A_fit):
-        """The candidates, linearised about the current calibration A_fit (3, 3)."""
-        g = np.diag(A_fit).copy()
-        P = Bb @ A_fit.T                                       # the twin's fitted field per axis (nT)
-        dP = dBb @ A_fit.T
-
-        def stacked(M):                                        # (nb, 3) -> (3 nb,)
-            return M.T.reshape(-1)
-
-        # two directions perpendicular to the IGRF field, in W
-        up = np.array([0.0, 0.0, 1.0])
-        Bhat = tw.B_W / np.linalg.norm(tw.B_W)
-        u1 = np.cross(up, Bhat)
-        u1 /= np.linalg.norm(u1)
-        u2 = np.cross(Bhat, u1)
-        lib = []
-        if twin_model == "nominal":
-            lib += [Candidate("hard_iron", "hard iron: a constant field of the magnetised vehicle or rack adds to "
-                              "every axis (nT)", tuple(f"b_{a}_nT" for a in AXES),
-                              lambda _: np.column_stack([blk(j, np.ones(nb)) for j in range(3)])),
-                    Candidate("soft_iron", "soft iron: induced magnetisation couples the axes symmetrically "
-                              "(s_jk = s_kj; a symmetric non-orthogonality of the sensor axes looks the same)",
-                              tuple(f"s_{AXES[j]}{AXES[k]}" for j, k in PAIRS),
-                              lambda _: np.column_stack([blk(j, g[j] * Bb[:, k]) + blk(k, g[k] * Bb[:, j]) for j, k in PAIRS])),
-                    Candidate("misalignment", "misalignment: the sensor axes are rotated against the rig's (IMU) frame "
-                              "(antisymmetric cross-coupling w_jk = -w_kj, rad)",
-                              tuple(f"w_{AXES[j]}{AXES[k]}_rad" for j, k in PAIRS),
-                              lambda _: np.column_stack([blk(j, g[j] * Bb[:, k]) - blk(k, g[k] * Bb[:, j]) for j, k in PAIRS]))]
-        lib.append(Candidate("local_field_anomaly", "the local field differs from the IGRF model at the site (a "
-                             "local anomaly fixed in the lab, e.g. steel in the building): its components across the "
-                             "IGRF field (nT; u1 horizontal = declination error, u2 = inclination error)",
-                             ("dB_u1_nT", "dB_u2_nT"),
-                             lambda _: np.column_stack([stacked(np.einsum("ij,njk,k->ni", A_fit, Rb, u)) for u in (u1, u2)])))
-        if Tb is not None and np.ptp(Tb) > 0.2:  # a drift with temperature needs the temperature to move
-            dT = Tb - Tb.mean()
-            lib.append(Candidate("temperature_drift", "the fluxgate's offsets drift with its temperature "
-                                 "(nT/K per axis)", tuple(f"c_{a}_nT_per_K" for a in AXES),
-                                 lambda _: np.column_stack([blk(j, dT) for j in range(3)])))
-        th = (tb - tb.mean()) / 3600.0
-        lib += [Candidate("time_drift", "the offsets drift in time, independently of the temperature (nT/h per axis)",
-                          tuple(f"d_{a}_nT_per_h" for a in AXES),
-                          lambda _: np.column_stack([blk(j, th) for j in range(3)])),
-                Candidate("scale_nonlinearity", "second-order scale nonlinearity of each axis (1/nT)",
-                          tuple(f"k2_{a}_per_nT" for a in AXES),
-                          lambda _: np.column_stack([blk(j, P[:, j] ** 2) for j in range(3)])),
-                Candidate("time_delay", "the magnetometer samples lag the rig's attitude (a delay against the "
-                          "set-points beyond the DAQ's known channel skew, s)", ("tau_s",),
-                          lambda _: -stacked(dP))]
-        return lib
+        """The candidates of the effect library, linearised about the current calibration A_fit (3, 3)."""
+        view = replace(view0, calibration=A_fit)
+        return [c for cls in for_view(MagView.kind) for c in cls().candidates(view)]
 
     # the candidates depend on the calibration (gains): re-linearise about the fit with the
     # effects found until the gains settle (Gauss-Newton on the nonlinear installation model)
@@ -566,16 +519,17 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     """The magnetometer campaign (:class:`imurig.campaigns.magnetometer.MagnetometerCampaign`) with
     its fluxgate replaced by ``magnetometer`` (None: the campaign's drawn installation), a local
     field anomaly ``anomaly_W_T`` (ENU, T) in the lab, and a fluxgate offset tempco
-    ``tempco_T_per_K`` (3,) [T/K] while the lab air warms by ``air_warming_K`` (1 - exp(-t/tau)),
-    and a delay ``delay_s`` of the sensor's output (e.g. its output filter): V(t) = V_ideal(t - tau).
-    The metadata carry the IGRF field (what a lab writes down); the truth carries the anomaly."""
+    ``tempco_T_per_K`` (3,) [T/K] (the fluxgate's own, injected by the chain at the box
+    temperature) while the lab air warms by ``air_warming_K`` (1 - exp(-t/tau)), and a delay
+    ``delay_s`` of the sensor's output (e.g. its output filter): V(t) = V_ideal(t - tau).
+    The metadata carry the IGRF field (what a lab writes down); the truth carries the anomaly
+    and the IGRF field it was added to."""
     from imurig.campaigns.magnetometer import MAG as MAGC
     from imurig.campaigns.magnetometer import MagnetometerCampaign
     from imurig.sensors.adc import DAQ6036E
     from imurig.sensors.chain import ImuLab
     from imurig.sensors.disturbances import PeopleTransients, PumpVibration
     from imurig.sensors.magnetometer import FluxgateTriad
-    from imurig.sensors.thermal import first_order_lag
     from imurig.kernel.site import parse_time
 
     camp = MagnetometerCampaign(seed=seed)
@@ -584,6 +538,8 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
                                        soft_iron_max=camp.soft_iron_max, noise_nT_rms=camp.noise_nT)
     if magnetometer is not None:
         mag = magnetometer(mag) if callable(magnetometer) else magnetometer
+    if tempco_T_per_K is not None:
+        mag = replace(mag, tempco_T_per_K=np.asarray(tempco_T_per_K, float))
     lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
                   adc=DAQ6036E(scan_list=MAGC + ("temp_box",), sample_rate_hz=100.0, averaging=10))
     if any(getattr(m, "wobble_deg", 0.0) for m in (camp.circle, camp.validation)):
@@ -596,25 +552,18 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     truth_extra = {}
     B_true = {c: rig.truth_signals[f"B_C_{c}"].copy() for c in AXES}
     if delay_s:
+        delay = MagTimeDelay(delay_s)
         for c in AXES:
             x = rig.truth_signals[f"B_C_{c}"]
             for b in rig.blocks():  # the field the sensor puts out at t is the field at t - tau
-                x[b] = np.interp(rig.time_s[b] - delay_s, rig.time_s[b], x[b])
+                x[b] = delay.inject(x[b], ChainContext(time_s=rig.time_s[b], sample_rate_hz=rig.sample_rate_hz))
         truth_extra["delay_s"] = float(delay_s)
     rec = lab.measure(rig, random_streams.seed_sequence("campaign/magnetometer/sensor-chain", seed))
     for c in AXES:
         rec.truth_signals[f"B_C_{c}"] = B_true[c]
-    if tempco_T_per_K is not None:
-        T_mag = first_order_lag(rig.truth_signals["T_air"], rig.time_s, lab.thermal_lags.box_sensor_s) \
-            if "T_air" in rig.truth_signals else lab.climate.imu_temperature_K(rig.time_s)
-        T_ref = T_REF_K
-        off = fluxgate_temperature_offset(T_mag, tempco_T_per_K, T_ref)
-        for j, c in enumerate(MAGC):
-            rec.channels[c] = rec.channels[c] + off[:, j] * mag.sensitivity_V_per_T[j]
-        truth_extra["tempco_T_per_K"] = list(map(float, tempco_T_per_K))
-        truth_extra["tempco_reference_K"] = T_ref
     site_igrf = Site.from_dict(camp.site.to_dict())
     B_W = site_igrf.magnetic_field_W(parse_time(camp.start_time))
+    truth_extra["igrf_field_W_T"] = B_W.tolist()
     rec.meta["site"] = site_igrf.to_dict()
     rec.meta["igrf_field_W_T"] = B_W.tolist()
     rec.meta["igrf_horizontal_T"] = float(math.hypot(B_W[0], B_W[1]))
@@ -675,35 +624,18 @@ def null_recording(seed: int, twin_model: str) -> Recording:
     return magnetometer_recording(seed, _ideal if twin_model == "nominal" else None)
 
 
-def _gain(rec):
-    t = rec.truth["sensors"]["magnetometer"]
-    return np.asarray(t["sensitivity_V_per_T"]) / np.asarray(rec.meta["mag_nominal_sensitivity_V_per_T"])
+#: the effect of the library behind each magnetometer case ("installation": its hard iron)
+CASE_EFFECT = {"hard_iron": "hard_iron", "installation": "hard_iron", "soft_iron": "soft_iron",
+               "misalignment": "mag_misalignment", "local_field_anomaly": "local_field_anomaly",
+               "temperature_drift": "mag_temperature_drift", "time_delay": "mag_time_delay"}
 
 
 def truth_param(effect: str, rec: Recording) -> float:
-    """The injected value of the first parameter the diagnosis reports for ``effect``."""
-    t = rec.truth["sensors"]["magnetometer"]
-    if effect in ("hard_iron", "installation"):
-        return float(_gain(rec)[0] * t["hard_iron_T"][0] * NT)
-    if effect == "soft_iron":
-        return float(t["soft_iron"][0][1])
-    if effect == "misalignment":
-        return float(t["misalignment_rad"][0][1])
-    if effect == "local_field_anomaly":
-        from imurig.kernel.site import parse_time
-
-        B_W = Site.from_dict(rec.meta["site"]).magnetic_field_W(parse_time(rec.meta["start_time"]))
-        dB = np.asarray(rec.truth["magnetometer_diagnosis"]["anomaly_W_T"])
-        Bhat = B_W / np.linalg.norm(B_W)
-        u1 = np.cross([0.0, 0.0, 1.0], Bhat)
-        u1 /= np.linalg.norm(u1)
-        # the component along the field is absorbed by the gains, which rescales the rest
-        return float(dB @ u1 * NT / (1 + dB @ Bhat / np.linalg.norm(B_W)))
-    if effect == "temperature_drift":
-        return float(_gain(rec)[0] * rec.truth["magnetometer_diagnosis"]["tempco_T_per_K"][0] * NT)
-    if effect == "time_delay":
-        return float(rec.truth["magnetometer_diagnosis"]["delay_s"])
-    raise ConfigError(f"no magnetometer case '{effect}'")
+    """The injected value of the first parameter the diagnosis reports for ``effect``: the
+    effect's own truth map (:meth:`imurig.sensors.effects.base.Effect.fitted`) on the recording."""
+    if effect not in CASE_EFFECT:
+        raise ConfigError(f"no magnetometer case '{effect}'")
+    return next(iter(by_name(CASE_EFFECT[effect])().fitted(rec.truth, "mag").values()))
 
 
 def found_param(effect: str, d: dict):

@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.diagnose.engine import Candidate, select_effects, wild_bootstrap_noise
+from imurig.diagnose.engine import select_effects, wild_bootstrap_noise
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
+from imurig.sensors.effects import RateRowView, RateShortfallView, VoltmeterRowView, for_view
+from imurig.sensors.effects.mains_rate_factor import MOTOR_MAINS
 
-MOTOR_MAINS = {"60 Hz motor on 50 Hz mains": 50 / 60, "50 Hz motor on 60 Hz mains": 60 / 50,
-               "motor on its design mains": 1.0}
 GYROS = ("p", "q", "r")
 
 
@@ -96,11 +96,7 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
     f_use = f if rate_factor else 1.0
     d = k / f_use - 1.0
     r_dps = np.degrees(rate)
-    lib = [Candidate("table_slip", "rate-dependent slip of the ball-and-disc integrator: the table turns "
-                     "slower than set, most at low rates", ("s1",), lambda a: r_dps ** (-a),
-                     scan=tuple(np.round(np.arange(0.2, 2.01, 0.1), 2)), scan_name="alpha"),
-           Candidate("rate_proportional_error", "a rate error proportional to the rate (scale of the dial)",
-                     ("c",), lambda _: r_dps)]
+    lib = [c for cls in for_view(RateShortfallView.kind) for c in cls().candidates(RateShortfallView(r_dps))]
     # the scatter of d is the dial's setting error (homoscedastic), far above the stopwatch's
     q = reading_resolution(T[timed])
     # the rows' errors grow with the rate (the timer): threshold from a wild bootstrap of the residuals
@@ -141,14 +137,8 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
             continue
         V = rec.channels[ch][timed]
         X0 = np.column_stack([np.ones(n), r_dps])
-        lib_v = [Candidate("instrument_range_change", "the voltmeter changed range (autoscale) from this row on: "
-                           "a gain and offset step", ("gain_step", "offset_step"),
-                           lambda kk: np.column_stack([r_dps * (idx >= kk), (idx >= kk).astype(float)]),
-                           scan=scan_k, scan_name="first_row"),
-                 Candidate("scale_nonlinearity", "second-order scale-factor nonlinearity of the gyro", ("k2",),
-                           lambda _: r_dps**2),
-                 Candidate("drift", "a drift of the gyro output in the order the rows were taken", ("drift",),
-                           lambda _: idx.astype(float))]
+        view = RateRowView(channel=ch, rate_dps=r_dps, first_rows=scan_k)
+        lib_v = [c for cls in for_view(RateRowView.kind) for c in cls().candidates(view)]
         # noise model first: reading resolution floor plus a part growing with the rate (the table's
         # rate ripple read at an arbitrary moment), fitted to the nominal model's squared residuals
         w = _variance_weights(V, X0, r_dps, ref_sigma_dps=res_rate)
@@ -183,14 +173,9 @@ def diagnose_rate_rows(rec: Recording, rng: np.random.Generator, alpha: float = 
         for j in range(m):
             X0[j * n:(j + 1) * n, 2 * j] = 1.0
             X0[j * n:(j + 1) * n, 2 * j + 1] = r_dps
-        step = lambda kk: np.tile((idx >= kk).astype(float), m)  # noqa: E731
-        gain_col = lambda kk: np.concatenate([scales[j] * r_dps * (idx >= kk) for j in range(m)])  # noqa: E731
-        lib_j = [Candidate("instrument_range_change", "the voltmeter that reads all gyros changed range (autoscale) "
-                           "from this row on: one gain step and one offset step for all of them",
-                           ("relative_gain_step", "offset_step_V"),
-                           lambda kk: np.column_stack([gain_col(kk), step(kk)]), scan=scan_k, scan_name="first_row"),
-                 Candidate("scale_nonlinearity", "second-order scale-factor nonlinearity of each gyro",
-                           tuple(f"k2_{g}" for g in chans), lambda _: _block_columns(r_dps**2, m))]
+        joint_view = VoltmeterRowView(gyros=tuple(chans), rate_dps=r_dps, first_rows=scan_k,
+                                      scale_V_per_dps=tuple(scales))
+        lib_j = [c for cls in for_view(VoltmeterRowView.kind) for c in cls().candidates(joint_view)]
         # errors of the three readings of one row are correlated: they share the reference rate
         # (stopwatch resolution) and the table's ripple at the reading moment
         ripple_dps2 = np.mean([p_["ripple_V2_per_dps2"] / sc**2 for p_, sc in zip(parts, scales)])
@@ -346,15 +331,6 @@ def _variance_parts(V, X0, r, ref_sigma_dps) -> dict:
 def _variance_weights(V, X0, r, ref_sigma_dps) -> np.ndarray:
     """Inverse variances of :func:`_variance_parts`'s noise model."""
     return 1.0 / _variance_parts(V, X0, r, ref_sigma_dps)["var"]
-
-
-def _block_columns(col: np.ndarray, m: int) -> np.ndarray:
-    """(m n, m): ``col`` (n,) in block j of column j, zero elsewhere (one coefficient per gyro)."""
-    n = col.size
-    out = np.zeros((m * n, m))
-    for j in range(m):
-        out[j * n:(j + 1) * n, j] = col
-    return out
 
 
 SEED_SAYS = {

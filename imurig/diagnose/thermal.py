@@ -24,8 +24,9 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.calibration.thermal import _design, step_table, term_names
-from imurig.diagnose.engine import Candidate, ar1_covariance, select_effects
+from imurig.diagnose.engine import ar1_covariance, select_effects
 from imurig.kernel.recording import Recording
+from imurig.sensors.effects import ThermalView, for_view
 
 
 def diagnose_thermal(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300) -> dict:
@@ -44,9 +45,8 @@ def diagnose_thermal(rec: Recording, rng: np.random.Generator, alpha: float = 0.
         series += [(f"gyro_{a}", table["gyro_bias"][:, j], table["T_box"], 1, "rad/s") for j, a in enumerate("pqr")]
     for name, y, T, order, unit in series:
         X0 = _design(T, order)
-        lib = [Candidate("temperature_hysteresis", f"{name}'s bias depends on whether the temperature was reached "
-                         f"by heating or by cooling (hysteresis gap between the branches, {unit})", ("H",),
-                         lambda _, c=s: c)]
+        view = ThermalView(channel=name, unit=unit, branch=s)
+        lib = [c for cls in for_view(ThermalView.kind) for c in cls().candidates(view)]
         # successive steps share the thermal lag: their errors are correlated (the null study gave 16
         # false findings in 360 channel tests at alpha 0.01 with white errors); test on AR(1)-whitened
         # residuals, phi from the nominal fit (benchmarks/bench_diagnose.py --fdr)

@@ -26,7 +26,7 @@ separates them.
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage, stats
+from scipy import ndimage
 
 from imurig.calibration.gyro import (
     AXES,
@@ -41,10 +41,11 @@ from imurig.calibration.gyro import (
     timer_pulses,
 )
 from imurig.calibration.triad import indicated
-from imurig.diagnose.engine import Candidate, select_effects
+from imurig.diagnose.engine import select_effects
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
+from imurig.sensors.effects import GSensitivity, SlipRingNoise, TurnSampleView, TurnView, for_view
 
 
 def _mounts(rw: Recording) -> list[str]:
@@ -93,21 +94,16 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     for j, a in enumerate(AXES):
         lib_names = MODELS["physical"](a)
         X0 = lib_names.design(inputs)
-        lib = []
-        g_col, e_col = -f[:, j], -e[:, j]
-        corr = _whitened_correlation(g_col, e_col, X0, cov)
+        view = TurnView(channel=f"gyro_{a}", axis=a, on_axis=e[:, j], specific_force_m_s2=f[:, j],
+                        table_rate_rad_s=np.asarray(rate, float), mount=tuple(mounts), earth_rate_in_twin=earth_rate)
+        lib = [c for cls in for_view(TurnView.kind) for c in cls().candidates(view)]
+        corr = _whitened_correlation(-f[:, j], -e[:, j], X0, cov)
         alias = None
-        if not earth_rate:
-            lib.append(Candidate("earth_rate_left_out", "the Earth's rotation: the gyro on the table axis also "
-                                 "senses the Earth's vertical rate Omega_E sin(latitude), which the twin's "
-                                 "reference leaves out (rad/s)", ("Omega_vertical",), lambda _, c=e_col: c))
-            # a g-sensitivity whose column the data cannot tell from the Earth's is not tested
-            # separately: the Earth's rate certainly acts; the finding names the alias
-            if abs(corr) > 0.99:
-                alias = "g_sensitivity"
-        if alias is None:
-            lib.append(Candidate("g_sensitivity", f"gyro {a} responds to the specific force along its axis "
-                                 "(g-sensitivity, (rad/s)/(m/s^2))", ("G",), lambda _, c=g_col: c))
+        # a g-sensitivity whose column the data cannot tell from the Earth's is not tested
+        # separately: the Earth's rate certainly acts; the finding names the alias
+        if not earth_rate and abs(corr) > 0.99:
+            alias = GSensitivity.name
+            lib = [c for c in lib if c.name != alias]
         d = select_effects(ref[:, j], X0, list(lib_names.names), lib, rng, alpha=alpha, n_sim=n_sim, cov=cov)
         for fd in d.findings:
             if alias and fd.name == "earth_rate_left_out":
@@ -147,46 +143,38 @@ def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.
     return float(R[:, 0] @ R[:, 1] / (n[0] * n[1])) if np.all(n > 0) else 0.0
 
 
-def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float, n_bins: int = 36) -> dict:
+def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float) -> dict:
     """Is the sample noise of ``ch`` periodic in the table angle (slip-ring contact noise)?
 
     Within each whole-round window the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
     after index pulse t_k (mirrored for the negative direction). The fast residual r (the
-    channel minus its 51-sample running mean: white noise, slow ripple removed) is binned by
-    angle, and the Brown-Forsythe test (Levene, median-centred) asks whether its spread is the
-    same in every bin. A finding needs p < ``alpha``; the report gives the angles where the
-    spread rises and by how much.
+    channel minus its running mean over the effect's window: white noise, slow ripple removed)
+    goes with the angles into a :class:`TurnSampleView`; the slip-ring effect's own test
+    (:meth:`imurig.sensors.effects.SlipRingNoise.test`: Brown-Forsythe across angle bins, then
+    the refit of the excess noise by angle) gives the statistics and, when p < ``alpha``, the
+    finding with the angles where the spread rises and by how much.
     """
     pulses = timer_pulses(rec, timer)
     t, x = rec.time_s, rec.channels[ch]
+    w = SlipRingNoise.window
+    h = w // 2
     ang, res = [], []
     for a, b, rate in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"]):
         i0, i1 = np.searchsorted(t, [a, b])
         if i1 - i0 < 200:
             continue
         tt = t[i0:i1]
-        r = x[i0:i1] - ndimage.uniform_filter1d(x[i0:i1], 51, mode="nearest")
+        r = x[i0:i1] - ndimage.uniform_filter1d(x[i0:i1], w, mode="nearest")
         p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]
         k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
         frac = (tt - p[k]) / (p[k + 1] - p[k])
         ang.append(2 * np.pi * (frac if rate >= 0 else 1 - frac))
-        res.append(r[25:-25] if r.size > 50 else r)
-        ang[-1] = ang[-1][25:-25] if r.size > 50 else ang[-1]
+        res.append(r[h:-h] if r.size > 2 * h else r)
+        ang[-1] = ang[-1][h:-h] if r.size > 2 * h else ang[-1]
     if not ang:
         return {"tested": False}
-    ang, res = np.concatenate(ang), np.concatenate(res)
-    idx = np.minimum((ang / (2 * np.pi) * n_bins).astype(int), n_bins - 1)
-    groups = [res[idx == i] for i in range(n_bins)]
-    stat, p = stats.levene(*groups, center="median")
-    spread = np.array([1.4826 * np.median(np.abs(g - np.median(g))) for g in groups])
-    base = float(np.median(spread))
-    out = {"tested": True, "samples": int(res.size), "levene_statistic": float(stat), "p_value": float(p),
-           "threshold_p": alpha, "noise_V_by_angle_bin": spread.tolist(), "bin_deg": 360.0 / n_bins}
-    if p < alpha:
-        high = np.flatnonzero(spread > base * 1.1)
-        out["finding"] = {"effect": "slip_ring_noise",
-                          "physics": f"contact noise of the slip rings on '{ch}': the noise rises at fixed table "
-                                     "angles where a brush passes a rough spot (seed Fig. 4.16)",
-                          "angles_deg": ((high + 0.5) * 360.0 / n_bins).tolist(),
-                          "peak_to_median_noise": float(spread.max() / base), "p_value": float(p)}
+    view = TurnSampleView(channel=ch, angle_rad=np.concatenate(ang), residual_V=np.concatenate(res), alpha=alpha)
+    out = {"tested": True}
+    for cls in for_view(TurnSampleView.kind):
+        out.update(cls().test(view))
     return out

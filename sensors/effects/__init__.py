@@ -9,10 +9,13 @@ import AdcCrosstalk``).
 from __future__ import annotations
 
 import importlib
+from contextlib import contextmanager
 import pkgutil
 
 from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, Param, PositionView,  # noqa: F401
                                          ScanSlot, ScatterView, recording_truth)
+from imurig.sensors.effects.views import (MagView, RateRowView, RateShortfallView, ThermalView,  # noqa: F401
+                                          TurnSampleView, TurnView, VoltmeterRowView)
 
 
 def _discover() -> tuple[type[Effect], ...]:
@@ -20,7 +23,7 @@ def _discover() -> tuple[type[Effect], ...]:
     diagnosis offers candidates in that order (position means: crosstalk, drift, axes, square, product)."""
     found = {}
     for info in pkgutil.iter_modules(__path__):
-        if info.name == "base" or info.name.startswith("_"):
+        if info.name in ("base", "views") or info.name.startswith("_"):
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         for obj in vars(module).values():
@@ -47,3 +50,22 @@ def by_name(name: str) -> type[Effect]:
 def for_view(kind: str) -> list[type[Effect]]:
     """The effect classes that offer diagnosis candidates for views of ``kind`` ("positions", ...)."""
     return [cls for cls in LIBRARY if kind in cls.views]
+
+
+@contextmanager
+def registered(*classes: type[Effect]):
+    """Add effect classes defined outside this package (a lab's own, an example) to ``LIBRARY`` for
+    the duration of a ``with`` block: the diagnosis and every other consumer then find them too."""
+    global LIBRARY
+    before = LIBRARY
+    names = {c.name for c in before}
+    for cls in classes:
+        if not (isinstance(cls, type) and issubclass(cls, Effect) and cls.name):
+            raise TypeError(f"{cls!r} is not a named Effect subclass")
+        if cls.name in names:
+            raise TypeError(f"an effect called '{cls.name}' is already in the library")
+    LIBRARY = tuple(sorted((*before, *classes), key=lambda c: (c.order, c.name)))
+    try:
+        yield LIBRARY
+    finally:
+        LIBRARY = before

@@ -41,7 +41,9 @@ from typing import ClassVar
 import numpy as np
 
 #: where in the chain an effect acts, in chain order
-STAGES = ("specific_force",   # (n, 3) m/s^2 at the IMU, added to the rig's f_C before the sensors
+STAGES = ("rig",              # the rig's physics or environment in its truth, before the chain (table rate,
+                              # the Earth's rotation, the local field, event times)
+          "specific_force",   # (n, 3) m/s^2 at the IMU, added to the rig's f_C before the sensors
           "analog",           # (n,) V on one analog line, after the sensor physics
           "conversion",       # inside the multiplexed ADC scan: one slot's input u_j (V)
           "digital",          # (n,) V after the ADC
@@ -218,6 +220,17 @@ class Effect:
     def fitted(self, truth: Mapping, channel: str | None = None) -> dict[str, float]:
         """The parameters the diagnosis fits on ``channel``, implied by the injected truth (default: none)."""
         return {}
+
+    #: the name a diagnosis reports the effect's findings under, where it differs from ``name``:
+    #: sensors share mechanisms (the fluxgate's and the accelerometers' temperature drift), so the
+    #: library's ``name`` carries the sensor to stay unique while the finding keeps the mechanism's
+    #: name on the sensor's channel
+    finding: ClassVar[str] = ""
+
+    @classmethod
+    def finding_name(cls) -> str:
+        """The effect's name in a diagnosis' findings (``finding`` or, by default, ``name``)."""
+        return cls.finding or cls.name
 
     def settings(self) -> dict:
         """The effect's parameters as plain JSON-able values (the recording's truth)."""

@@ -1,0 +1,194 @@
+"""Slip-ring contact noise of the turn table (seed 4.4.1, Fig. 4.16): every line that leaves the
+IMU crosses one of the table's 16 rings, whose brushes are noisier at rough spots.
+
+    v_noise(t) = rms (1 + depth p(theta(t))) n(t),  n ~ N(0, 1) white                  [V]
+    p(theta)   = sum over the rough spots s of exp(kappa (cos(theta - theta_s) - 1))
+
+theta: the table angle (rad). The noise is periodic in the table angle; its variance at angle
+theta is rms^2 P(theta)^2 with P = 1 + depth p (the profile). Stage "analog": the chain adds it
+to every IMU line while the table turns (one random stream per line, "slip_<line>"); the
+profile depends on the record's angles only, so it is computed once per record and reused for
+every line.
+
+Diagnosis (:class:`TurnSampleView`): the samples' fast residual r (the line less its running
+mean over ``window`` samples) binned by table angle into ``n_bins`` bins; the Brown-Forsythe
+test (Levene, median-centred) asks whether the spread is the same in every bin. The refit: the
+excess noise variance of each bin over the median bin,
+
+    e_b = mean_b(r^2) - median_b' mean_b'(r^2)                                         [V^2]
+
+with its standard error from the bin's own fourth moment (and the median's), and the excess
+noise amplitude sqrt(e_b) (V) per angle, reported with the peak. Truth map: the running mean
+leaves (1 - 1/window) of a profile that is smooth over the window, so
+
+    e_b = (1 - 1/window) rms^2 (<P^2>_b - median_b' <P^2>_b')
+
+<.>_b the mean over bin b's angles (uniform within whole rounds).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from scipy import stats
+
+from imurig.sensors.effects.base import ChainContext, Effect, Param
+from imurig.sensors.effects.views import TurnSampleView
+
+
+@dataclass
+class SlipRingNoise(Effect):
+    """Contact noise ``rms_V`` (V) rising by ``depth`` at the rough spots ``spots_rad`` (width 1/sqrt(kappa) rad)."""
+
+    enabled: bool = True
+    rms_V: float = 20e-6
+    depth: float = 8.0
+    n_spots: int = 3
+    kappa: float = 40.0
+    spots_rad: tuple = (0.7, 2.9, 4.4)
+
+    name: ClassVar[str] = "slip_ring_noise"
+    order: ClassVar[int] = 202
+    stage: ClassVar[str] = "analog"
+    stream: ClassVar[str] = "slip"
+    physics: ClassVar[str] = ("contact noise of the slip rings: the noise of every line that crosses a ring rises "
+                              "at fixed table angles where a brush passes a rough spot")
+    seed_section: ClassVar[str] = "4.4.1, Fig. 4.16"
+    seed_says: ClassVar[str] = ("a periodicity can be seen which can be traced back to the fact that the sliprings "
+                                "behave differently in various different positions")
+    params: ClassVar[tuple] = (Param("rms_V", "V", seed=20e-6, note="contact noise away from the rough spots"),
+                               Param("depth", "1", seed=8.0, note="rise of the noise amplitude at a spot"),
+                               Param("peak_excess_noise_rms_V", "V",
+                                     note="fitted: sqrt of the excess variance of the noisiest angle bin"))
+    views: ClassVar[tuple] = (TurnSampleView.kind,)
+    #: the running mean (samples) the diagnosis removes, and the angle bins of its test
+    window: ClassVar[int] = 51
+    n_bins: ClassVar[int] = 36
+
+    def profile(self, angle_rad: np.ndarray) -> np.ndarray:
+        """P(theta) = 1 + depth p(theta) (n,), computed once per angle record (cached on the array)."""
+        angle_rad = np.asarray(angle_rad)
+        key = (self.depth, self.kappa, tuple(self.spots_rad), angle_rad.shape)
+        cache = getattr(self, "_profile_cache", None)
+        if cache is not None and cache[0] is angle_rad and cache[1] == key:
+            return cache[2]
+        a = angle_rad[:, None] - np.asarray(self.spots_rad)[None, :]
+        P = 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
+        # kept with a reference to the angle array itself: the chain asks once per line of one record
+        self._profile_cache = (angle_rad, key, P)
+        return P
+
+    def voltage(self, angle_rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The contact noise (n,) V at the table angles ``angle_rad`` (n,) rad."""
+        if not self.enabled:
+            return np.zeros_like(angle_rad)
+        return self.rms_V * self.profile(angle_rad) * rng.standard_normal(np.shape(angle_rad))
+
+    def lines(self, names, ctx: ChainContext) -> list[str]:
+        """The IMU's lines (``ctx.imu_lines``) while the rig turns (a ``spin_angle`` truth signal);
+        lines from the table itself do not cross a ring."""
+        if not self.enabled or "spin_angle" not in ctx.truth_signals:
+            return []
+        imu = getattr(ctx, "imu_lines", ())
+        return [n for n in names if n in imu]
+
+    def line_stream(self, line: str) -> str:
+        return "slip_" + line
+
+    def inject(self, v: np.ndarray, ctx: ChainContext, rng: np.random.Generator) -> np.ndarray:
+        if not self.enabled:
+            return v
+        return v + self.voltage(ctx.truth_signals["spin_angle"], rng)
+
+    @classmethod
+    def from_settings(cls, settings: Mapping) -> "SlipRingNoise":
+        """The effect from its recorded settings (the truth's chain["slip_rings"]; lists become tuples)."""
+        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in settings.items()
+                      if k in cls.__dataclass_fields__})
+
+    def round_average_variance_V2(self, n_angles: int = 3600) -> float:
+        """rms^2 <P^2> over whole rounds (uniform table angle, ``n_angles`` points) (V^2)."""
+        if not self.enabled:
+            return 0.0
+        ang = np.linspace(0, 2 * np.pi, n_angles, endpoint=False)
+        return self.rms_V**2 * float(np.mean(self.profile(ang) ** 2))
+
+    def noise_variance(self, ctx: ChainContext) -> float:
+        """Per-sample variance on a line that crosses a ring (V^2): rms^2 <P^2> over the record's
+        table angles (ctx.truth_signals["spin_angle"]), or over whole rounds without them."""
+        if not self.enabled:
+            return 0.0
+        if "spin_angle" not in ctx.truth_signals:
+            return self.round_average_variance_V2()
+        return float(self.rms_V**2 * np.mean(self.profile(ctx.truth_signals["spin_angle"]) ** 2))
+
+    # ------------------------------------------------------------------ diagnosis
+
+    def bin_index(self, angle_rad: np.ndarray) -> np.ndarray:
+        """The angle bin of each angle in [0, 2 pi]; a sample after the last index pulse of its window
+        joins the last bin, one more than a bin before the first pulse gets -1 (in no bin)."""
+        a = np.asarray(angle_rad, float)
+        return np.minimum((a / (2 * np.pi) * self.n_bins).astype(int), self.n_bins - 1)
+
+    def test(self, view: TurnSampleView) -> dict:
+        """Brown-Forsythe test of equal spread over the angle bins, and the refit when it fires
+        (see the module doc). Returns the statistics, with the finding under "finding"."""
+        if not isinstance(view, TurnSampleView):
+            return {}
+        res = np.asarray(view.residual_V, float)
+        idx = self.bin_index(view.angle_rad)
+        groups = [res[idx == i] for i in range(self.n_bins)]
+        stat, p = stats.levene(*groups, center="median")
+        spread = np.array([1.4826 * np.median(np.abs(g - np.median(g))) for g in groups])
+        base = float(np.median(spread))
+        out = {"samples": int(res.size), "levene_statistic": float(stat), "p_value": float(p),
+               "threshold_p": view.alpha, "noise_V_by_angle_bin": spread.tolist(), "bin_deg": 360.0 / self.n_bins}
+        if p < view.alpha:
+            high = np.flatnonzero(spread > base * 1.1)
+            refit = self.refit(groups)
+            out["finding"] = {"effect": self.name,
+                              "physics": f"contact noise of the slip rings on '{view.channel}': the noise rises at "
+                                         "fixed table angles where a brush passes a rough spot (seed Fig. 4.16)",
+                              "angles_deg": ((high + 0.5) * 360.0 / self.n_bins).tolist(),
+                              "peak_to_median_noise": float(spread.max() / base), "p_value": float(p),
+                              "parameters": [{"name": "peak_excess_noise_rms_V", "estimate": refit["peak_rms_V"],
+                                              "std_error": refit["peak_rms_se_V"]}],
+                              "peak_angle_deg": refit["peak_angle_deg"],
+                              "excess_noise_rms_V_by_angle_bin": refit["rms_V"],
+                              "excess_noise_rms_se_V_by_angle_bin": refit["rms_se_V"],
+                              "refit": "excess variance of each angle bin over the median bin, "
+                                       "mean(r^2) - median; amplitude sqrt(excess) with delta-method SE"}
+        return out
+
+    def refit(self, groups: list[np.ndarray]) -> dict:
+        """The excess noise per angle bin over the median bin (module doc): variances (V^2) and
+        amplitudes (V), each with its standard error, and the peak bin's amplitude."""
+        v = np.array([np.mean(g**2) for g in groups])
+        se = np.array([np.sqrt(np.var(g**2, ddof=1) / g.size) for g in groups])
+        v0 = float(np.median(v))
+        # the median of n_bins estimates: sqrt(pi/2) x their typical SE / sqrt(n_bins)
+        se0 = float(np.sqrt(np.pi / 2) * np.median(se) / np.sqrt(self.n_bins))
+        e = v - v0
+        e_se = np.sqrt(se**2 + se0**2)
+        amp = np.sqrt(np.clip(e, 0.0, None))
+        amp_se = np.where(amp > 0, e_se / (2 * np.where(amp > 0, amp, 1.0)), np.sqrt(e_se))
+        k = int(np.argmax(e))
+        return {"excess_V2": e.tolist(), "excess_se_V2": e_se.tolist(), "rms_V": amp.tolist(),
+                "rms_se_V": amp_se.tolist(), "peak_rms_V": float(amp[k]), "peak_rms_se_V": float(amp_se[k]),
+                "peak_angle_deg": float((k + 0.5) * 360.0 / self.n_bins)}
+
+    def excess_variance_V2(self, points_per_bin: int = 400) -> np.ndarray:
+        """The truth of the refit: e_b = (1 - 1/window) rms^2 (<P^2>_b - median <P^2>) per bin (V^2)."""
+        if not self.enabled:
+            return np.zeros(self.n_bins)
+        edges = np.arange(self.n_bins)[:, None] + (np.arange(points_per_bin) + 0.5)[None, :] / points_per_bin
+        P2 = self.profile((edges * 2 * np.pi / self.n_bins).ravel()).reshape(edges.shape) ** 2
+        m = P2.mean(axis=1)
+        return (1.0 - 1.0 / self.window) * self.rms_V**2 * (m - np.median(m))
+
+    def fitted(self, truth: Mapping, channel: str | None = None) -> dict[str, float]:
+        """{peak_excess_noise_rms_V: sqrt(max_b e_b)} for the recorded rings (truth["chain"]["slip_rings"])."""
+        eff = self.from_settings(truth["chain"]["slip_rings"])
+        return {"peak_excess_noise_rms_V": float(np.sqrt(max(eff.excess_variance_V2().max(), 0.0)))}
