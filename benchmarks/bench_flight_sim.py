@@ -14,8 +14,6 @@ import resource
 import sys
 import time
 
-import numpy as np
-
 
 def peak_rss_mb() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -41,7 +39,7 @@ def main(argv=None) -> dict:
         simulate_van,
     )
     from imurig.sensors.chain import ImuLab
-    from imurig.sensors.noise import child_rng
+    from imurig.kernel import random_streams
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -63,13 +61,12 @@ def main(argv=None) -> dict:
     truth = simulate_flight(plan, progress_bar=False)
     res["truth_total_s"] = time.perf_counter() - t0
     res["truth_after_mujoco_s"] = res["truth_total_s"] - truth.meta["sim_wall_s"]
-    ss = np.random.SeedSequence(2005)
     t0 = time.perf_counter()
-    fixes = GpsReceiver.euro4("rtk").measure(truth, child_rng(ss, "gps"))
+    fixes = GpsReceiver.euro4("rtk").measure(truth, random_streams.generator("flight/gps", 2005))
     res["gps_s"], res["gps_fixes"] = time.perf_counter() - t0, fixes.n
     t0 = time.perf_counter()
-    lab = ImuLab.draw(child_rng(ss, "sensor_errors"))
-    rec = measure_flight(truth, lab, np.random.SeedSequence(2005, spawn_key=(11,)))
+    lab = ImuLab.draw(random_streams.generator("sensor_errors", 2005))
+    rec = measure_flight(truth, lab, random_streams.seed_sequence("flight/sensor-chain", 2005))
     res["imu_chain_s"], res["imu_channels"] = time.perf_counter() - t0, len(rec.channels)
     res["flight_end_to_end_s"] = res["truth_total_s"] + res["gps_s"] + res["imu_chain_s"]
     res["end_to_end_real_time_factor"] = res["flight_time_s"] / res["flight_end_to_end_s"]

@@ -1,11 +1,12 @@
-"""The Cessna Citation II (model 550) in MuJoCo: aerodynamics, thrust, landing gear, autopilot.
+"""The Cessna Citation II (model 550) in MuJoCo: aerodynamics, thrust, landing gear (its autopilot:
+:mod:`imurig.flights.autopilot`).
 
 MuJoCo integrates one free rigid body (``assets/citation.xml``) in a flat local-level world
 whose axes are NED at the departure point (gravity +z, constant 9.81 m/s^2). Every step the
 loop computes, from the body's state and the control inputs,
 
     aerodynamic force and moment (stability derivatives, below) + thrust  -> xfrc_applied (CG)
-    tyre forces on the three gear wheels (imurig.flights.van.TyreModel)    -> xfrc_applied (wheels)
+    tyre forces on the three gear wheels (imurig.flights.vehicle.TyreModel) -> xfrc_applied (wheels)
 
 so the short-period, phugoid, Dutch-roll, roll and spiral modes arise from the dynamics.
 The Earth terms (rotation, transport rate, Coriolis, WGS-84 normal gravity) are added to the
@@ -40,10 +41,10 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from imurig.flights.van import TyreModel
-from imurig.rigs.mujoco_rig import load_model
 
-from imurig.kernel.errors import ConfigError
+from imurig.flights.vehicle import Cmd, TyreModel, VehicleSim, Wheel, quat_to_C
+
+__all__ = ["G0", "CitationAero", "CitationSim", "Cmd", "isa_density", "modes", "wall_clock"]
 
 G0 = 9.81  # the flat world's gravity, m/s^2 (the truth uses WGS-84 normal gravity instead)
 
@@ -127,289 +128,6 @@ class CitationAero:
                 qbar * S * b * Cl, qbar * S * c * Cm, qbar * S * b * Cn)
 
 
-class State:
-    """The vehicle's state at one sample, as plain floats (fast in the per-step loop)."""
-
-    __slots__ = (
-        "C",
-        "V",
-        "alpha",
-        "beta",
-        "chi",
-        "gamma",
-        "gs",
-        "h",
-        "p",
-        "pD",
-        "pE",
-        "pN",
-        "phi",
-        "psi",
-        "q",
-        "r",
-        "t",
-        "theta",
-        "u",
-        "v",
-        "vD",
-        "vE",
-        "vN",
-        "w",
-    )
-
-
-@dataclass
-class Cmd:
-    """Control inputs: elevator, aileron, rudder (rad), throttle (0-1), nose-wheel steering (rad),
-    brake (0-1), flaps (0-1, fraction of take-off flap)."""
-
-    de: float = 0.0
-    da: float = 0.0
-    dr: float = 0.0
-    thr: float = 0.0
-    steer: float = 0.0
-    brake: float = 0.0
-    flaps: float = 0.0
-
-
-@dataclass(frozen=True)
-class Wheel:
-    body: str
-    joint: str
-    radius_m: float
-    tyre: TyreModel
-    steered: bool = False
-    driven: bool = False
-    braked: bool = True
-
-
-def _quat_to_C(w, x, y, z):
-    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
-
-
-class VehicleSim:
-    """A MuJoCo free body stepped at ``rate_hz`` (``substeps`` physics steps per sample), with
-    tyre forces and a vehicle-specific force callback; records the kinematics of the body
-    origin (the IMU) at every sample: position, velocity, acceleration, attitude, body rate.
-    The recorded acceleration is (v_{k+1} − v_k)/Δt: exactly what MuJoCo's semi-implicit Euler
-    step applied (its implicit strut damping makes that differ slightly from qacc), so the
-    samples obey v_{k+1} = v_k + Δt a_k to rounding."""
-
-    body_name = "vehicle"
-
-    def __init__(self, asset: str, wheels: list[Wheel], rate_hz: float = 100.0, substeps: int = 1,
-                 h0_m: float = 0.0):
-        if rate_hz <= 0 or substeps < 1:
-            raise ConfigError(f"rate_hz must be > 0 and substeps >= 1 (got {rate_hz}, {substeps})")
-        self.model = load_model(asset)
-        self.model.opt.timestep = 1.0 / (rate_hz * substeps)
-        self.data = mujoco.MjData(self.model)
-        self.rate_hz, self.substeps, self.h0_m = float(rate_hz), int(substeps), float(h0_m)
-        self.dt = 1.0 / self.rate_hz
-        self.bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, self.body_name)
-        self.wheels = []
-        for w in wheels:
-            b = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, w.body)
-            j = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, w.joint)
-            pos = self.model.body_pos[b]
-            self.wheels.append((w, b, int(self.model.jnt_qposadr[j]), int(self.model.jnt_dofadr[j]),
-                                float(self.model.jnt_stiffness[j]), float(self.model.dof_damping[self.model.jnt_dofadr[j]]),
-                                (float(pos[0]), float(pos[1]), float(pos[2] + w.radius_m))))
-        self._rows: list = []
-        self.t = 0.0
-        self.s = State()
-        self._update_state()
-
-    # ----------------------------------------------------------------- state
-    def _update_state(self):
-        d, s = self.data, self.s
-        qw, qx, qy, qz = d.qpos[3:7]
-        C = _quat_to_C(qw, qx, qy, qz)
-        s.t = self.t
-        s.pN, s.pE, s.pD = d.qpos[0:3]
-        s.vN, s.vE, s.vD = d.qvel[0:3]
-        s.p, s.q, s.r = d.qvel[3:6]
-        s.C = C
-        s.h = self.h0_m - s.pD
-        s.phi = math.atan2(C[7], C[8])
-        s.theta = -math.asin(max(-1.0, min(1.0, C[6])))
-        s.psi = math.atan2(C[3], C[0])
-        s.gs = math.hypot(s.vN, s.vE)
-        s.chi = math.atan2(s.vE, s.vN) if s.gs > 0.5 else s.psi
-        s.gamma = math.atan2(-s.vD, max(s.gs, 1e-3))
-        return s
-
-    def body_velocity(self, x, y, z):
-        """Velocity (body axes) of the body-fixed point (x, y, z)."""
-        s, C = self.s, self.s.C
-        ub = C[0] * s.vN + C[3] * s.vE + C[6] * s.vD
-        vb = C[1] * s.vN + C[4] * s.vE + C[7] * s.vD
-        wb = C[2] * s.vN + C[5] * s.vE + C[8] * s.vD
-        return ub + s.q * z - s.r * y, vb + s.r * x - s.p * z, wb + s.p * y - s.q * x
-
-    # ----------------------------------------------------------------- forces
-    def _apply_tyres(self, cmd: Cmd):
-        d, C = self.data, self.s.C
-        for w, b, qa, da_, k, c, (x, y, z) in self.wheels:
-            load = -k * d.qpos[qa] - c * d.qvel[da_]
-            if load <= 0.0:
-                d.xfrc_applied[b] = 0.0
-                continue
-            u, v, _ = self.body_velocity(x, y, z)
-            delta = cmd.steer if w.steered else 0.0
-            cd, sd = math.cos(delta), math.sin(delta)
-            fl, ft = w.tyre.force(u * cd + v * sd, -u * sd + v * cd, load,
-                                  drive_N=cmd.thr * self.drive_force_N / self.n_driven if w.driven else 0.0,
-                                  brake=cmd.brake if w.braked else 0.0)
-            fx, fy = fl * cd - ft * sd, fl * sd + ft * cd
-            FN = (C[0] * fx + C[1] * fy, C[3] * fx + C[4] * fy, C[6] * fx + C[7] * fy)
-            rr = w.radius_m
-            rc = (C[2] * rr, C[5] * rr, C[8] * rr)   # contact point below the wheel centre
-            d.xfrc_applied[b] = (FN[0], FN[1], FN[2], rc[1] * FN[2] - rc[2] * FN[1],
-                                 rc[2] * FN[0] - rc[0] * FN[2], rc[0] * FN[1] - rc[1] * FN[0])
-
-    drive_force_N = 0.0
-    n_driven = 1
-
-    def body_forces(self, cmd: Cmd):
-        """Vehicle-specific force (N) and moment (N m) about the body's CoM, body axes."""
-        return (0.0,) * 6
-
-    def step(self, cmd: Cmd):
-        """Advance one sample with the commands held; record the sample's kinematics."""
-        d, m = self.data, self.model
-        for k in range(self.substeps):
-            if k:
-                self._update_state()
-            f = self.body_forces(cmd)
-            C = self.s.C
-            d.xfrc_applied[self.bid] = (
-                C[0] * f[0] + C[1] * f[1] + C[2] * f[2], C[3] * f[0] + C[4] * f[1] + C[5] * f[2],
-                C[6] * f[0] + C[7] * f[1] + C[8] * f[2], C[0] * f[3] + C[1] * f[4] + C[2] * f[5],
-                C[3] * f[3] + C[4] * f[4] + C[5] * f[5], C[6] * f[3] + C[7] * f[4] + C[8] * f[5])
-            if self.wheels:
-                self._apply_tyres(cmd)
-            if k == 0:
-                row = np.empty(19 + 7)
-                row[0] = self.t
-                row[1:8] = d.qpos[0:7]
-                row[8:14] = d.qvel[0:6]
-            mujoco.mj_step(m, d)
-        # the acceleration the integrator applied over the sample (with implicit strut damping
-        # this differs from qacc): v_{k+1} = v_k + dt a_k holds exactly
-        row[14:20] = (d.qvel[0:6] - row[8:14]) * self.rate_hz
-        row[20:26] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake)
-        self._rows.append(row)
-        self.t += self.dt
-        self._update_state()
-
-    def settle(self, seconds: float = 3.0):
-        """Let the struts settle without recording (initial condition at rest), then zero velocities."""
-        for _ in range(int(seconds * self.rate_hz * self.substeps)):
-            self._apply_tyres(Cmd(brake=1.0))
-            mujoco.mj_step(self.model, self.data)
-            self._update_state()
-        self.data.qvel[:] = 0.0
-        self.data.time = 0.0
-        self.t = 0.0
-        self._update_state()
-
-    def kinematics(self):
-        """The recorded samples as :class:`imurig.flights.truth.BodyKinematics` plus controls."""
-        from imurig.flights.truth import BodyKinematics
-
-        a = np.array(self._rows)
-        controls = {k: a[:, 20 + i] for i, k in enumerate(("de", "da", "dr", "thr", "steer", "brake"))}
-        return BodyKinematics(time_s=a[:, 0], p_N=a[:, 1:4], q_NB=a[:, 4:8], v_N=a[:, 8:11],
-                              w_NB_B=a[:, 11:14], a_N=a[:, 14:17], wdot_NB_B=a[:, 17:20],
-                              rate_hz=self.rate_hz, controls=controls)
-
-
-@dataclass
-class AutopilotGains:
-    k_gamma: float = 1.5       # rad elevator per rad flight-path error
-    ki_gamma: float = 0.8
-    k_q: float = 0.6           # rad elevator per rad/s pitch rate
-    k_theta: float = 1.2       # pitch hold (take-off rotation)
-    k_h: float = 0.12          # 1/s, climb rate per metre of altitude error
-    gamma_max: float = 0.12
-    dn_max: float = 0.3        # incremental load factor the altitude loop may command
-    k_V: float = 0.06          # throttle per m/s
-    ki_V: float = 0.01
-    k_psi: float = 1.2         # bank per heading error
-    k_phi: float = 1.0         # roll-rate command per rad bank error
-    p_max: float = 0.26        # rad/s (15 deg/s)
-    ki_phi: float = 0.3
-    k_p: float = 0.3
-    k_r: float = 1.0           # yaw damper
-    k_beta: float = 1.5
-
-
-class Autopilot:
-    """PID loops: altitude -> flight path (rate-limited to ±dn_max g) -> elevator, airspeed -> throttle, heading -> bank ->
-    aileron, yaw damper + sideslip -> rudder. Integrators persist across phases; hand-over
-    from a held stick is bumpless (:meth:`engage_elevator`)."""
-
-    def __init__(self, aero: CitationAero, dt: float, gains: AutopilotGains | None = None):
-        self.aero, self.dt, self.g = aero, dt, gains or AutopilotGains()
-        self.i_gamma = self.i_V = self.i_phi = self.gamma_ref = 0.0
-        self.de0, self.thr0 = 0.01, 0.35
-
-    def _de_ff(self, s: State) -> float:
-        """Elevator feed-forward for the extra lift of a banked level turn."""
-        a = self.aero
-        n = 1.0 / max(math.cos(s.phi), 0.3)
-        CL1 = 2 * 6000 * G0 / (isa_density(s.h) * max(s.V, 30.0) ** 2 * a.S_m2)
-        dalpha = CL1 * (n - 1) / a.CLa
-        qturn = G0 * math.sin(s.phi) ** 2 / (max(s.V, 30.0) * max(math.cos(s.phi), 0.3))
-        return -(a.Cma * dalpha + a.Cmq * qturn * a.c_m / max(s.V, 30.0)) / a.Cmde
-
-    def elevator(self, s: State, h_c: float) -> float:
-        g = self.g
-        V = max(s.V, 30.0)
-        gamma_c = max(-g.gamma_max, min(g.gamma_max, g.k_h * (h_c - s.h) / V))
-        step = g.dn_max * G0 / V * self.dt            # flight-path rate limit = load-factor limit
-        self.gamma_ref += max(-step, min(step, gamma_c - self.gamma_ref))
-        e = self.gamma_ref - s.gamma
-        self.i_gamma = max(-0.3, min(0.3, self.i_gamma + e * self.dt))
-        return self.de0 + self._de_ff(s) - g.k_gamma * e - g.ki_gamma * self.i_gamma + g.k_q * s.q
-
-    def engage_elevator(self, s: State, h_c: float, de_now: float):
-        """Set the integrator so that :meth:`elevator` returns ``de_now`` now (bumpless)."""
-        self.i_gamma = 0.0
-        self.gamma_ref = s.gamma
-        de0 = self.elevator(s, h_c)
-        self.i_gamma = (de0 - de_now) / self.g.ki_gamma
-
-    def pitch(self, s: State, theta_c: float) -> float:
-        return self.de0 + self.g.k_theta * (s.theta - theta_c) + self.g.k_q * s.q
-
-    def throttle(self, s: State, V_c: float) -> float:
-        e = V_c - s.V
-        self.i_V = max(-30.0, min(30.0, self.i_V + e * self.dt))
-        return max(0.0, min(1.0, self.thr0 + self.g.k_V * e + self.g.ki_V * self.i_V))
-
-    def bank_for_heading(self, s: State, psi_c: float, phi_max: float) -> float:
-        e = (psi_c - s.psi + math.pi) % (2 * math.pi) - math.pi
-        return max(-phi_max, min(phi_max, self.g.k_psi * e))
-
-    def lateral(self, s: State, phi_c: float) -> tuple[float, float]:
-        """Bank hold through a roll-rate command limited to ``p_max`` (aileron feed-forward from
-        C_lp/C_lδa), yaw damper and sideslip feedback on the rudder."""
-        g, a = self.g, self.aero
-        e = phi_c - s.phi
-        if abs(e) < 0.1:   # conditional integration: no wind-up during large bank changes
-            self.i_phi = max(-0.2, min(0.2, self.i_phi + e * self.dt))
-        p_c = max(-g.p_max, min(g.p_max, g.k_phi * e))
-        V = max(s.V, 30.0)
-        da = -a.Clp / a.Clda * a.b_m / (2 * V) * p_c + g.k_p * (p_c - s.p) + g.ki_phi * self.i_phi
-        r_c = G0 * math.sin(s.phi) * math.cos(s.theta) / V
-        dr = g.k_r * (s.r - r_c) - g.k_beta * s.beta
-        return da, dr
-
-
 class CitationSim(VehicleSim):
     """The Citation: aerodynamics + thrust + gear, actuator and engine lags."""
 
@@ -477,7 +195,7 @@ class CitationSim(VehicleSim):
             d.qpos[qa] = float(self.model.body_mass[b]) * G0 / k
         cg = np.array(a.r_cg_B_m)
         w_B = np.asarray(w_B, float)
-        Cnb = np.array(_quat_to_C(*q)).reshape(3, 3)
+        Cnb = np.array(quat_to_C(*q)).reshape(3, 3)
         ub = math.sqrt(max(V * V - v_side * v_side, 0.0))
         v_cg_B = np.array([ub * math.cos(alpha), v_side, ub * math.sin(alpha)])
         d.qvel[0:3] = Cnb @ (v_cg_B - np.cross(w_B, cg))

@@ -1,46 +1,18 @@
-"""Tyre forces for wheeled contact (the van and the Citation's landing gear), and the van.
-
-Tyre model (per wheel, horizontal body axes, SI):
-
-    alpha  = atan2(v_lat, max(|v_long|, v_min))                  [rad]  slip angle (regularised)
-    F_lat  = -mu N tanh(C_alpha alpha / (mu N))                  [N]    saturating cornering force
-    F_long = F_drive - (b mu + c_rr) N tanh(v_long / v_stick)    [N]    brake fraction b, rolling resistance
-
-v_long, v_lat: the contact point's velocity along / across the wheel (steered by delta).
-N: the wheel load, from the sprung strut (stiffness k, damping c, deflection q < 0 when
-compressed): N = max(0, -k q - c dq/dt). The wheels themselves are frictionless spheres in
-MuJoCo (condim 1): MuJoCo carries the vertical contact, these forces carry the rest, so
-steering, drive and braking are real control inputs and pitch/roll arise from the struts.
+"""The van of the paper's ground test (section 4.3): its MuJoCo model on four sprung wheels with
+tyre forces (:mod:`imurig.flights.vehicle`), the test's phases, and a driver.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import time
+from dataclasses import asdict, dataclass, field
 
+import mujoco
 
-@dataclass(frozen=True)
-class TyreModel:
-    """Linear-then-saturating tyre (parameters in SI)."""
+from imurig.flights.truth import cabin_temperature_K, truth_from_kinematics
+from imurig.flights.vehicle import Cmd, TyreModel, VehicleSim, Wheel
+from imurig.kernel.errors import ConfigError
 
-    cornering_stiffness_N_per_rad: float = 60_000.0
-    mu: float = 0.8
-    rolling_resistance: float = 0.015
-    v_min_m_s: float = 3.0
-    v_stick_m_s: float = 0.3
-
-    def force(self, v_long: float, v_lat: float, load_N: float, drive_N: float = 0.0,
-              brake: float = 0.0) -> tuple[float, float]:
-        """(F_long, F_lat) N on the vehicle, in the wheel's axes."""
-        if load_N <= 0.0:
-            return 0.0, 0.0
-        fmax = self.mu * load_N
-        alpha = math.atan2(v_lat, max(abs(v_long), self.v_min_m_s))
-        f_lat = -fmax * math.tanh(self.cornering_stiffness_N_per_rad * alpha / fmax)
-        f_long = drive_N - (brake * self.mu + self.rolling_resistance) * load_N * math.tanh(v_long / self.v_stick_m_s)
-        return f_long, f_lat
-
-
-# ------------------------------------------------------------------------------------ the van
 VAN_ORIGIN = (52.0, 4.38, 45.0)        # an open field near Delft; lat, lon deg, ellipsoidal height m
 WHEELBASE_M = 3.0
 
@@ -98,8 +70,6 @@ class VanPlan:
     rate_hz: float = 100.0
 
     def validate(self) -> VanPlan:
-        from imurig.kernel.errors import ConfigError
-
         for p in self.phases:
             if isinstance(p, VanCircle):
                 rmin = WHEELBASE_M / math.tan(0.6)
@@ -118,67 +88,61 @@ class VanPlan:
         return self
 
     def to_dict(self) -> dict:
-        from dataclasses import asdict
-
         return {"origin": list(self.origin), "heading_deg": self.heading_deg, "start_time": self.start_time,
                 "rate_hz": self.rate_hz, "phases": [{"kind": type(p).__name__, **asdict(p)} for p in self.phases]}
 
 
-def _van_sim_class():
-    from imurig.flights.aircraft import Cmd, VehicleSim, Wheel
+class VanSim(VehicleSim):
+    """The van: four sprung wheels with tyre forces, rear-wheel drive, brakes on all wheels,
+    front-wheel steering; a parking hold (wheel chocks: a stiff spring to the parked spot)."""
 
-    class VanSim(VehicleSim):
-        """The van: four sprung wheels with tyre forces, rear-wheel drive, brakes on all wheels,
-        front-wheel steering; a parking hold (wheel chocks: a stiff spring to the parked spot)."""
+    body_name = "van"
+    drive_force_N = 8000.0
+    n_driven = 2
 
-        body_name = "van"
-        drive_force_N = 8000.0
-        n_driven = 2
+    def __init__(self, rate_hz=100.0, substeps=1):
+        tyre = TyreModel(cornering_stiffness_N_per_rad=60_000.0, mu=0.9, rolling_resistance=0.012)
+        wheels = [Wheel("wheel_fl", "strut_fl", 0.33, tyre, steered=True),
+                  Wheel("wheel_fr", "strut_fr", 0.33, tyre, steered=True),
+                  Wheel("wheel_rl", "strut_rl", 0.33, tyre, driven=True),
+                  Wheel("wheel_rr", "strut_rr", 0.33, tyre, driven=True)]
+        self.hold = None
+        super().__init__("van.xml", wheels, rate_hz, substeps, 0.0)
 
-        def __init__(self, rate_hz=100.0, substeps=1):
-            tyre = TyreModel(cornering_stiffness_N_per_rad=60_000.0, mu=0.9, rolling_resistance=0.012)
-            wheels = [Wheel("wheel_fl", "strut_fl", 0.33, tyre, steered=True),
-                      Wheel("wheel_fr", "strut_fr", 0.33, tyre, steered=True),
-                      Wheel("wheel_rl", "strut_rl", 0.33, tyre, driven=True),
-                      Wheel("wheel_rr", "strut_rr", 0.33, tyre, driven=True)]
-            self.hold = None
-            super().__init__("van.xml", wheels, rate_hz, substeps, 0.0)
+    def body_forces(self, cmd):
+        if self.hold is None:
+            return (0.0,) * 6
+        s, C = self.s, self.s.C
+        k, c = 2500.0 * 100.0, 2500.0 * 10.0       # 10 rad/s chocks (brakes add damping), horizontal
+        fN = (-k * (s.pN - self.hold[0]) - c * s.vN, -k * (s.pE - self.hold[1]) - c * s.vE, 0.0)
+        fB = tuple(C[i] * fN[0] + C[3 + i] * fN[1] for i in range(3))
+        return (*fB, 0.0, 0.0, 0.0)
 
-        def body_forces(self, cmd):
-            if self.hold is None:
-                return (0.0,) * 6
-            s, C = self.s, self.s.C
-            k, c = 2500.0 * 100.0, 2500.0 * 10.0       # 10 rad/s chocks (brakes add damping), horizontal
-            fN = (-k * (s.pN - self.hold[0]) - c * s.vN, -k * (s.pE - self.hold[1]) - c * s.vE, 0.0)
-            fB = tuple(C[i] * fN[0] + C[3 + i] * fN[1] for i in range(3))
-            return (*fB, 0.0, 0.0, 0.0)
-
-        def place_ramp(self, angle_rad, distance_m):
-            """Put the ramp's foot ``distance_m`` ahead of the van, rising along its heading."""
-            import mujoco
-
-            m, s, d = self.model, self.s, self.data
-            gid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "ramp")
-            bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "ramp_body")
-            mid_ = int(m.body_mocapid[bid])
-            L, th = 2 * m.geom_size[gid][0], 0.1
-            cp, sp = math.cos(s.psi), math.sin(s.psi)
-            foot = (s.pN + cp * distance_m, s.pE + sp * distance_m)
-            mid = L / 2 * math.cos(angle_rad)
-            d.mocap_pos[mid_] = (foot[0] + cp * (mid + th * math.sin(angle_rad)),
-                                 foot[1] + sp * (mid + th * math.sin(angle_rad)),
-                                 -L / 2 * math.sin(angle_rad) + th * math.cos(angle_rad) + 0.03)  # foot 3 cm sunk
-            # yaw psi, then pitch up by the ramp angle about the rotated y axis (box x rises)
-            cy, sy = math.cos(s.psi / 2), math.sin(s.psi / 2)
-            ca, sa = math.cos(angle_rad / 2), math.sin(angle_rad / 2)
-            d.mocap_quat[mid_] = (cy * ca, -sy * sa, cy * sa, sy * ca)
-
-    return VanSim, Cmd
+    def place_ramp(self, angle_rad, distance_m):
+        """Put the ramp's foot ``distance_m`` ahead of the van, rising along its heading."""
+        m, s, d = self.model, self.s, self.data
+        gid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "ramp")
+        bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "ramp_body")
+        mid_ = int(m.body_mocapid[bid])
+        L, th = 2 * m.geom_size[gid][0], 0.1
+        cp, sp = math.cos(s.psi), math.sin(s.psi)
+        foot = (s.pN + cp * distance_m, s.pE + sp * distance_m)
+        mid = L / 2 * math.cos(angle_rad)
+        d.mocap_pos[mid_] = (foot[0] + cp * (mid + th * math.sin(angle_rad)),
+                             foot[1] + sp * (mid + th * math.sin(angle_rad)),
+                             -L / 2 * math.sin(angle_rad) + th * math.cos(angle_rad) + 0.03)  # foot 3 cm sunk
+        # yaw psi, then pitch up by the ramp angle about the rotated y axis (box x rises)
+        cy, sy = math.cos(s.psi / 2), math.sin(s.psi / 2)
+        ca, sa = math.cos(angle_rad / 2), math.sin(angle_rad / 2)
+        d.mocap_quat[mid_] = (cy * ca, -sy * sa, cy * sa, sy * ca)
 
 
 class _Driver:
-    def __init__(self, sim, Cmd):
-        self.sim, self.Cmd = sim, Cmd
+    """The van's driver: speed and heading held by simple loops, the wheel turned at a limited rate,
+    each phase turned into commands sample by sample."""
+
+    def __init__(self, sim):
+        self.sim = sim
         self.i_v = 0.0
         self.delta = 0.0
         self.psi_hold = sim.s.psi
@@ -208,7 +172,7 @@ class _Driver:
             yield cmd
 
     def _run(self, p):
-        sim, Cmd, fs = self.sim, self.Cmd, self.sim.rate_hz
+        sim, fs = self.sim, self.sim.rate_hz
         if isinstance(p, VanParked):
             for _ in range(round(p.duration_s * fs)):
                 yield Cmd(brake=1.0)
@@ -260,18 +224,13 @@ class _Driver:
 
 def drive(plan: VanPlan | None = None, substeps: int = 1):
     """Drive the van through ``plan``; returns (BodyKinematics, phases, sites, wall_s)."""
-    import time
-
-    import mujoco
-
     plan = (plan or VanPlan()).validate()
-    VanSim, Cmd = _van_sim_class()
     t0 = time.perf_counter()
     sim = VanSim(plan.rate_hz, substeps)
     h = math.radians(plan.heading_deg)
     sim.data.qpos[3:7] = (math.cos(h / 2), 0.0, 0.0, math.sin(h / 2))
     sim.settle(3.0)
-    drv = _Driver(sim, Cmd)
+    drv = _Driver(sim)
     labels = []
     for ph in plan.phases:
         ts = sim.t
@@ -285,8 +244,6 @@ def drive(plan: VanPlan | None = None, substeps: int = 1):
 
 def simulate_van(plan: VanPlan | None = None, substeps: int = 1):
     """The van's ground test as a :class:`imurig.kernel.navdata.FlightTruth` (vehicle "van")."""
-    from imurig.flights.truth import cabin_temperature_K, truth_from_kinematics
-
     plan = plan or VanPlan()
     kin, phases, sites, wall = drive(plan, substeps)
     T = cabin_temperature_K(kin.time_s, -kin.p_N[:, 2], start_K=295.15, warm_K=4.0, lapse_K_per_m=0.0)

@@ -14,22 +14,24 @@ window mean, the filter priors take their low-frequency density):
 """
 from __future__ import annotations
 
-import zlib
 from functools import lru_cache
 
 import numpy as np
 from scipy import signal
 
+from imurig.kernel import random_streams
+
 
 def child_rng(seed_seq: np.random.SeedSequence, name: str) -> np.random.Generator:
-    """A generator for one named stage, independent of which other stages are switched on.
+    """The generator of the sensor-chain stage ``name`` (pump, people, adc, slip_<line>, ...), a
+    child of the chain's stream ``seed_seq`` in the registry (:mod:`imurig.kernel.random_streams`,
+    child ``"sensor-chain/<name>"``: spawn key = the chain's key + crc32(name)).
 
-    Derived from the campaign's SeedSequence and a stable hash of ``name``, so switching a
-    disturbance on or off never changes the noise realisation of any other stage.
+    Each stage has its own stream, so switching a disturbance on or off never changes the noise
+    realisation of any other stage. An unregistered stage name raises
+    :class:`imurig.kernel.random_streams.UnknownStreamError`.
     """
-    return np.random.default_rng(np.random.SeedSequence(entropy=seed_seq.entropy,
-                                                        spawn_key=(*seed_seq.spawn_key,
-                                                                   zlib.crc32(name.encode()))))
+    return random_streams.child_generator(seed_seq, "sensor-chain/" + name)
 
 
 def band_noise(rng: np.random.Generator, shape: tuple[int, ...], fs: float, band_hz: tuple[float, float],

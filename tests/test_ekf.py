@@ -177,12 +177,12 @@ def flight_truth():
 
 
 def _perfect_imu_real_gps(tr, seed, acc_bias_prior=1e-3):
-    """The filter as ``imurig flight`` sets it up (:func:`report.run_filter`: GPS Gauss-Markov states,
+    """The filter as ``imurig flight`` sets it up (:func:`imurig.campaigns.flight.run_filter`: GPS Gauss-Markov states,
     time-of-validity error in R, IGRF declination along the route, P0 from the alignment), fed the
     truth's own IMU samples (held over each interval) plus the white noise of the filter's IMU model,
     the magnetometer's true field, and the receiver model's fixes. The accelerometer-bias prior is
     1e-3 m/s² (the true bias is zero)."""
-    from imurig.reports import flight as R
+    from imurig.campaigns import flight as R
 
     class Opt:
         nav_rate_hz, gps_rate_hz, gps_latency_s, gps_time_sigma_s = 25.0, 1.0, 0.0, 0.0
@@ -368,11 +368,11 @@ def test_mag_iron_prior_matches_the_datasheet_draws():
 def test_alignment_covariance_is_the_levelling_error_propagation():
     """Levelling a static IMU with an accelerometer bias b and a compass heading error gives
     ψ_n = (C δf)_e/g, ψ_e = −(C δf)_n/g (δf = −δb_a = b) and ψ_d = hᵀψ − e_m: the regression of ψ
-    on the sources implied by P0 reproduces the actual alignment error of :func:`report.align`
+    on the sources implied by P0 reproduces the actual alignment error of :func:`imurig.campaigns.flight.align`
     to second order, |Δψ| < 10 (|b|/g)², and P0 is positive semi-definite."""
     from types import SimpleNamespace
 
-    from imurig.reports import flight as R
+    from imurig.campaigns import flight as R
 
     g = 9.81
     eul = (0.05, -0.03, 1.2)
@@ -408,7 +408,7 @@ def test_white_noise_model_is_the_flight_acquisitions():
     plus the same DAQ noise. The random-walk density N is measured from differences of 1-s means of
     2000 s of noise (σ_1s = N/√1 s; differences remove the FOG's slow bias instability, leaving
     <1 % of it); bound: 4 standard errors of the sample σ (√(1/2n))."""
-    from imurig.reports import flight as R
+    from imurig.campaigns import flight as R
     from imurig.flights.imu import flight_lab as acquisition
 
     lab = R.flight_lab(2005)

@@ -2,7 +2,8 @@
 import json
 
 import pytest
-from imurig.reports.flight import FlightOptions, run
+from imurig.campaigns.flight import FlightOptions
+from imurig.reports.flight import run
 
 from imurig.cli.main import main
 from imurig.kernel.errors import ConfigError, OutputExistsError
@@ -52,7 +53,7 @@ def real_chain_runs():
     import dataclasses
 
     import numpy as np
-    from imurig.reports import flight as R
+    from imurig.campaigns import flight as R
     from imurig.flights.plan import simulate_flight
 
     tr = simulate_flight(progress_bar=False)

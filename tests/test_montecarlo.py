@@ -209,7 +209,7 @@ def test_static_rig_equals_mujoco_rig_in_the_windows():
     """The closed-form rest windows equal MuJoCo's site sensors for the same drawn table (incl.
     per-position setting errors) to near machine precision."""
     from imurig.rigs.tilt_table import TiltTable
-    from imurig.sensors.noise import child_rng
+    from imurig.kernel.random_streams import child_generator
 
     from imurig.montecarlo.tilt import TILT_TABLE
     from imurig.montecarlo.tilt_rig import static_rig
@@ -220,9 +220,9 @@ def test_static_rig_equals_mujoco_rig_in_the_windows():
     ss = np.random.SeedSequence(4)
     errors, survey, _ = TILT_TABLE.draw_lab(p, ss)
     site = Site()
-    a = static_rig(p, errors, survey, child_rng(ss, "rig"), site)
+    a = static_rig(p, errors, survey, child_generator(ss, "run/rig"), site)
     full = TiltTable(errors=errors, survey=survey, site=site).simulate(TILT_TABLE.protocol(p), p["start_time"],
-                                                                       child_rng(ss, "rig"))
+                                                                       child_generator(ss, "run/rig"))
     keep = np.concatenate([np.arange(s.start, s.stop) for s in full.segment_slices()])
     np.testing.assert_allclose(a.time_s, full.time_s[keep], rtol=0, atol=1e-9)
     g = site.gravity_m_s2
@@ -258,10 +258,17 @@ def test_forward_model_matches_the_sensor():
 
 
 # ------------------------------------------------------------------ seeds, resume, reproduction
-def test_run_seed_is_the_spawned_child():
-    kids = np.random.SeedSequence(2005).spawn(50)
+def test_run_seed_is_the_registry_stream():
+    """Run i of a study draws from the registry stream "montecarlo/run" of (master seed, i): a key
+    of its own, distinct per run and from every campaign stream of the same seed."""
+    from imurig.kernel import random_streams
+
     for i in (0, 7, 49):
-        assert np.array_equal(run_seed(2005, i).generate_state(8), kids[i].generate_state(8))
+        ref = random_streams.seed_sequence("montecarlo/run", 2005, run=i)
+        assert np.array_equal(run_seed(2005, i).generate_state(8), ref.generate_state(8))
+    keys = {run_seed(2005, i).spawn_key for i in range(50)}
+    keys |= {random_streams.key(n) for n in random_streams.STREAMS if n not in random_streams.RUN_INDEXED}
+    assert len(keys) == 50 + len(random_streams.STREAMS) - len(random_streams.RUN_INDEXED)
 
 
 def test_killed_study_resumes_to_the_uninterrupted_result(client, tmp_path):
@@ -408,7 +415,7 @@ class _DiesOnce(LinearCampaign):
         self.marker = str(marker)
 
     def run(self, p, ss, distributions, estimator=None):
-        if ss.spawn_key == (1,) and not os.path.exists(self.marker):
+        if ss.spawn_key[-1] == 1 and not os.path.exists(self.marker):
             open(self.marker, "w").close()
             os._exit(1)
         return super().run(p, ss, distributions, estimator)
@@ -586,14 +593,14 @@ FLIGHT_SMALL = {"duration_s": 50.0, "settle_s": 20.0, "nav_rate_hz": 5.0, "resid
 def flight_parts():
     from imurig.flights.imu import measure_flight
     from imurig.sensors.chain import ImuLab
-    from imurig.sensors.noise import child_rng
+    from imurig.kernel.random_streams import child_generator
 
     from imurig.montecarlo.flight import FLIGHT, _truth_key, flight_truth
 
     p = FLIGHT.validate(FLIGHT_SMALL)
     truth = flight_truth(_truth_key(p))
     ss = np.random.SeedSequence(5)
-    lab = ImuLab.draw(child_rng(ss, "sensor_errors"))
+    lab = ImuLab.draw(child_generator(ss, "run/sensor_errors"))
     rec = measure_flight(truth, lab, np.random.SeedSequence(6))
     return p, truth, lab, rec
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from imurig.calibration.preprocess import lowpass_downsample
+from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
@@ -175,6 +176,10 @@ def _still_rig(n=3000, fs=100.0, start="2005-06-14T10:00:00+02:00"):
     ts |= {f"w_C_{a}": np.zeros(n) for a in "xyz"}
     return Recording(time_s=t, channels={}, units={}, truth_signals=ts,
                      meta={"sample_rate_hz": fs, "start_time": start})
+
+
+# a new effect with its own random stream registers it (imurig.kernel.random_streams)
+random_streams.register("sensor-chain/test_hum", "the test effect's hum phase", child=True)
 
 
 @dataclass

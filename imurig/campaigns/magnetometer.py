@@ -22,13 +22,13 @@ import numpy as np
 
 from imurig.calibration.heading import heading_from_field, wrap_pi
 from imurig.calibration.magnetometer import MagnetometerCalibration
+from imurig.kernel import random_streams
 from imurig.kernel.recording import Recording
 from imurig.rigs.mag_rig import CompassSwing, LevelCircle, MagRig, Tumble
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 from imurig.sensors.magnetometer import FluxgateTriad
-from imurig.sensors.noise import child_rng
 from imurig.kernel.site import Site
 
 Z_BOUND = 4.0
@@ -56,14 +56,14 @@ class MagnetometerCampaign:
         return asdict(self)
 
     def simulate(self) -> Recording:
-        ss = np.random.SeedSequence(self.seed)
-        mag = FluxgateTriad.from_datasheet(child_rng(ss, "magnetometer_install"), hard_iron_max_nT=self.hard_iron_max_nT,
+        install_rng = random_streams.generator("magnetometer_install", self.seed)
+        mag = FluxgateTriad.from_datasheet(install_rng, hard_iron_max_nT=self.hard_iron_max_nT,
                                            soft_iron_max=self.soft_iron_max, noise_nT_rms=self.noise_nT)
         lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
                       adc=DAQ6036E(scan_list=MAG + ("temp_box",), sample_rate_hz=100.0, averaging=10))
         rig = MagRig(site=self.site).simulate([self.circle, self.tumble, self.swing, self.validation], self.start_time,
-                                              child_rng(ss, "rig"))
-        rec = lab.measure(rig, np.random.SeedSequence(self.seed, spawn_key=(7,)))
+                                              random_streams.generator("campaign/magnetometer/rig", self.seed))
+        rec = lab.measure(rig, random_streams.seed_sequence("campaign/magnetometer/sensor-chain", self.seed))
         rec.meta["campaign"] = {"name": "magnetometer", **self.to_dict()}
         rec.meta["mag_nominal_sensitivity_V_per_T"] = (np.full(3, 4.0e4)).tolist()
         return rec

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.thermal import ThermalCalibration, branch_gap, step_table
+from imurig.kernel import random_streams
 from imurig.kernel.recording import Recording
 from imurig.rigs.thermal_chamber import ThermalChamber, ThermalProfile
 from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
@@ -19,7 +20,6 @@ from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 from imurig.sensors.gyro import FOGTriad
-from imurig.sensors.noise import child_rng
 from imurig.kernel.site import Site
 
 Z_BOUND = 4.0
@@ -46,9 +46,10 @@ class ThermalCampaign:
         return asdict(self)
 
     def build(self):
-        ss = np.random.SeedSequence(self.seed)
-        base = ImuLab.draw(child_rng(ss, "sensor_errors"))
-        rng = child_rng(ss, "gyro_thermal")
+        """Chamber and sensor chain with their (seeded) errors, and the chain's stream
+        (``campaign/thermal/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
+        base = ImuLab.draw(random_streams.generator("sensor_errors", self.seed))
+        rng = random_streams.generator("gyro_thermal", self.seed)
         # the VG941-3AM datasheet: scale factor varies 5 % over -30..+71 C; bias drifts with temperature
         gy = replace(base.gyros,
                      bias_tempco_rad_s_per_K=rng.uniform(-1, 1, 3) * self.gyro_bias_tempco_dps_per_C * np.pi / 180,
@@ -56,12 +57,13 @@ class ThermalCampaign:
         lab = replace(base, gyros=gy, adc=DAQ6036E(scan_list=THERMAL_SCAN, sample_rate_hz=self.profile.sample_rate_hz,
                                    averaging=int(round(1000 / self.profile.sample_rate_hz))),
                       pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False))
-        return ThermalChamber(site=self.site), lab, ss
+        return ThermalChamber(site=self.site), lab, random_streams.seed_sequence("campaign/thermal/sensor-chain",
+                                                                                 self.seed)
 
     def simulate(self) -> Recording:
         chamber, lab, ss = self.build()
         rig = chamber.simulate(self.profile, self.start_time)
-        rec = lab.measure(rig, np.random.SeedSequence(self.seed, spawn_key=(6,)))
+        rec = lab.measure(rig, ss)
         rec.meta["campaign"] = {"name": "thermal", **self.to_dict()}
         return rec
 

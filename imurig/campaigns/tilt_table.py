@@ -17,6 +17,7 @@ from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
+from imurig.kernel import random_streams
 from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, specific_force_C
@@ -24,7 +25,6 @@ from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
-from imurig.sensors.noise import child_rng
 from imurig.kernel.site import Site
 from imurig.kernel.units import ARCSEC
 
@@ -64,22 +64,23 @@ class TiltTableCampaign:
 
     # ---------------------------------------------------------------- setup
     def build(self) -> tuple[TiltTable, ImuLab, np.random.SeedSequence]:
-        """Rig and sensor chain with their (seeded) errors."""
-        ss = np.random.SeedSequence(self.seed)
-        table_rng = child_rng(ss, "table")
+        """Rig and sensor chain with their (seeded) errors, and the chain's stream
+        (``campaign/tilt-table/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
+        table_rng = random_streams.generator("table", self.seed)
         errors = (TiltTableErrors.draw(table_rng, self.protocol.runs) if self.draw_table_errors
                   else TiltTableErrors(phi_zero_rad={r: 0.0 for r in self.protocol.runs}, theta_zero_rad=0.0,
                                        level_x_rad=0.0))
-        survey = TableSurvey.measure(errors, child_rng(ss, "survey"), self.survey_accuracy_arcsec * ARCSEC)
+        survey = TableSurvey.measure(errors, random_streams.generator("survey", self.seed),
+                                     self.survey_accuracy_arcsec * ARCSEC)
         table = TiltTable(errors=errors, survey=survey, site=self.site)
-        sensor_rng = child_rng(ss, "sensor_errors")
+        sensor_rng = random_streams.generator("sensor_errors", self.seed)
         base = ImuLab.draw(sensor_rng) if self.draw_sensor_errors else ImuLab()
         lab = replace(base,
                       adc=DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,
                                    grounding=self.grounding, crosstalk_enabled=self.crosstalk),
                       pump=PumpVibration(enabled=self.pump), people=PeopleTransients(enabled=self.people),
                       cable=LooseCable(enabled=self.loose_cable), effects=tuple(self.lab_effects))
-        return table, lab, ss
+        return table, lab, random_streams.seed_sequence("campaign/tilt-table/sensor-chain", self.seed)
 
     def check_identifiable(self) -> None:
         """Refuse a protocol whose positions cannot separate the model's terms (before simulating)."""
@@ -108,8 +109,9 @@ class TiltTableCampaign:
         """Simulate the campaign: 1 kHz Recording with truth."""
         self.check_identifiable()
         table, lab, ss = self.build()
-        rig = table.simulate(self.protocol, self.start_time, child_rng(ss, "rig"))
-        rec = lab.measure(rig, np.random.SeedSequence(self.seed, spawn_key=(1,)))
+        rig = table.simulate(self.protocol, self.start_time,
+                             random_streams.generator("campaign/tilt-table/rig", self.seed))
+        rec = lab.measure(rig, ss)
         rec.meta["campaign"] = {"name": "tilt-table", **self.to_dict()}
         rec.truth["seed"] = self.seed
         return rec

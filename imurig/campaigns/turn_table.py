@@ -23,6 +23,7 @@ from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.simona import MANUFACTURER_SENSITIVITY_V_PER_RAD_S
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.gls import delta_cov
+from imurig.kernel import random_streams
 from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
 from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
@@ -30,7 +31,6 @@ from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import TURN_TABLE_SCAN, ImuLab
 from imurig.sensors.disturbances import SlipRingNoise
 from imurig.sensors.gyro import FOGTriad
-from imurig.sensors.noise import child_rng
 from imurig.sensors.voltmeter import AutoscaleVoltmeter
 from imurig.kernel.site import Site
 from imurig.kernel.units import DEG
@@ -59,11 +59,13 @@ class TurnTableCampaign:
         return asdict(self)
 
     def build(self) -> tuple[TurnTable, ImuLab, np.random.SeedSequence]:
-        ss = np.random.SeedSequence(self.seed)
+        """Rig and sensor chain with their (seeded) errors, and the chain's stream
+        (``campaign/turn-table/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
         table = TurnTable(errors=TurnTableErrors(mains_hz=self.mains_hz), site=self.site)
-        base = ImuLab.draw(child_rng(ss, "sensor_errors")) if self.draw_sensor_errors else ImuLab()
+        base = (ImuLab.draw(random_streams.generator("sensor_errors", self.seed)) if self.draw_sensor_errors
+                else ImuLab())
         lab = replace(base, adc=DAQ6036E(scan_list=TURN_TABLE_SCAN), slip_rings=SlipRingNoise(enabled=self.slip_rings))
-        return table, lab, ss
+        return table, lab, random_streams.seed_sequence("campaign/turn-table/sensor-chain", self.seed)
 
     def check_identifiable(self) -> None:
         """Refuse a schedule that cannot identify the model (before simulating)."""
@@ -99,8 +101,9 @@ class TurnTableCampaign:
         else:
             self.protocol.validate()
         table, lab, ss = self.build()
-        rig = table.simulate(self.protocol, self.start_time, child_rng(ss, "rig"))
-        rec = lab.measure(rig, np.random.SeedSequence(self.seed, spawn_key=(2,)))
+        rig = table.simulate(self.protocol, self.start_time,
+                             random_streams.generator("campaign/turn-table/rig", self.seed))
+        rec = lab.measure(rig, ss)
         rec.meta["campaign"] = {"name": "turn-table", **self.to_dict()}
         rec.truth["seed"] = self.seed
         return rec
@@ -130,9 +133,9 @@ def timer_study(seed: int = 2005, rates_dps=TIMER_STUDY_RATES_DPS, start_time="2
                              seed=seed, start_time=start_time, model="linear")
     # a single axis on the table: fit the r gyro alone, Omega = b0 + b1 V_r + b2 V_r^2 (the
     # square takes up the gyro's nonlinearity, so the residuals show the timers)
-    table, lab, ss = camp.build()
-    rig = table.simulate(camp.protocol, start_time, child_rng(ss, "rig"))
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(3,)))
+    table, lab, _ = camp.build()
+    rig = table.simulate(camp.protocol, start_time, random_streams.generator("campaign/timer-study/rig", seed))
+    rec = lab.measure(rig, random_streams.seed_sequence("campaign/timer-study/sensor-chain", seed))
     out = {"rates_dial_dps": list(rates_dps), "timers": {}}
     true = np.array(rec.truth["rig"]["true_mean_rate_dps"])
     for tm in TIMERS:
@@ -182,9 +185,9 @@ def arm_study(seed: int = 2005, g_levels=(0.5, 1, 1.5, 2, 2.5, 3, 3.5, 4), radiu
     camp = TurnTableCampaign(protocol=TurnTableProtocol(dial_rates_dps=dial, directions=(1, -1), mounts=("r_up",),
                                                         radius_m=radius_m, min_window_s=10.0),
                              seed=seed, start_time=start_time, model="linear")
-    table, lab, ss = camp.build()
-    rig = table.simulate(camp.protocol, start_time, child_rng(ss, "rig"))
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(4,)))
+    table, lab, _ = camp.build()
+    rig = table.simulate(camp.protocol, start_time, random_streams.generator("campaign/arm-study/rig", seed))
+    rec = lab.measure(rig, random_streams.seed_sequence("campaign/arm-study/sensor-chain", seed))
     rw, rate = round_windows(rec, "hp6700")
     R = rec.meta["arm_radius_m"]
     sR = rec.meta["arm_radius_sigma_m"]
@@ -254,8 +257,7 @@ def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Record
     """Run the SIMONA experiment on the virtual C181 and return a row-level Recording in the
     format of :func:`imurig.calibration.simona.read_simona` (first row: table at rest)."""
     s = setup or SimonaSetup()
-    ss = np.random.SeedSequence(seed, spawn_key=(5,))
-    rng = np.random.default_rng(ss)
+    rng = random_streams.generator("campaign/simona/lab", seed)
     table = TurnTable(errors=s.table)
     proto = TurnTableProtocol(dial_rates_dps=tuple(s.dial_dps), directions=(-1,), mounts=("r_down",),
                               min_window_s=1.0, sample_rate_hz=s.sample_rate_hz)

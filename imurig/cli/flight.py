@@ -24,12 +24,15 @@ def add_flight_parser(sub) -> None:
 
 
 def _run(args) -> int:
-    from imurig.reports.flight import FlightOptions, run
+    # lazy: the study (MuJoCo, the filter) and the report (matplotlib, rerun) load only for this command
+    from imurig.campaigns.flight import FlightOptions, fly
+    from imurig.reports.flight import open_folder, write_report
 
     opt = FlightOptions(flight=args.flight, seed=args.seed, duration_s=args.duration, nav_rate_hz=args.nav_rate,
                         gps_rate_hz=args.gps_rate, quick_calibration=not args.full_calibration,
-                        mag_iron_states=args.compass_model == "iron")
-    s = run(args.out, opt, overwrite=args.overwrite)
+                        mag_iron_states=args.compass_model == "iron").validate()
+    with open_folder(args.out, overwrite=args.overwrite) as folder:   # refuses an existing --out before flying
+        s = write_report(folder, fly(opt))
     u, c = s["runs"]["uncalibrated"], s["runs"]["calibrated"]
     print(f"wrote {args.out}: heading RMS {u['heading_rms_deg']:.3f} -> {c['heading_rms_deg']:.3f} deg, "
           f"roll {u['roll_rms_deg']:.4f} -> {c['roll_rms_deg']:.4f} deg, pitch {u['pitch_rms_deg']:.4f} -> "

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from imurig.kernel import random_streams
 from imurig.campaigns.magnetometer import MAG as MAGC
 from imurig.campaigns.magnetometer import MagnetometerCampaign
 from imurig.diagnose.magnetometer import PAIRS
@@ -32,7 +33,6 @@ from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
 from imurig.sensors.effects import ChainContext, LocalFieldAnomaly, MagTimeDelay, by_name
 from imurig.sensors.magnetometer import FluxgateTriad
-from imurig.sensors.noise import child_rng
 
 
 # ---------------------------------------------------------------------------------------------
@@ -78,8 +78,8 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
     The metadata carry the IGRF field (what a lab writes down); the truth carries the anomaly
     and the IGRF field it was added to."""
     camp = MagnetometerCampaign(seed=seed)
-    ss = np.random.SeedSequence(seed)
-    mag = FluxgateTriad.from_datasheet(child_rng(ss, "magnetometer_install"), hard_iron_max_nT=camp.hard_iron_max_nT,
+    mag = FluxgateTriad.from_datasheet(random_streams.generator("magnetometer_install", seed),
+                                       hard_iron_max_nT=camp.hard_iron_max_nT,
                                        soft_iron_max=camp.soft_iron_max, noise_nT_rms=camp.noise_nT)
     if magnetometer is not None:
         mag = magnetometer(mag) if callable(magnetometer) else magnetometer
@@ -103,7 +103,7 @@ def magnetometer_recording(seed: int, magnetometer=None, anomaly_W_T=None, tempc
             for b in rig.blocks():  # the field the sensor puts out at t is the field at t - tau
                 x[b] = delay.inject(x[b], ChainContext(time_s=rig.time_s[b], sample_rate_hz=rig.sample_rate_hz))
         truth_extra["delay_s"] = float(delay_s)
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(7,)))
+    rec = lab.measure(rig, random_streams.seed_sequence("campaign/magnetometer/sensor-chain", seed))
     for c in AXES:
         rec.truth_signals[f"B_C_{c}"] = B_true[c]
     site_igrf = Site.from_dict(camp.site.to_dict())

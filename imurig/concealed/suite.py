@@ -32,8 +32,8 @@ from imurig.rigs.turn_table import TurnTableErrors, TurnTableProtocol
 from imurig.sensors.effects import (AdcCrosstalk, AxisMisalignment, EarthRateLeftOut, GSensitivity, InstrumentRangeChange,
                                    ScaleNonlinearity, SlipRingNoise, TimerQuantisation, recording_truth)
 from imurig.sensors.gyro import FOGTriad
-from imurig.sensors.noise import child_rng
 from imurig.sensors.voltmeter import AutoscaleVoltmeter
+from imurig.kernel import random_streams
 
 DEG_PER_H_PER_G = math.radians(1.0) / 3600.0 / 9.80665   # 1 deg/h per g in (rad/s)/(m/s^2)
 
@@ -89,8 +89,8 @@ def _turn(seed, g_sensitivity=0.0, slip_rings=False, slip_rms_V=None, earth_frac
     gyros = replace(lab.gyros, g_sensitivity_rad_s_per_m_s2=np.diag([1.0, -1.0, 1.0]) * g_sensitivity)
     if slip_rms_V is not None:
         lab = replace(lab, slip_rings=replace(lab.slip_rings, rms_V=float(slip_rms_V)))
-    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    rec = replace(lab, gyros=gyros).measure(rig, np.random.SeedSequence(seed, spawn_key=(2,)))
+    rig = table.simulate(camp.protocol, camp.start_time, random_streams.generator("campaign/turn-table/rig", seed))
+    rec = replace(lab, gyros=gyros).measure(rig, ss)
     rec.meta["campaign"] = {"name": "turn-table", **camp.to_dict()}
     return rec
 
@@ -115,13 +115,13 @@ def _thermal(seed, bias_hysteresis=None):
     """A short thermal campaign; ``bias_hysteresis`` (m/s^2, all three accelerometers) replaces the
     drawn bias hysteresis (0 removes the hysteresis, scale hysteresis included)."""
     camp = ThermalCampaign(profile=ThermalProfile(**SHORT_THERMAL), seed=seed)
-    chamber, lab, _ss = camp.build()
+    chamber, lab, ss = camp.build()
     if bias_hysteresis is not None:
         acc = replace(lab.accelerometers, bias_hysteresis_m_s2=np.full(3, float(bias_hysteresis)),
                       scale_hysteresis=lab.accelerometers.scale_hysteresis * (bias_hysteresis != 0))
         lab = replace(lab, accelerometers=acc)
     rig = chamber.simulate(camp.profile, camp.start_time)
-    rec = lab.measure(rig, np.random.SeedSequence(seed, spawn_key=(6,)))
+    rec = lab.measure(rig, ss)
     rec.meta["campaign"] = {"name": "thermal", **camp.to_dict()}
     return rec
 
@@ -258,7 +258,7 @@ def _timer(seed, q):
     varied only by the 3e-4 setting error (1.3 ms at the top rate, below q): every seed got nearly
     the same rounding errors, their variance was not q^2 / 12 (0.56-0.83 of it at q = 0.015 s on
     the informative rows), and the power curve was not monotonic in q."""
-    slip = float(np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(7,))).uniform(*TIMER_SLIP_RANGE))
+    slip = float(random_streams.generator("concealed/timer/table-slip", seed).uniform(*TIMER_SLIP_RANGE))
     rec = _simona(seed, table=TurnTableErrors(**{**TIMER_TABLE, "slip_const": slip}), stopwatch_resolution_s=q,
                   printed_round_decimals=None)
     rec.truth["timer"] = {"resolution_s": q, "sigma_T_s": q / math.sqrt(12), "table_slip_const": slip}

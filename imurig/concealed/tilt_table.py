@@ -13,13 +13,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from imurig.kernel import random_streams
 from imurig.campaigns.tilt_table import TiltTableCampaign
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.sensors.chain import LabClimate
 from imurig.sensors.effects import AdcCrosstalk, ChannelSkew, LeverArm, LooseCable, PumpVibration, TemperatureDrift
-from imurig.sensors.noise import child_rng
 
 SMALL_TILT = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
                                settle_s=1.0, slew_rate_deg_s=30.0)
@@ -47,8 +47,8 @@ def tilt_lab(seed, change_lab, protocol=SMALL_TILT, **camp_kw):
     (an effect switched on, resized or off) before the measurement."""
     camp = TiltTableCampaign(protocol=protocol, seed=seed, **camp_kw)
     table, lab, ss = camp.build()
-    rig = table.simulate(camp.protocol, camp.start_time, child_rng(ss, "rig"))
-    rec = change_lab(lab).measure(rig, np.random.SeedSequence(seed, spawn_key=(1,)))
+    rig = table.simulate(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", seed))
+    rec = change_lab(lab).measure(rig, ss)
     rec.meta["campaign"] = {"name": "tilt-table", **camp.to_dict()}
     return rec
 

@@ -1,7 +1,7 @@
 """The Monte-Carlo engine: N seeded runs of a campaign on dask.distributed, streamed to disk.
 
     study config (campaign, params, master seed, distributions)  -> study.json
-    run i: SeedSequence(master, spawn_key=(i,))  (= SeedSequence(master).spawn(N)[i])
+    run i: the registry stream "montecarlo/run" of (master, i)  (imurig.kernel.random_streams)
       -> campaign.run(params, seed, distributions, estimator)   on a Dask worker
       -> runs/run_<i>.json written atomically as soon as the run returns
     all runs -> statistics -> report(study, campaign), when given: results.h5, summary.json,
@@ -39,13 +39,14 @@ from pathlib import Path
 
 import numpy as np
 
+from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError, ImurigError, OutputExistsError
 from imurig.kernel.progress import progress
 from imurig.montecarlo import distributions as _dist
 from imurig.montecarlo import registry
 from imurig.montecarlo.stats import parameter_stats
 
-FORMAT = 1
+FORMAT = 2   # 2: run seeds from the stream registry (format 1 used SeedSequence(master, spawn_key=(i,)))
 RUN_FILE = "run_{:06d}.json"
 SCHEDULER_TIMEOUT_S = 5.0
 
@@ -56,18 +57,21 @@ class StudyInterrupted(ImurigError):
 
 # ------------------------------------------------------------------ one run
 def run_seed(master_seed: int, index: int) -> np.random.SeedSequence:
-    """The SeedSequence of run ``index``: child ``index`` of SeedSequence(master_seed).spawn(N)."""
-    return np.random.SeedSequence(int(master_seed), spawn_key=(int(index),))
+    """The SeedSequence of run ``index``: the registry stream ``montecarlo/run`` of the master seed
+    and run index (:mod:`imurig.kernel.random_streams`)."""
+    return random_streams.seed_sequence("montecarlo/run", int(master_seed), run=int(index))
 
 
 def execute_run(campaign, params: dict, distributions: dict, master_seed: int, index: int, estimator=None) -> dict:
     """Run ``index`` of a study (what a Dask worker executes). Returns a JSON-ready dict."""
     t0 = time.perf_counter()
-    out = campaign.run(params, run_seed(master_seed, index), distributions, estimator)
+    ss = run_seed(master_seed, index)
+    out = campaign.run(params, ss, distributions, estimator)
     out["info"]["wall_s"] = time.perf_counter() - t0
     out["info"]["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     out["info"]["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # of the worker, so far
-    return {"index": int(index), "seed": {"entropy": int(master_seed), "spawn_key": [int(index)]}, **out}
+    return {"index": int(index), "seed": {"entropy": int(master_seed), "spawn_key": [int(k) for k in ss.spawn_key]},
+            **out}
 
 
 def reproduce_run(campaign, index: int, master_seed: int, params: dict | None = None, distributions=None,

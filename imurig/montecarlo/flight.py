@@ -2,7 +2,9 @@
 
 One flight trajectory per study (the truth does not depend on the sensor errors; it is flown
 once per worker and cached): a short airborne plan of the Citation in MuJoCo
-(:func:`imurig.flights.plan.simulate_flight`). One run, from one SeedSequence:
+(:func:`imurig.flights.plan.simulate_flight`). One run, from its stream ``montecarlo/run``
+(:mod:`imurig.kernel.random_streams`; children ``run/sensor_errors``, ``run/sensor-chain``,
+``run/residual_<source>``, ``run/gps``):
 
     draw the IMU (ImuLab.draw: the true sensor errors, as the rig campaigns draw them)
       -> measure_flight: the flight's truth through the full sensor chain -> volts (once per run)
@@ -41,11 +43,23 @@ from functools import lru_cache
 
 import numpy as np
 
+from imurig.campaigns.flight import (
+    FlightOptions,
+    align,
+    errors,
+    flight_declination,
+    gps_error_model,
+    receiver_fixes,
+    summarise,
+)
+from imurig.flights import ekf, ins
+from imurig.flights.imu import measure_flight
+from imurig.flights.plan import AlphaDotSTurns, FlightPlan, Level, simulate_flight
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.navdata import ImuStream
+from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.montecarlo.distributions import Source
 from imurig.sensors.chain import ImuLab
-from imurig.sensors.noise import child_rng
 
 DEG = math.pi / 180
 G0 = 9.80665
@@ -139,14 +153,12 @@ class FlightMC:
 
     # ------------------------------------------------------------ one run
     def run(self, p: dict, ss: np.random.SeedSequence, distributions: dict | None = None, estimator=None) -> dict:
-        from imurig.flights.imu import measure_flight
-
         if estimator is not None:
             raise ConfigError("the flight campaign has no estimator hook (its estimator is the navigation filter)")
         t0 = time.perf_counter()
         truth = flight_truth(_truth_key(p))
-        lab = ImuLab.draw(child_rng(ss, "sensor_errors"))
-        rec = measure_flight(truth, lab, np.random.SeedSequence(entropy=ss.entropy, spawn_key=(*ss.spawn_key, 1)))
+        lab = ImuLab.draw(child_generator(ss, "run/sensor_errors"))
+        rec = measure_flight(truth, lab, child_seed_sequence(ss, "run/sensor-chain"))
         residual = draw_residuals(p["residuals"], p["sources"], ss)
         t1 = time.perf_counter()
         gps, opt = _gps(truth, p, ss)
@@ -164,10 +176,6 @@ class FlightMC:
                 "filter_runs": len(nav), "mean_nees_9dof_all": float(nav["all"].get("mean_nees_9dof", np.nan))}
         return {"rows": rows, "info": info}
 
-    # ------------------------------------------------------------ report
-    def extra_report(self, study, folder) -> dict:
-        return budget_report(study, folder)
-
 
 # -------------------------------------------------------------------- truth
 def _truth_key(p: dict) -> tuple:
@@ -176,8 +184,6 @@ def _truth_key(p: dict) -> tuple:
 
 def short_plan_phases() -> tuple:
     """~2 min airborne over the North Sea: level, S-turns at 20 and 30 deg of bank, level."""
-    from imurig.flights.plan import AlphaDotSTurns, Level
-
     return (Level(20.0, 1500.0, 120.0, name="level_in"),
             AlphaDotSTurns(banks_first_deg=(20.0, 30.0), banks_second_deg=(20.0, 30.0)),
             Level(20.0, 1500.0, 120.0, name="level_out"))
@@ -186,8 +192,6 @@ def short_plan_phases() -> tuple:
 @lru_cache(maxsize=2)
 def flight_truth(key: tuple):
     """The flight's truth, flown once per worker (MuJoCo Citation)."""
-    from imurig.flights.plan import FlightPlan, simulate_flight
-
     plan, duration, rate = key
     fp = FlightPlan(phases=short_plan_phases(), rate_hz=rate) if plan == "short" else FlightPlan(rate_hz=rate)
     tr = simulate_flight(fp, progress_bar=False)
@@ -202,7 +206,7 @@ def draw_residuals(kind: str, sources, ss: np.random.SeedSequence) -> dict:
     table = CALIBRATED if kind == "calibrated" else DATASHEET
     out = {}
     for s in sources:
-        rng = child_rng(ss, f"residual_{s}")
+        rng = child_generator(ss, f"run/residual_{s}")
         d = {}
         for k, sig in table[s].items():
             shape = (3, 3) if k == "misalignment_rad" else (() if k == "heading_rad" else (3,))
@@ -227,8 +231,6 @@ def _quad_inverse(y: np.ndarray, k2: np.ndarray) -> np.ndarray:
 def calibrated_stream(truth, rec, lab: ImuLab, residual: dict):
     """The filter's SI input: the exact inverse sensor models (module doc) with the parameters
     true + the residuals given (sources absent from ``residual`` are calibrated perfectly)."""
-    from imurig.flights import ins
-
     acc, gy, mag = lab.accelerometers, lab.gyros, lab.magnetometer
     ts = rec.truth_signals
     zero3 = np.zeros(3)
@@ -276,25 +278,14 @@ def calibrated_stream(truth, rec, lab: ImuLab, residual: dict):
 
 # -------------------------------------------------------------------- GPS and filter
 def _gps(truth, p: dict, ss: np.random.SeedSequence):
-    """The Euro4 receiver's fixes (flights.report.gps_fixes, seeded from this run)."""
-    from imurig.reports.flight import FlightOptions, gps_fixes
-
+    """The Euro4 receiver's fixes (:func:`imurig.campaigns.flight.receiver_fixes`) on this run's
+    stream ``run/gps``."""
     opt = FlightOptions(nav_rate_hz=p["nav_rate_hz"], imu_rate_hz=p["imu_rate_hz"], gps_rate_hz=p["gps_rate_hz"])
-    seed = int(child_rng(ss, "gps").integers(0, 2**62))
-    return gps_fixes(truth, opt, seed), opt
+    return receiver_fixes(truth, opt, child_generator(ss, "run/gps")), opt
 
 
 def navigate(truth, stream, gps, opt, lab: ImuLab, p: dict) -> dict:
     """LooseEKF with priors from the residuals' sigma (what a calibrated system knows); RMS errors."""
-    from imurig.flights import ekf
-    from imurig.reports.flight import (
-        align,
-        errors,
-        flight_declination,
-        gps_error_model,
-        summarise,
-    )
-
     noise = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, truth.rate_hz)
     sig = residual_sigmas(p["residuals"])
     s_ab = float(np.max(sig["acc_bias"]["bias_m_s2"]))
@@ -345,67 +336,6 @@ def budget(rows_by_run: dict, configurations: list[str]) -> dict:
                   "sources": added, "sum_of_sources": total,
                   "additivity": total / float(np.mean(d_all)) if srcs and np.mean(d_all) != 0 else None}
     return out
-
-
-def budget_report(study, folder) -> dict:
-    """The budget table (markdown), summary dict and figure of a flight study."""
-    from imurig.reports.montecarlo import _save_fig
-    from imurig.reports.common import md_table
-
-    camp = FLIGHT
-    p = camp.validate(study.config["params"])
-    cfgs = camp.configurations(p)
-    b = budget(study.rows, cfgs)
-    lines = ["\n## Navigation error budget after calibration\n",
-             (f"Residual errors after calibration: **{p['residuals']}** "
-              + ("(the rig calibrations' Monte-Carlo RMS)" if p["residuals"] == "calibrated"
-                 else "(datasheet spread: an uncalibrated IMU)")
-              + f"; flight plan {p['plan']!r}, RMS after the first {p['settle_s']:g} s; {len(study.rows)} runs. "
-              "Each cell: RMS over runs of the flight's RMS error. *added* = the mean square the source adds "
-              "on its own above the floor (no residual: sensor noise, GPS, filter), with its standard error "
-              "over runs; the sum of the sources against what all add together shows how far they are "
-              "additive.\n")]
-    for m, d in b.items():
-        u = d["unit"]
-        rows = [["floor (no calibration residual)", d["rms"]["none"], None, None, None]]
-        for s, a in d["sources"].items():
-            rows.append([s, a["rms_alone"], a["mean_square_added"], a["se"], a["share_of_all"]])
-        rows.append(["sum of the sources", None, d["sum_of_sources"], None,
-                     d["sum_of_sources"] / d["all_mean_square_added"] if d["all_mean_square_added"] else None])
-        rows.append(["all on", d["rms"]["all"], d["all_mean_square_added"], d["all_se"], 1.0])
-        lines += [f"\n### {m} ({u})\n",
-                  md_table(["configuration", f"RMS ({u})", f"mean square added ({u}²)", "SE", "share of all-on"],
-                           rows)]
-    figs = {}
-    if b:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        ms = list(b)
-        fig, axes = plt.subplots(1, len(ms), figsize=(3.0 * len(ms), 3.6), squeeze=False)
-        for ax, m in zip(axes[0], ms):
-            d = b[m]
-            names = list(d["sources"]) + ["sum", "all on"]
-            vals = [d["sources"][s]["mean_square_added"] for s in d["sources"]] + [d["sum_of_sources"],
-                                                                                 d["all_mean_square_added"]]
-            err = [d["sources"][s]["se"] or 0 for s in d["sources"]] + [0, d["all_se"] or 0]
-            y = np.arange(len(names))
-            ax.barh(y, vals, xerr=err, color=["#8fb3d9"] * len(d["sources"]) + ["#d9b38f", "#d98f8f"])
-            ax.axvline(0, color="k", lw=0.8)
-            ax.set_yticks(y, names if ax is axes[0][0] else [""] * len(names), fontsize=7)
-            ax.set_title(f"{m}\nfloor RMS {d['rms']['none']:.3g} {d['unit']}", fontsize=8)
-            ax.set_xlabel(f"mean square added ({d['unit']}²)", fontsize=7)
-            ax.tick_params(labelsize=6)
-        fig.suptitle("Flight error budget: mean square each residual source adds above the floor", fontsize=9)
-        fig.tight_layout()
-        _save_fig(fig, folder / "fig_budget.png")
-        plt.close(fig)
-        figs["budget"] = "fig_budget.png"
-        lines.append("\n![budget](fig_budget.png)\n")
-    return {"markdown": "\n".join(lines), "summary": {"budget": b, "residual_sigmas": residual_sigmas(p["residuals"])},
-            "figures": figs}
 
 
 FLIGHT = FlightMC()

@@ -4,7 +4,7 @@ written by :mod:`imurig.reports.montecarlo`.
 
 results.h5 (the project's binary format, h5py; one row per run, one column per parameter):
 
-    /run                (N,)      run index i (its seed: SeedSequence(master_seed, spawn_key=(i,)))
+    /run                (N,)      run index i (its seed: the stream "montecarlo/run" of (master_seed, i))
     /parameters         (P,)      parameter names;  attrs units (P,)
     /estimate, /std_error, /injected, /crlb, /z   (N, P) float64 (NaN where absent)
     /info/<key>         (N,)      per-run wall time, samples, ...

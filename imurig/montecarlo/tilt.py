@@ -1,6 +1,6 @@
 """The tilt-table campaign as a Monte-Carlo run (seed 4.3).
 
-One run, from one SeedSequence:
+One run, from its stream ``montecarlo/run`` (:mod:`imurig.kernel.random_streams`):
 
     draw table errors (TiltTableErrors.draw), survey them (TableSurvey.measure), draw the
     sensors (ImuLab.draw), apply user-set distributions
@@ -38,6 +38,7 @@ from imurig.campaigns.tilt_table import (
     compare_with_truth,
 )
 from imurig.kernel.errors import ConfigError, ScheduleError
+from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
 from imurig.kernel.units import ARCMIN, ARCSEC
@@ -50,7 +51,6 @@ from imurig.rigs.tilt_table import TableSurvey, TiltTable, TiltTableErrors
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
-from imurig.sensors.noise import child_rng
 
 THETA_SEED = [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0]
 PHI_12 = [float(v) for v in range(0, 360, 30)]
@@ -150,31 +150,35 @@ class TiltTableMC:
     def draw_lab(self, p: dict, ss: np.random.SeedSequence, distributions: dict | None = None):
         """Table errors, survey and sensor chain of one virtual lab, drawn from ``ss``."""
         dist = distributions or {}
-        errors = TiltTableErrors.draw(child_rng(ss, "table"), tuple(p["mounts"]))
+        errors = TiltTableErrors.draw(child_generator(ss, "run/table"), tuple(p["mounts"]))
         over = {}
         if "table.theta_zero_rad" in dist:
-            over["theta_zero_rad"] = float(draw_source(dist["table.theta_zero_rad"], child_rng(ss, "user_theta_zero")))
+            over["theta_zero_rad"] = float(draw_source(dist["table.theta_zero_rad"],
+                                                       child_generator(ss, "run/user_theta_zero")))
         if "table.level_x_rad" in dist:
-            over["level_x_rad"] = float(draw_source(dist["table.level_x_rad"], child_rng(ss, "user_level_x")))
+            over["level_x_rad"] = float(draw_source(dist["table.level_x_rad"],
+                                                    child_generator(ss, "run/user_level_x")))
         if "table.phi_zero_rad" in dist:
-            r = child_rng(ss, "user_phi_zero")
+            r = child_generator(ss, "run/user_phi_zero")
             over["phi_zero_rad"] = {m: float(draw_source(dist["table.phi_zero_rad"], r)) for m in p["mounts"]}
         errors = replace(errors, setting_resolution_rad=p["setting_resolution_arcmin"] * ARCMIN, **over)
-        survey = TableSurvey.measure(errors, child_rng(ss, "survey"), p["survey_accuracy_arcsec"] * ARCSEC)
-        lab = ImuLab.draw(child_rng(ss, "sensor_errors"))
+        survey = TableSurvey.measure(errors, child_generator(ss, "run/survey"),
+                                     p["survey_accuracy_arcsec"] * ARCSEC)
+        lab = ImuLab.draw(child_generator(ss, "run/sensor_errors"))
         acc = lab.accelerometers
         if "accelerometer.bias_m_s2" in dist:
-            acc.bias_m_s2 = draw_source(dist["accelerometer.bias_m_s2"], child_rng(ss, "user_bias"))
+            acc.bias_m_s2 = draw_source(dist["accelerometer.bias_m_s2"], child_generator(ss, "run/user_bias"))
         if "accelerometer.scale_factor_rel" in dist:
             nominal = acc.nominal_sensitivity_V_per_m_s2() / acc.load_resistor_ohm
             acc.k1_A_per_m_s2 = nominal * (1 + draw_source(dist["accelerometer.scale_factor_rel"],
-                                                           child_rng(ss, "user_scale")))
+                                                           child_generator(ss, "run/user_scale")))
         if "accelerometer.misalignment_rad" in dist:
-            M = draw_source(dist["accelerometer.misalignment_rad"], child_rng(ss, "user_misalignment"))
+            M = draw_source(dist["accelerometer.misalignment_rad"],
+                            child_generator(ss, "run/user_misalignment"))
             np.fill_diagonal(M, 0.0)
             acc.misalignment_rad = M
         if "accelerometer.k2_per_m_s2" in dist:
-            acc.k2_per_m_s2 = draw_source(dist["accelerometer.k2_per_m_s2"], child_rng(ss, "user_k2"))
+            acc.k2_per_m_s2 = draw_source(dist["accelerometer.k2_per_m_s2"], child_generator(ss, "run/user_k2"))
         averaging = round(1000 / p["sample_rate_hz"]) if p["logging"] == "averaged" else 1
         lab = replace(lab, adc=DAQ6036E(scan_list=DEFAULT_SCAN, sample_rate_hz=float(p["sample_rate_hz"]),
                                         mux_frequency_hz=p["mux_khz"] * 1e3, grounding=p["grounding"],
@@ -188,12 +192,12 @@ class TiltTableMC:
         site = Site()
         if p["rig"] == "mujoco":
             table = TiltTable(errors=errors, survey=survey, site=site)
-            rig = table.simulate(self.protocol(p), p["start_time"], child_rng(ss, "rig"))
+            rig = table.simulate(self.protocol(p), p["start_time"], child_generator(ss, "run/rig"))
             rig = keep_windows(rig)
         else:
-            rig = static_rig(p, errors, survey, child_rng(ss, "rig"), site)
+            rig = static_rig(p, errors, survey, child_generator(ss, "run/rig"), site)
         rig.meta["averaged_logging"] = p["logging"] == "averaged"
-        rec = lab.measure(rig, np.random.SeedSequence(entropy=ss.entropy, spawn_key=(*ss.spawn_key, 1)))
+        rec = lab.measure(rig, child_seed_sequence(ss, "run/sensor-chain"))
         rec.meta["campaign"] = {"name": "tilt-table (Monte-Carlo)", **p}
         return rec
 

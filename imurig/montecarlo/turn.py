@@ -1,6 +1,6 @@
 """The turn-table gyro campaign as a Monte-Carlo run (seed 4.4), and its Cramér-Rao bound.
 
-One run, from one SeedSequence:
+One run, from its stream ``montecarlo/run`` (:mod:`imurig.kernel.random_streams`):
 
     draw the sensors (ImuLab.draw, FOG triad from its datasheet), apply user-set distributions
       -> the Genisco C181 in MuJoCo (TurnTable.simulate: mains factor, slip, dial setting error,
@@ -38,6 +38,7 @@ from imurig.campaigns.turn_table import (
     gyro_parameters,
 )
 from imurig.kernel.errors import ConfigError, ScheduleError
+from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
 from imurig.kernel.units import DEG
@@ -54,7 +55,6 @@ from imurig.rigs.turn_table import (
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import TURN_TABLE_SCAN, ImuLab
 from imurig.sensors.disturbances import SlipRingNoise
-from imurig.sensors.noise import child_rng
 
 #: dial rates (deg/s) of the seed's final gyro calibration (4.4.4) and of its timer study (4.4.3)
 SEED_9_RATES = [1.0, 2.0, 4.0, 8.0, 10.0, 20.0, 40.0, 80.0, 100.0]
@@ -197,20 +197,21 @@ class TurnTableMC:
         errors = TurnTableErrors(mains_hz=p["mains_hz"])
         if "table.wobble_rad" in dist:
             errors = replace(errors, wobble_rad=float(draw_source(dist["table.wobble_rad"],
-                                                                  child_rng(ss, "user_wobble"))))
-        lab = ImuLab.draw(child_rng(ss, "sensor_errors"))
+                                                                  child_generator(ss, "run/user_wobble"))))
+        lab = ImuLab.draw(child_generator(ss, "run/sensor_errors"))
         g = lab.gyros
         if "gyro.bias_rad_s" in dist:
-            g.bias_rad_s = draw_source(dist["gyro.bias_rad_s"], child_rng(ss, "user_gyro_bias"))
+            g.bias_rad_s = draw_source(dist["gyro.bias_rad_s"], child_generator(ss, "run/user_gyro_bias"))
         if "gyro.scale_factor_rel" in dist:
-            g.scale_V_per_rad_s = g.nominal_scale_V_per_rad_s * (1 + draw_source(dist["gyro.scale_factor_rel"],
-                                                                                 child_rng(ss, "user_gyro_scale")))
+            rel = draw_source(dist["gyro.scale_factor_rel"], child_generator(ss, "run/user_gyro_scale"))
+            g.scale_V_per_rad_s = g.nominal_scale_V_per_rad_s * (1 + rel)
         if "gyro.misalignment_rad" in dist:
-            M = draw_source(dist["gyro.misalignment_rad"], child_rng(ss, "user_gyro_misalignment"))
+            M = draw_source(dist["gyro.misalignment_rad"],
+                            child_generator(ss, "run/user_gyro_misalignment"))
             np.fill_diagonal(M, 0.0)
             g.misalignment_rad = M
         if "gyro.k2_per_rad_s" in dist:
-            g.k2_per_rad_s = draw_source(dist["gyro.k2_per_rad_s"], child_rng(ss, "user_gyro_k2"))
+            g.k2_per_rad_s = draw_source(dist["gyro.k2_per_rad_s"], child_generator(ss, "run/user_gyro_k2"))
         lab = replace(lab, adc=DAQ6036E(scan_list=TURN_TABLE_SCAN, sample_rate_hz=p["sample_rate_hz"]),
                       slip_rings=SlipRingNoise(enabled=bool(p["slip_rings"])))
         return errors, lab
@@ -218,8 +219,8 @@ class TurnTableMC:
     def simulate(self, p: dict, ss: np.random.SeedSequence, distributions: dict | None = None) -> Recording:
         errors, lab = self.draw_lab(p, ss, distributions)
         table = TurnTable(errors=errors, site=Site())
-        rig = table.simulate(self.protocol(p), p["start_time"], child_rng(ss, "rig"))
-        rec = lab.measure(rig, np.random.SeedSequence(entropy=ss.entropy, spawn_key=(*ss.spawn_key, 1)))
+        rig = table.simulate(self.protocol(p), p["start_time"], child_generator(ss, "run/rig"))
+        rec = lab.measure(rig, child_seed_sequence(ss, "run/sensor-chain"))
         rec.meta["campaign"] = {"name": "turn-table (Monte-Carlo)", **p}
         return rec
 

@@ -13,6 +13,7 @@ from imurig.kernel.outputs import atomic_write, clean_json
 from imurig.montecarlo.results import atomic_text, write_results_h5
 from imurig.montecarlo.stats import error_matrix, parameter_stats, table_arrays
 from imurig.reports.common import fmt, md_table
+from imurig.reports.flight_budget import budget_report
 
 
 def save_fig(fig, path: Path) -> None:
@@ -20,7 +21,8 @@ def save_fig(fig, path: Path) -> None:
     atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=110, format="png"), overwrite=True)
 
 
-_save_fig = save_fig   # the name imurig.montecarlo.flight's budget report imports
+#: a campaign's own report section: name -> (study, folder, save_fig) -> {markdown, summary, figures}
+EXTRA_REPORTS = {"flight": budget_report}
 
 
 def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[str, str]:
@@ -129,7 +131,9 @@ def write_study_outputs(study, campaign) -> dict:
     stats = parameter_stats(study.rows)
     write_results_h5(folder / "results.h5", study)
     figs = figures(study, stats, folder) if getattr(campaign, "generic_figures", True) else {}
-    extra = campaign.extra_report(study, folder) if hasattr(campaign, "extra_report") else None
+    own = EXTRA_REPORTS.get(campaign.name)
+    extra = (own(study, folder, save_fig) if own
+             else campaign.extra_report(study, folder) if hasattr(campaign, "extra_report") else None)
     if extra:
         figs.update(extra.get("figures", {}))
     lab = campaign.lab_time(study.config["params"]) if hasattr(campaign, "lab_time") else {}
@@ -162,7 +166,7 @@ def render_report(study, stats, figs, lab, per_run, extra_md: str = "", lab_note
     ov = summary_lines(stats)
     t = study.timing or {}
     lines = [f"# Monte-Carlo study: {cfg['campaign']}, {len(study.runs)} runs\n",
-             (f"Master seed {cfg['master_seed']}; run i uses `SeedSequence({cfg['master_seed']}, spawn_key=(i,))` "
+             (f"Master seed {cfg['master_seed']}; run i uses the stream `montecarlo/run` of ({cfg['master_seed']}, i) "
              "and is reproduced alone by `imurig montecarlo ... --only-run i`. "
              f"Estimator: {cfg.get('estimator') or 'the campaign calibration'}. "
              f"User-set distributions: {', '.join(cfg['distributions']) or 'none (datasheet draws)'}.\n"),

@@ -1,6 +1,6 @@
 """Score a user's navigation filter on the project's simulated flight (issue 6 wired to issue 8).
 
-The flight is the chain the ``imurig flight`` job uses (:mod:`imurig.reports.flight`), made short:
+The flight is the chain the ``imurig flight`` job uses (:mod:`imurig.campaigns.flight`), made short:
 
     plan --MuJoCo--> FlightTruth (100 Hz at the IMU)
         -> IMU lab drawn from ``seed`` -> raw volts (Q-Flex, FOG, fluxgate, DAQ-6036E)
@@ -35,9 +35,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from imurig.campaigns import flight as study
+from imurig.flights import earth as E
+from imurig.flights import ekf
+from imurig.flights.plan import DoubleDoublet, FlightPlan, Level, simulate_flight
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.estimator import Estimator
 from imurig.kernel.navdata import GpsFixes, ImuStream
+from imurig.kernel.site import decimal_year, parse_time
 from imurig.scoring.interface import (
     EstimatesError,
     MagStream,
@@ -47,6 +52,7 @@ from imurig.scoring.interface import (
     fitted_solution,
 )
 from imurig.scoring.nav import quat_mul, rotvec_to_quat, score_navigation
+from imurig.sensors.chain import ImuLab
 
 DEG = math.pi / 180
 BLOCK_UNITS = {"position": "m", "velocity": "m/s", "attitude": "rad"}
@@ -55,23 +61,17 @@ BLOCK_UNITS = {"position": "m", "velocity": "m/s", "attitude": "rad"}
 def default_plan():
     """A short airborne flight (~84 s): 20 s level at 1500 m and 120 m/s, an elevator double
     doublet (24 s), 40 s level. Starts trimmed in the air, so alignment needs no ground phase."""
-    from imurig.flights.plan import DoubleDoublet, FlightPlan, Level
-
     return FlightPlan(phases=(Level(20.0), DoubleDoublet(), Level(40.0)))
 
 
 # ------------------------------------------------------------------------------------ frames
 def C_N0N(lat_rad, lon_rad, lat0_rad: float, lon0_rad: float) -> np.ndarray:
     """(k, 3, 3) rotation from local NED at (φ, λ) to the fixed NED N0 at (φ0, λ0)."""
-    from imurig.flights import earth as E
-
     return np.einsum("ji,kjl->kil", E.C_EN(lat0_rad, lon0_rad), E.C_EN(np.atleast_1d(lat_rad), np.atleast_1d(lon_rad)))
 
 
 def to_fixed_frame(origin, lat, lon, h, v_N=None, q_NB=None):
     """Geodetic position / local-NED velocity and attitude -> (r_N0 (k,3) m, v_N0, q_N0B)."""
-    from imurig.flights import earth as E
-
     lat0, lon0, h0 = origin
     r = E.ned_from_geodetic(lat, lon, h, lat0, lon0, h0)
     C = C_N0N(lat, lon, lat0, lon0)
@@ -82,7 +82,7 @@ def to_fixed_frame(origin, lat, lon, h, v_N=None, q_NB=None):
 
 # ------------------------------------------------------------------------------------ streams
 @dataclass
-class _Opt:   # what flights.report.gps_fixes reads and writes
+class _Opt:   # what imurig.campaigns.flight.gps_fixes reads and writes
     gps_rate_hz: float = 1.0
     gps_latency_s: float = 0.0
     gps_time_sigma_s: float = 0.0
@@ -90,8 +90,6 @@ class _Opt:   # what flights.report.gps_fixes reads and writes
 
 def simulate_truth(plan=None, duration_s: float | None = None):
     """The flight's :class:`imurig.kernel.navdata.FlightTruth`, cut to ``duration_s`` if given."""
-    from imurig.flights.plan import simulate_flight
-
     tr = simulate_flight(plan or default_plan(), progress_bar=False)
     if duration_s is not None:
         if duration_s <= 10:
@@ -111,23 +109,20 @@ def flight_streams(seed: int, duration_s: float | None = None, plan=None, *, cal
     the IMU, 100 Hz) is for scoring only and is not in the streams; ``meta`` (dict) describes the
     run (plan, seed, wall times) and is also not given to the filter.
     """
-    from imurig.reports import flight as R
-    from imurig.sensors.chain import ImuLab
-
     t0 = time.perf_counter()
     tr = truth if truth is not None else simulate_truth(plan, duration_s)
     if truth is not None and duration_s is not None:
         tr = tr.slice(tr.time_s[0], tr.time_s[0] + duration_s)
     t_sim = time.perf_counter() - t0
-    lab = R.flight_lab(seed)
-    volts = R.measure_volts(tr, lab, seed)
+    lab = study.flight_lab(seed)
+    volts = study.measure_volts(tr, lab, seed)
     opt = _Opt()
-    gps = R.gps_fixes(tr, opt, seed)           # sets opt.gps_latency_s, opt.gps_time_sigma_s
+    gps = study.gps_fixes(tr, opt, seed)           # sets opt.gps_latency_s, opt.gps_time_sigma_s
     cals = None
     if calibrated:
-        cals = R.calibrations(seed, True)
-        cals["magnetometer"] = R.mag_calibration(lab, seed)
-    st = R.imu_stream(tr, volts, lab, cals)
+        cals = study.calibrations(seed, True)
+        cals["magnetometer"] = study.mag_calibration(lab, seed)
+    st = study.imu_stream(tr, volts, lab, cals)
     origin = (float(tr.lat_rad[0]), float(tr.lon_rad[0]), float(tr.h_m[0]))
 
     valid = np.asarray(gps.valid, bool)
@@ -143,7 +138,7 @@ def flight_streams(seed: int, duration_s: float | None = None, plan=None, *, cal
         "imu_conversion": "calibrated (tilt/turn table, mag rig)" if calibrated else "datasheet nominal",
         "lever_gps_B_m": np.asarray(tr.lever_gps_B, float).tolist(),
         "lever_mag_B_m": np.asarray(tr.lever_mag_B, float).tolist(),
-        "declination_rad": float(R.flight_declination(tr)),
+        "declination_rad": float(study.flight_declination(tr)),
         "gps_time": "time of validity = logger tag − receiver latency − Δt_IMU/2; the fix is "
                     "available gps_latency_s after time_s",
         "gps_latency_s": float(opt.gps_latency_s), "gps_time_sigma_s": float(opt.gps_time_sigma_s),
@@ -169,8 +164,6 @@ def flight_streams(seed: int, duration_s: float | None = None, plan=None, *, cal
 
 
 def _noise_dict(lab, rate_hz: float) -> dict:
-    from imurig.flights import ekf
-
     n = ekf.ImuNoise.from_sensors(lab.accelerometers, lab.gyros, rate_hz)
     return {k: float(getattr(n, k)) for k in ("vrw", "arw", "gyro_bias_sigma", "gyro_bias_tau_s", "acc_bias_rw",
                                                 "temp_rw", "scale_rw")}
@@ -257,10 +250,6 @@ class ProjectEKF(Estimator):
         return self.solution_
 
     def fit(self, streams: NavStreams) -> ProjectEKF:
-        from imurig.flights import earth as E
-        from imurig.flights import ekf
-        from imurig.reports import flight as R
-
         self._clear_fitted()
         m = streams.meta
         lat0, lon0 = math.radians(m["origin_deg"][0]), math.radians(m["origin_deg"][1])
@@ -290,11 +279,9 @@ class ProjectEKF(Estimator):
         # over the default route); the stream's constant ``declination_rad`` only without a start time
         decl = m["declination_rad"]
         if m.get("start_time"):
-            from imurig.kernel.site import decimal_year, parse_time
-
             decl = ekf.IgrfDeclination(decimal_year(parse_time(m["start_time"])))
         f = ekf.LooseEKF(cfg, noise, lever_gps_B=lever, declination=decl)
-        x0 = R.align(SimpleNamespace(rate_hz=m["imu_rate_hz"], lever_gps_B=lever), imu, gps, decl)
+        x0 = study.align(SimpleNamespace(rate_hz=m["imu_rate_hz"], lever_gps_B=lever), imu, gps, decl)
         self.filter_ = f.fit(imu, gps if self.use_gps else None, x0)
         res = f.solution_
         r, v, q = to_fixed_frame(origin, res.lat_rad, res.lon_rad, res.h_m, v_N=res.v_N, q_NB=res.q_NB)

@@ -2,7 +2,7 @@
 
 This adds no engine of its own: it wraps the calibrator as the estimator of
 :func:`imurig.montecarlo.run_study` (dask.distributed; run i seeded by
-SeedSequence(master_seed, spawn_key=(i,)), every virtual lab drawn afresh), and reads the
+the stream "montecarlo/run" of (master_seed, i), every virtual lab drawn afresh), and reads the
 engine's per-parameter statistics (:mod:`imurig.montecarlo.stats`):
 
     RMS of the error over the runs against the Cramér-Rao bound (RMS / CRLB >= 1; near 1
