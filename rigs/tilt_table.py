@@ -237,6 +237,45 @@ class TiltTable:
     site: Site = field(default_factory=Site)
     azimuth_deg: float = 0.0  # heading of the base x axis, from east towards north
 
+    def _run_commands(self, base_model, runs, R_WB, cmd_nom, windows, n_pos, rng):
+        """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad with the
+        table's zero errors and each position's setting error (uniform within +-res/2, held from
+        slew end to next slew), and its initial joint position."""
+        bid_base = base_model.body("base").id
+        bid_mount = base_model.body("imu_mount").id
+        nstep = cmd_nom.shape[0]
+        pos_idx = _position_index(nstep, windows)
+        models, ctrl, qpos0, setting_err = [], [], [], {}
+        res = self.errors.setting_resolution_rad
+        for r in runs:
+            m = _copy_model(base_model)
+            m.body_quat[bid_base] = _quat_wxyz(R_WB)
+            m.body_quat[bid_mount] = _quat_wxyz(MOUNTS[r])
+            models.append(m)
+            err = rng.uniform(-res / 2, res / 2, size=(n_pos, 2)) if res > 0 else np.zeros((n_pos, 2))
+            setting_err[r] = err
+            off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
+            c = cmd_nom + off + err[pos_idx]
+            ctrl.append(c)
+            qpos0.append(c[0])
+        return models, ctrl, qpos0, setting_err
+
+    @staticmethod
+    def _segments(runs, windows, set_theta, set_phi, dt, run_span_s):
+        """One segment per position and mounting: start/stop (s), run index, set-points (rad), mounting."""
+        seg_start, seg_stop, seg_run, seg_mount = [], [], [], []
+        for i, r in enumerate(runs):
+            t0 = i * run_span_s
+            for a, b in windows:
+                seg_start.append(t0 + a * dt)
+                seg_stop.append(t0 + b * dt)
+                seg_run.append(i)
+                seg_mount.append(r)
+        segments = {"start_s": np.array(seg_start), "stop_s": np.array(seg_stop),
+                    "run": np.array(seg_run), "theta": np.tile(set_theta, len(runs)),
+                    "phi": np.tile(set_phi, len(runs)), "mount": np.array(seg_mount)}
+        return segments, {"start_s": "s", "stop_s": "s", "run": "1", "theta": "rad", "phi": "rad", "mount": ""}
+
     def simulate(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
         """Run the protocol in MuJoCo; return a Recording with set-points and truth, no sensors yet.
 
@@ -261,31 +300,14 @@ class TiltTable:
         B_W = self.site.magnetic_field_W(when)
         R_WB = rot_z(np.float64(self.azimuth_deg * DEG)) @ rot_x(np.float64(self.errors.level_x_rad))
         base_model.opt.magnetic[:] = B_W
-        bid_base = base_model.body("base").id
-        bid_mount = base_model.body("imu_mount").id
 
         nt, nphi = len(protocol.theta_deg), len(protocol.phi_deg)
         set_theta = np.repeat(np.asarray(protocol.theta_deg, float) * DEG, nphi)
         set_phi = np.tile(np.asarray(protocol.phi_deg, float) * DEG, nt)
         cmd_nom, windows = _command_profile(protocol, set_theta, set_phi, dt)
         nstep = cmd_nom.shape[0]
-        models, ctrl, qpos0, setting_err = [], [], [], {}
-        res = self.errors.setting_resolution_rad
-        for r in runs:
-            m = _copy_model(base_model)
-            m.body_quat[bid_base] = _quat_wxyz(R_WB)
-            m.body_quat[bid_mount] = _quat_wxyz(MOUNTS[r])
-            models.append(m)
-            # per-position setting errors, uniform within +-res/2, held from slew end to next slew
-            err = rng.uniform(-res / 2, res / 2, size=(set_theta.size, 2)) if res > 0 else np.zeros((set_theta.size, 2))
-            setting_err[r] = err
-            off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
-            c = cmd_nom + off
-            # apply each position's setting error over its hold (ramped in during the slew)
-            pos_idx = _position_index(nstep, windows)
-            c = c + err[pos_idx]
-            ctrl.append(c)
-            qpos0.append(c[0])
+        models, ctrl, qpos0, setting_err = self._run_commands(base_model, runs, R_WB, cmd_nom, windows,
+                                                               set_theta.size, rng)
         sd = rollout_servo(models, np.array(qpos0), np.array(ctrl), desc="tilt table (MuJoCo)")
         sl = sensor_slices(base_model)
 
@@ -300,18 +322,7 @@ class TiltTable:
         q_WC = sd[:, :, sl["q_WC"]].reshape(n_total, 4)
         w_C = w_C + rotate_to_body(q_WC, self.site.earth_rate_W())  # Earth rate, R_CW Omega_W
 
-        seg_start, seg_stop, seg_run, seg_mount = [], [], [], []
-        for i, r in enumerate(runs):
-            t0 = i * (nstep * dt + gap)
-            for a, b in windows:
-                seg_start.append(t0 + a * dt)
-                seg_stop.append(t0 + b * dt)
-                seg_run.append(i)
-                seg_mount.append(r)
-        segments = {"start_s": np.array(seg_start), "stop_s": np.array(seg_stop),
-                    "run": np.array(seg_run), "theta": np.tile(set_theta, len(runs)),
-                    "phi": np.tile(set_phi, len(runs)), "mount": np.array(seg_mount)}
-        seg_units = {"start_s": "s", "stop_s": "s", "run": "1", "theta": "rad", "phi": "rad", "mount": ""}
+        segments, seg_units = self._segments(runs, windows, set_theta, set_phi, dt, nstep * dt + gap)
         pos_idx = _position_index(nstep, windows)
         theta_set = np.tile(set_theta[pos_idx], len(runs))
         phi_set = np.tile(set_phi[pos_idx], len(runs))

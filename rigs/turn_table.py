@@ -217,6 +217,41 @@ class TurnTable:
     site: Site = field(default_factory=Site)
     radius_measurement_sigma_m: float = 1e-4  # how well the lab knows the arm radius
 
+    def _assemble(self, sd, sl, mounts, steps, profiles, windows, dt, remount_s):
+        """One record from the rollouts: mountings one after the other (remount gaps), each trimmed
+        to its length; per mounting the times, the segments (one per step), the truth f_C and w_C
+        (Earth rate added, R_CW Omega_W), the spin angle, the dial's reading and the true pulse edges."""
+        e = self.errors
+        parts_t, seg = [], {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
+        truth = {k: [] for k in ("f_C", "w_C")}
+        angle, dial_cmd, pulse_true = [], [], []
+        t0 = 0.0
+        for b, m in enumerate(mounts):
+            n = profiles[b].size
+            t = t0 + np.arange(n) * dt
+            parts_t.append(t)
+            q = sd[b, :n, sl["q_WC"]]
+            truth["f_C"].append(sd[b, :n, sl["f_C"]])
+            truth["w_C"].append(sd[b, :n, sl["w_C"]] + rotate_to_body(q, self.site.earth_rate_W()))
+            ang = sd[b, :n, sl["spin_angle"]][:, 0]
+            angle.append(ang)
+            pulse_true.append(rising_edges(ang, t, e.pulse_width_rad))
+            st = [s for s in steps if s.mount == m]
+            dial = np.zeros(n)
+            for s, (a, z) in zip(st, windows[b]):
+                seg["start_s"].append(t0 + a * dt)
+                seg["stop_s"].append(t0 + z * dt)
+                seg["run"].append(b)
+                seg["rate_dial"].append(s.dial_dps * DEG)
+                seg["mount"].append(m)
+            # the dial shows the setting from the start of each ramp to the next
+            starts = [0] + [z for _, z in windows[b][:-1]]
+            for s, a in zip(st, starts):
+                dial[a:] = s.dial_dps * DEG
+            dial_cmd.append(dial)
+            t0 = t[-1] + dt + remount_s
+        return parts_t, seg, truth, angle, dial_cmd, pulse_true
+
     def simulate(self, protocol: TurnTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
         """Run the schedule; Recording with set-points, the index-pulse line, true events and truth.
 
@@ -263,34 +298,8 @@ class TurnTable:
         sl = sensor_slices(base)
 
         # one record: mountings one after the other (remount gaps), each trimmed to its length
-        parts_t, seg = [], {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
-        truth = {k: [] for k in ("f_C", "w_C")}
-        angle, dial_cmd, pulse_true = [], [], []
-        t0 = 0.0
-        for b, m in enumerate(mounts):
-            n = profiles[b].size
-            t = t0 + np.arange(n) * dt
-            parts_t.append(t)
-            q = sd[b, :n, sl["q_WC"]]
-            truth["f_C"].append(sd[b, :n, sl["f_C"]])
-            truth["w_C"].append(sd[b, :n, sl["w_C"]] + rotate_to_body(q, self.site.earth_rate_W()))
-            ang = sd[b, :n, sl["spin_angle"]][:, 0]
-            angle.append(ang)
-            pulse_true.append(rising_edges(ang, t, e.pulse_width_rad))
-            st = [s for s in steps if s.mount == m]
-            dial = np.zeros(n)
-            for s, (a, z) in zip(st, windows[b]):
-                seg["start_s"].append(t0 + a * dt)
-                seg["stop_s"].append(t0 + z * dt)
-                seg["run"].append(b)
-                seg["rate_dial"].append(s.dial_dps * DEG)
-                seg["mount"].append(m)
-            # the dial shows the setting from the start of each ramp to the next
-            starts = [0] + [z for _, z in windows[b][:-1]]
-            for s, a in zip(st, starts):
-                dial[a:] = s.dial_dps * DEG
-            dial_cmd.append(dial)
-            t0 = t[-1] + dt + protocol.remount_s
+        parts_t, seg, truth, angle, dial_cmd, pulse_true = self._assemble(sd, sl, mounts, steps, profiles, windows,
+                                                                         dt, protocol.remount_s)
         time_s = np.concatenate(parts_t)
         spin = np.concatenate(angle)
         wrapped = np.mod(spin, 2 * np.pi)
