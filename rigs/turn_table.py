@@ -321,7 +321,7 @@ class TurnTable:
                 "arm_radius_m": radius_known, "arm_radius_sigma_m": self.radius_measurement_sigma_m,
                 "pulse_threshold_V": 0.5 * e.pulse_high_V,
                 "frames": "W: local level ENU; C: IMU case (site 'imu'); rates and specific force in C"}
-        truth_d = {"rig": {"turn_table": e.to_dict(), "site": self.site.to_dict(),
+        truth_d = {"rig": {"turn_table": e.to_dict(),
                            "dial_setting_error": {m: set_err[m].tolist() for m in mounts},
                            "arm_radius_m": protocol.radius_m,
                            "true_mean_rate_dps": [float(e.true_rate_dps(s.dial_dps, set_err[s.mount][i]))

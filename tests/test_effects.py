@@ -455,7 +455,7 @@ def test_g_sensitivity_in_the_gyro_model_and_its_truth_map():
 def test_earth_rate_truth_map_is_the_sites_vertical_rate():
     for lat in (0.0, 30.0, 52.0, 80.0):
         site = Site(latitude_deg=lat)
-        truth = {"rig": {"site": site.to_dict()}}
+        truth = {"conditions": {"site": site.to_dict()}}
         assert EarthRateLeftOut().fitted(truth)["Omega_vertical"] == pytest.approx(site.earth_rate_W()[2],
                                                                                    rel=1e-15, abs=1e-25)
     e = np.array([1.0, 0.0, -1.0])

@@ -212,7 +212,7 @@ CASES = [
     Case("earth_rate_left_out", "turn_table", {(a, "earth_rate_left_out") for a in "pqr"},
          lambda seed, f: _turn(seed, earth_fraction=f), 1.0, sizes=(0.25, 0.5, 0.75, 1.0, 1.25),
          size_unit="fraction of Delft's vertical Earth rate (latitude moved)",
-         truth_param=lambda rec: EarthRateLeftOut().fitted(rec.truth)["Omega_vertical"],
+         truth_param=lambda rec: EarthRateLeftOut().fitted(recording_truth(rec))["Omega_vertical"],
          found_param=lambda d: _gyro_param(d, "p", "earth_rate_left_out"),
          twin={"earth_rate": False}, null=lambda seed: _turn(seed), null_twin={"earth_rate": True},
          notes="g_sensitivity is named as indistinguishable"),

@@ -253,9 +253,10 @@ def recording_truth(rec) -> dict:
     """The truth mapping the effects' ``fitted`` read, from a Recording: its ``truth`` dict plus,
     under "conditions", what the measurement itself fixed: the accelerometers' mean temperature
     over the record (K, truth signal T_imu, or T_acc in a chamber) and the nominal sensitivities
-    the lab converts volts with (V per m/s^2)."""
+    the lab converts volts with (V per m/s^2), and the site the rig stood at (meta "site")."""
     ts = rec.truth_signals
     T = ts["T_imu"] if "T_imu" in ts else ts.get("T_acc")
     cond = {"mean_temperature_K": None if T is None else float(np.mean(T)),
-            "acc_nominal_sensitivity_V_per_m_s2": rec.meta.get("acc_nominal_sensitivity_V_per_m_s2")}
+            "acc_nominal_sensitivity_V_per_m_s2": rec.meta.get("acc_nominal_sensitivity_V_per_m_s2"),
+            "site": rec.meta.get("site")}
     return {**(rec.truth or {}), "conditions": cond}

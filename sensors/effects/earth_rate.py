@@ -9,7 +9,7 @@ error; the turn table's rig adds Omega_E, expressed in the IMU case frame, to it
 
 Diagnosis (:class:`TurnView`, only for a twin without the Earth's rate): the column -e_j, its
 amplitude the vertical Earth rate Omega_vertical = Omega_E sin(latitude) (rad/s). Truth map:
-Omega_E sin(latitude) at the rig's site (truth["rig"]["site"]).
+Omega_E sin(latitude) at the rig's site (the recording's meta "site", through ``recording_truth``).
 """
 from __future__ import annotations
 
@@ -56,6 +56,7 @@ class EarthRateLeftOut(Effect):
         return [Candidate(self.name, self.physics, ("Omega_vertical",), lambda _, c=-np.asarray(view.on_axis): c)]
 
     def fitted(self, truth: Mapping, channel: str | None = None) -> dict[str, float]:
-        """{Omega_vertical: Omega_E sin(latitude)} at the site of the recorded rig."""
-        lat = float(truth["rig"]["site"]["latitude_deg"])
+        """{Omega_vertical: Omega_E sin(latitude)} at the site of the recorded rig (the truth of
+        :func:`recording_truth`: the site is the recording's, not a secret of the truth)."""
+        lat = float(truth["conditions"]["site"]["latitude_deg"])
         return {"Omega_vertical": EARTH_RATE_RAD_S * math.sin(math.radians(lat))}
