@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imurig.kernel.units import T_REF_K
+from imurig.sensors.effects.adc_quantisation import variance_V2
 from imurig.sensors.noise import sampled_bands
 
 BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d",
@@ -83,10 +84,7 @@ class ImuNoise:
         vrw2 = dens2 / k1 ** 2
         arw2 = float(gyros.arw_rad_s_per_sqrt_hz) ** 2
         if adc is not None:
-            q = float(adc.lsb_V)
-            e = float(adc.input_noise_lsb_rms) * q
-            n_avg = max(1, int(getattr(adc, "averaging", 1)))
-            var_v = (q ** 2 / 12 + e ** 2) / n_avg
+            var_v = variance_V2(float(adc.lsb_V), float(adc.input_noise_lsb_rms), getattr(adc, "averaging", 1))
             if getattr(adc, "grounding", "DIFF") != "DIFF":
                 var_v += float(adc.common_mode_noise_V_rms) ** 2
             s_acc = float(np.min(np.asarray(accelerometers.nominal_sensitivity_V_per_m_s2())))

@@ -73,8 +73,7 @@ def whole_round_noise(rec: Recording, rw: Recording, rate: np.ndarray, p: dict) 
     if sr and sr.get("enabled"):
         prof = SlipRingNoise(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in sr.items()
                                 if k in SlipRingNoise.__dataclass_fields__})
-        ang = np.linspace(0, 2 * np.pi, 3600, endpoint=False)
-        slip = prof.rms_V**2 * float(np.mean(prof.profile(ang) ** 2))
+        slip = prof.round_average_variance_V2()
     counts = np.array([s.stop - s.start for s in rw.segment_slices()], float)
     for i in range(n):
         C[i, :, i, :] += (np.eye(3) * (white + slip) + cm) / counts[i]
