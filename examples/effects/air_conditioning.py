@@ -30,8 +30,13 @@ from typing import ClassVar
 import numpy as np
 from scipy import stats
 
+from imurig.kernel import random_streams
 from imurig.sensors.effects.base import ChainContext, Effect, Param, ScatterView
 from imurig.sensors.noise import band_noise, window_mean_variance
+
+# the effect's own random stream, a child of every sensor chain's stream (one registry: no two
+# stages can share a stream)
+random_streams.register("sensor-chain/air_conditioning", "the air conditioning's vibration", child=True)
 
 
 @dataclass
