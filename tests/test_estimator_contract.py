@@ -205,8 +205,9 @@ def _scoring_cases():
     return [
         Case("TiltTableCalibrator", TiltTableCalibrator, {"model": "physical"}, "small_recording"),
         Case("TurnTableCalibrator", TurnTableCalibrator, {"timer": "hp6700"}, "small_turn_recording"),
-        Case("ThermalCalibrator", ThermalCalibrator, {}, "small_thermal_recording", lambda e, d: None),
-        Case("MagnetometerCalibrator", MagnetometerCalibrator, {}, "small_mag_recording", lambda e, d: None),
+        Case("ThermalCalibrator", ThermalCalibrator, {}, "small_thermal_recording", thermal_apply),
+        Case("MagnetometerCalibrator", MagnetometerCalibrator, {}, "small_mag_recording",
+             lambda e, d: ((np.full((4, 3), 30e-6),), {})),
         Case("ProjectEKF", ProjectEKF, {"use_gps": True, "nav_rate_hz": 10.0}, "static_flight_streams", no_args),
         Case("AttitudeOffset", AttitudeOffset, {"inner": ProjectEKF(nav_rate_hz=10.0)}, "static_flight_streams",
              no_args),

@@ -21,7 +21,7 @@ from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import Term, TermLibrary, polynomial, seed_accelerometer_terms
 from imurig.kernel.errors import UnidentifiableTermsError
 
-SWIMMER_CSV = Path("/work/shared/reference/swimmer_table_4_1.csv")
+SWIMMER_CSV = Path(__file__).resolve().parents[2] / "shared" / "reference" / "swimmer_table_4_1.csv"  # ../shared
 EPS = np.finfo(np.float64).eps
 
 

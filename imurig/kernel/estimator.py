@@ -22,20 +22,23 @@ every estimator of the project.
 from __future__ import annotations
 
 import inspect
+from abc import ABC, abstractmethod
 from typing import Any, Self
 
 from imurig.kernel.errors import NotFittedError
 
 
-class Estimator:
+class Estimator(ABC):
     """Base class of the contract (module doc). Subclasses define ``__init__`` (settings only),
-    ``fit`` (returns ``self``) and ``apply``."""
+    ``fit`` (returns ``self``) and ``apply``; a class without either cannot be instantiated."""
 
-    def fit(self, *args: Any, **kwargs: Any) -> Self:  # pragma: no cover - the contract's shape
-        raise NotImplementedError(f"{type(self).__name__} does not define fit()")
+    @abstractmethod
+    def fit(self, *args: Any, **kwargs: Any) -> Self:
+        """Estimate from data; store fitted values in attributes ending in ``_``; return ``self``."""
 
-    def apply(self, *args: Any, **kwargs: Any) -> Any:  # pragma: no cover - the contract's shape
-        raise NotImplementedError(f"{type(self).__name__} does not define apply()")
+    @abstractmethod
+    def apply(self, *args: Any, **kwargs: Any) -> Any:
+        """Use the fitted values (the calibrated output, the filtered solution); refuses before ``fit``."""
 
     # ------------------------------------------------------------------ settings
     @classmethod

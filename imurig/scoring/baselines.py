@@ -78,6 +78,11 @@ class ThermalCalibrator(Estimator):
         self.estimates_ = [{k: r[k] for k in ROW_KEYS} for r in thermal_rows(self.calibration_)]
         return self
 
+    def apply(self, *args, **kwargs):
+        """The fitted thermal compensation (:meth:`ThermalCalibration.apply`)."""
+        self.check_fitted()
+        return self.calibration_.apply(*args, **kwargs)
+
 
 class MagnetometerCalibrator(Estimator):
     """Two-step field-domain fits: 2-D ellipse on the level circle, 3-D ellipsoid on the tumble
@@ -93,6 +98,11 @@ class MagnetometerCalibrator(Estimator):
         self.calibration_ = res["ellipsoid"]
         self.estimates_ = [{k: r[k] for k in ROW_KEYS} for r in res["parameters"]]
         return self
+
+    def apply(self, *args, **kwargs):
+        """The fitted 3-D calibration (:meth:`MagnetometerCalibration.apply`)."""
+        self.check_fitted()
+        return self.calibration_.apply(*args, **kwargs)
 
 
 BASELINES = {"tilt-table": TiltTableCalibrator, "turn-table": TurnTableCalibrator, "thermal": ThermalCalibrator,
