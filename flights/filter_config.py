@@ -13,6 +13,13 @@ the order of :meth:`FilterConfig.state_names`):
    [δs_a, δs_g (6) scale factors; misalignments (12); δk2_a (3) nonlinearity; thermal terms (12);
     the receiver's Gauss-Markov position error (3); the gyros' bias instability (3); the compass's
     heading error (1) or the magnetometer's installation errors (12)]
+
+The sensor-error states are named as the effect library names the parameter
+(:mod:`imurig.sensors.error_states`): ``acc.bias.b_x``, ``gyro.bias.b_x``,
+``acc.temperature_sensor.dT_x``, ``acc.scale_factor.s_x``, ``gyro.axis_misalignment.M_xy``,
+``acc.scale_nonlinearity.k2_x``, ``acc.temperature_drift.kT_x``, ``gyro.gyro_noise.b_gm_x``,
+``mag.hard_iron.b_x``, ``mag.soft_iron.A_xy`` ...; each block's truth reads the same parameter
+from the sensor model's truth.
 """
 from __future__ import annotations
 
@@ -22,19 +29,22 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from imurig.kernel.units import T_REF_K
-from imurig.sensors.effects.adc_quantisation import variance_V2
-from imurig.sensors.noise import sampled_bands
+from imurig.sensors import error_states as es
+from imurig.sensors.effects.adc_quantisation import AdcQuantisation
+from imurig.sensors.effects.base import ChainContext
 
-BASE_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d",
-               "dba_x", "dba_y", "dba_z", "dbg_p", "dbg_q", "dbg_r", "dTa_x", "dTa_y", "dTa_z")
-SCALE_STATES = ("dsa_x", "dsa_y", "dsa_z", "dsg_p", "dsg_q", "dsg_r")
-GPS_STATES = ("dgps_n", "dgps_e", "dgps_d")
-GYRO_GM_STATES = ("dbgm_p", "dbgm_q", "dbgm_r")
-K2_STATES = ("dk2a_x", "dk2a_y", "dk2a_z")
-THERMAL_STATES = tuple(f"{p}_{a}" for p in ("dkTa", "dsTa", "dHba", "dHsa") for a in "xyz")
-MIS_PAIRS = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))   # (i, j): input j sensed by axis i
-MIS_STATES = tuple(f"dma_{i}{j}" for i, j in MIS_PAIRS) + tuple(f"dmg_{i}{j}" for i, j in MIS_PAIRS)
-MAG_IRON_STATES = tuple(f"dmag_b{a}" for a in "xyz") + tuple(f"dmag_A{i}{j}" for i in range(3) for j in range(3))
+NAV_STATES = ("dr_n", "dr_e", "dr_d", "dv_n", "dv_e", "dv_d", "psi_n", "psi_e", "psi_d")
+# the sensor-error states take their names from the effect library (:mod:`imurig.sensors.error_states`)
+BASE_STATES = NAV_STATES + es.names(es.ACC_BIAS, es.GYRO_BIAS, es.ACC_TEMPERATURE)
+SCALE_STATES = es.names(es.ACC_SCALE, es.GYRO_SCALE)
+GPS_STATES = es.names(es.GPS_POSITION)
+GYRO_GM_STATES = es.names(es.GYRO_BIAS_INSTABILITY)
+K2_STATES = es.names(es.ACC_NONLINEARITY)
+THERMAL_STATES = es.names(*es.ACC_THERMAL)
+MIS_PAIRS = es.MIS_PAIRS   # (i, j): input j sensed by axis i
+MIS_STATES = es.names(es.ACC_MISALIGNMENT, es.GYRO_MISALIGNMENT)
+MAG_HEADING_STATES = es.names(es.MAG_HEADING)
+MAG_IRON_STATES = es.names(es.MAG_HARD_IRON, es.MAG_MATRIX)
 P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                slice(15, 18), slice(18, 21), slice(21, 24))
 
@@ -76,23 +86,20 @@ class ImuNoise:
         fs = float(sample_rate_hz)
         if averaged is None:
             averaged = adc is not None and int(getattr(adc, "averaging", 1)) > 1
-        dens2 = 0.0
-        for lo, hi, rms in sampled_bands(accelerometers.noise_bands, fs, averaged):
-            if lo <= 0:  # a band reaching DC (aliased bands arrive as white, 0..f_s/2)
-                dens2 += rms ** 2 / (2 * hi)
+        current = accelerometers.current_noise(averaged)   # the effects own their noise
+        gyro_noise = gyros.noise()
         k1 = float(np.min(accelerometers.k1_A_per_m_s2))
-        vrw2 = dens2 / k1 ** 2
-        arw2 = float(gyros.arw_rad_s_per_sqrt_hz) ** 2
+        vrw2 = (current.random_walk_density_A(fs) / k1) ** 2
+        arw2 = float(gyro_noise.arw_rad_s_per_sqrt_hz) ** 2
         if adc is not None:
-            var_v = variance_V2(float(adc.lsb_V), float(adc.input_noise_lsb_rms), getattr(adc, "averaging", 1))
-            if getattr(adc, "grounding", "DIFF") != "DIFF":
-                var_v += float(adc.common_mode_noise_V_rms) ** 2
+            ctx = ChainContext(time_s=np.zeros(1), sample_rate_hz=fs, adc=adc)
+            var_v = AdcQuantisation().noise_variance(ctx) + adc.common_mode.noise_variance(ctx)
             s_acc = float(np.min(np.asarray(accelerometers.nominal_sensitivity_V_per_m_s2())))
             s_gyro = float(np.min(np.abs(np.asarray(gyros.scale_V_per_rad_s, float))))
             vrw2 += var_v / s_acc ** 2 / fs
             arw2 += var_v / s_gyro ** 2 / fs
-        return cls(vrw=math.sqrt(vrw2), arw=math.sqrt(arw2), gyro_bias_sigma=gyros.bias_instability_rad_s,
-                   gyro_bias_tau_s=gyros.bias_instability_tau_s, **kw)
+        return cls(vrw=math.sqrt(vrw2), arw=math.sqrt(arw2), gyro_bias_sigma=gyro_noise.bias_instability_rad_s,
+                   gyro_bias_tau_s=gyro_noise.bias_instability_tau_s, **kw)
 
 
 @dataclass
@@ -209,7 +216,7 @@ class FilterConfig:
                 + (MIS_STATES if self.estimate_misalignments else ()) + (K2_STATES if self.estimate_nonlinearity else ())
                 + (THERMAL_STATES if self.estimate_thermal_terms else ())
                 + (GPS_STATES if self.augment_gps else ()) + (GYRO_GM_STATES if self.gyro_bias_gm_states else ())
-                + (("dmag_heading",) if self.mag_error_state else ())
+                + (MAG_HEADING_STATES if self.mag_error_state else ())
                 + (MAG_IRON_STATES if self.mag_iron_states else ()))
 
     def mis_slices(self) -> tuple[slice, slice]:

@@ -50,7 +50,7 @@ def gramian(truth, *, scale_factors=True, misalignments=True, nav_rate_hz=10.0, 
     if scale_factors:
         names += list(ekf.SCALE_STATES)
     if misalignments:
-        names += [f"ma_{i}{j}" for i, j in MIS_PAIRS] + [f"mg_{i}{j}" for i, j in MIS_PAIRS]
+        names += list(ekf.MIS_STATES)
     n = len(names)
     sig0 = np.zeros(n)
     sig0[:18] = np.sqrt(np.diag(filt.initial_covariance()))

@@ -40,7 +40,7 @@ from imurig.sensors.effects.lever_arm import LeverArm
 from imurig.sensors.effects.lever_arm import lever_arm_specific_force  # noqa: F401  (its home: the effect)
 from imurig.sensors.effects.scale_nonlinearity import ScaleNonlinearity
 from imurig.sensors.effects.temperature_drift import TemperatureDrift
-from imurig.sensors.noise import band_noise, sampled_bands, window_mean_variance
+from imurig.sensors.effects.current_noise import CurrentNoise
 
 AXES = ("x", "y", "z")
 
@@ -154,22 +154,21 @@ class QFlexTriad:
         current = self.k1_A_per_m_s2 * (1 + self.scale_tempco_per_K * dT + self.scale_hysteresis * h) * a
         return current * self.load_resistor_ohm
 
+    def current_noise(self, averaged: bool = False) -> CurrentNoise:
+        """The triad's output current noise as an effect (:mod:`imurig.sensors.effects.current_noise`)."""
+        return CurrentNoise(self.noise_bands, self.load_resistor_ohm, averaged, self.noise_enabled)
+
     def noise_current(self, n: int, fs: float, rng: np.random.Generator, averaged: bool = False) -> np.ndarray:
         """Output current noise (n, 3) A. Sampled directly (``averaged`` false), bands above fs/2
         alias into the sampled band (no analog anti-alias filter before the ADC), so their rms
         is kept as white noise. For averaged logging (each sample the mean of many fast
         conversions) the parts above fs/2 average out and only the in-band part is kept."""
-        out = np.zeros((n, 3))
-        if not self.noise_enabled:
-            return out
-        for lo, hi, rms in sampled_bands(self.noise_bands, fs, averaged):
-            out += band_noise(rng, (n, 3), fs, (lo, hi), rms)
-        return out
+        return self.current_noise(averaged).current(n, fs, rng)
 
     def window_mean_variance_A2(self, fs: float, n_window: int, averaged: bool = False) -> float:
         """Variance (A^2) of the mean of ``n_window`` logged samples of one axis' current noise
         (long-window limit, :func:`imurig.sensors.noise.window_mean_variance`); 0 with the noise off."""
-        return window_mean_variance(self.noise_bands, fs, n_window, averaged) if self.noise_enabled else 0.0
+        return self.current_noise(averaged).window_variance_A2(fs, n_window)
 
     def output_voltage(self, f_C: np.ndarray, fs: float, rng: np.random.Generator,
                        temperature_K=None, hysteresis=0.0) -> np.ndarray:

@@ -29,6 +29,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.adc_quantisation import variance_V2
 from imurig.sensors.effects.base import ScanSlot
+from imurig.sensors.effects.common_mode_noise import CommonModeNoise
 from imurig.sensors.effects.channel_skew import ChannelSkew
 
 GROUNDINGS = ("GRSE", "NRSE", "DIFF")
@@ -69,6 +70,11 @@ class DAQ6036E:
         return 2 * self.range_V / 2**self.bits
 
     @property
+    def common_mode(self) -> CommonModeNoise:
+        """The common-mode noise and ground loop of this wiring (:mod:`imurig.sensors.effects.common_mode_noise`)."""
+        return CommonModeNoise(self.common_mode_noise_V_rms, self.ground_loop_V, self.mains_hz, self.grounding)
+
+    @property
     def crosstalk(self) -> AdcCrosstalk:
         """The settling crosstalk effect of this converter (:mod:`imurig.sensors.effects.adc_crosstalk`)."""
         return AdcCrosstalk(settling_tau_s=self.settling_tau_s, enabled=self.crosstalk_enabled)
@@ -98,13 +104,7 @@ class DAQ6036E:
         if missing:
             raise ConfigError(f"scan list names {missing} but no such analog signals exist")
         n = time_s.size
-        common = np.zeros(n)
-        if self.grounding != "DIFF" and self.common_mode_noise_V_rms > 0:
-            common += self.common_mode_noise_V_rms * rng.standard_normal(n)
-        if self.grounding == "GRSE" and self.ground_loop_V > 0:
-            phase = rng.uniform(0, 2 * np.pi)
-            common += self.ground_loop_V * (np.sin(2 * np.pi * self.mains_hz * time_s + phase)
-                                            + 0.3 * np.sin(2 * np.pi * 3 * self.mains_hz * time_s))
+        common = self.common_mode.common(time_s, rng)
         crosstalk, skew = self.crosstalk, self.skew
         c = crosstalk.coefficient(self.mux_frequency_hz)
         q = self.lsb_V

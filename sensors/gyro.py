@@ -23,10 +23,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy import signal
 
 from imurig.kernel.units import DEG, T_REF_K
 from imurig.sensors.effects.g_sensitivity import GSensitivity
+from imurig.sensors.effects.gyro_noise import GyroNoise
 
 AXES = ("p", "q", "r")
 
@@ -101,17 +101,14 @@ class FOGTriad:
             w = w + GSensitivity(self.g_sensitivity_rad_s_per_m_s2).rate_error(f_C)
         return self.scale_V_per_rad_s * (1 + self.scale_tempco_per_K * dT) * w
 
+    def noise(self) -> GyroNoise:
+        """The triad's rate noise as an effect (:mod:`imurig.sensors.effects.gyro_noise`)."""
+        return GyroNoise(self.arw_rad_s_per_sqrt_hz, self.bias_instability_rad_s, self.bias_instability_tau_s,
+                         self.noise_enabled)
+
     def noise_rate(self, n: int, fs: float, rng: np.random.Generator) -> np.ndarray:
         """Rate noise (n, 3) rad/s: angle random walk plus Gauss-Markov bias instability."""
-        if not self.noise_enabled:
-            return np.zeros((n, 3))
-        out = rng.standard_normal((n, 3)) * (self.arw_rad_s_per_sqrt_hz * np.sqrt(fs))
-        if self.bias_instability_rad_s > 0:
-            phi = np.exp(-1.0 / (self.bias_instability_tau_s * fs))
-            drive = rng.standard_normal((n, 3)) * self.bias_instability_rad_s * np.sqrt(1 - phi**2)
-            drive[0] = rng.standard_normal(3) * self.bias_instability_rad_s  # stationary start
-            out += signal.lfilter([1.0], [1.0, -phi], drive, axis=0)
-        return out
+        return self.noise().rate(n, fs, rng)
 
     def output_voltage(self, w_C, fs, rng, temperature_K=None) -> np.ndarray:
         v = self.ideal_voltage(w_C, temperature_K)

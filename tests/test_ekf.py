@@ -150,15 +150,15 @@ def test_observability_table_of_the_paper():
     names = straight.state_names
     r0 = dict(zip(names, straight.sigma_ratio))
     r1 = dict(zip(names, turns.sigma_ratio))
-    mis = [k for k in names if k.startswith(("ma_", "mg_"))]
-    scale = [k for k in names if k.startswith(("dsa_", "dsg_"))]
-    bias = [k for k in names if k.startswith(("dba_", "dbg_"))]
+    mis = [k for k in names if ".axis_misalignment." in k]
+    scale = [k for k in names if ".scale_factor." in k]
+    bias = [k for k in names if ".bias." in k]
     assert min(r0[k] for k in mis) > 0.95
     assert max(r1[k] for k in mis) < 0.75
     assert min(r0[k] for k in scale) > 0.7
     assert max(r1[k] for k in scale + bias) < 0.15
-    assert r0["dba_x"] > 0.5 and r0["dba_y"] > 0.5          # bias vs tilt on a straight leg
-    assert max(r1[k] for k in ("dTa_x", "dTa_y", "dTa_z")) < 0.1   # temperature channels
+    assert r0["acc.bias.b_x"] > 0.5 and r0["acc.bias.b_y"] > 0.5          # bias vs tilt on a straight leg
+    assert max(r1[k] for k in ("acc.temperature_sensor.dT_x", "acc.temperature_sensor.dT_y", "acc.temperature_sensor.dT_z")) < 0.1   # temperature channels
     # G is positive definite on the S-turns (all singular values > 0)
     assert turns.singular_values[-1] > 0
 
@@ -466,7 +466,7 @@ def test_nonlinearity_states_estimate_an_injected_second_order_term(truth):
         idx = np.arange(res.time_s.size) * res.meta["samples_per_step"]
         out[est] = (res, ekf.nees_nav(res, truth, idx))
     res, nees = out[True]
-    sl = res.state_names.index("dk2a_x")
+    sl = res.state_names.index("acc.scale_nonlinearity.k2_x")
     sig = np.sqrt(res.P_diag[-1, sl:sl + 3])
     assert np.all(np.abs(np.asarray(res.meta["nonlinearity_acc_s2_m"]) - k2) < 3 * sig), (res.meta, sig)
     assert nees.mean() < out[False][1].mean(), (nees.mean(), out[False][1].mean())

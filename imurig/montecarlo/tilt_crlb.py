@@ -25,7 +25,7 @@ from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.disturbances import PeopleTransients, PumpVibration
-from imurig.sensors.effects import ChainContext
+from imurig.sensors.effects import AdcQuantisation, ChainContext
 
 PARAM_NAMES = ([f"sensitivity_{a}" for a in AXES]
                + [f"misalignment_{AXES[i]}{AXES[j]}" for i in range(3) for j in range(3) if i != j]
@@ -69,17 +69,14 @@ def window_noise_cov(p: dict, lab: ImuLab, n_window: int, hour_of_day: np.ndarra
     """
     acc, adc = lab.accelerometers, lab.adc
     fs = float(p["sample_rate_hz"])
-    averaged = p["logging"] == "averaged"
-    var_i = acc.window_mean_variance_A2(fs, n_window, averaged)
-    cov = np.diag(var_i * acc.load_resistor_ohm**2)
-    cov += np.eye(3) * adc.sample_variance_V2() / n_window
-    if adc.grounding != "DIFF":
-        cov += adc.common_mode_noise_V_rms**2 / n_window
     if hour_of_day is None:
         start = parse_time(p["start_time"])
         hour_of_day = np.array([start.hour + start.minute / 60 + start.second / 3600])
     ctx = ChainContext(time_s=np.zeros(1), sample_rate_hz=fs, hour_of_day=hour_of_day, adc=adc,
                        window_samples=n_window)
+    cov = np.diag(acc.current_noise(p["logging"] == "averaged").noise_variance(ctx))
+    cov += np.eye(3) * AdcQuantisation().noise_variance(ctx) / n_window
+    cov += adc.common_mode.noise_variance(ctx)          # common to the three channels
     s_true = acc.k1_A_per_m_s2 * acc.load_resistor_ohm
     for eff in lab.stage_effects("specific_force"):
         if not eff.impulsive:
