@@ -52,6 +52,18 @@ def _runs_from(labels: list[str], rec: Recording) -> tuple[np.ndarray, list[str]
     return run, names
 
 
+def _fill(labels: list) -> list:
+    """Undecided labels (None) take the previous decided one (the next one at the start)."""
+    known = [lb for lb in labels if lb]
+    if not known:
+        return labels
+    out, last = [], known[0]
+    for lb in labels:
+        last = lb or last
+        out.append(last)
+    return out
+
+
 def tilt_runs(rec: Recording, where: str) -> None:
     """Mounting of each plateau from the sign of gravity, then the label check."""
     if not all(c in rec.channels for c in ACC) or rec.n_segments == 0 or "theta" not in rec.segments:
@@ -62,7 +74,9 @@ def tilt_runs(rec: Recording, where: str) -> None:
     th, ph = rec.segments["theta"], rec.segments.get("phi", np.zeros(rec.n_segments))
     fit = {m: specific_force(th, ph, m, g) for m in TILT_MOUNTS}
     err = {m: np.linalg.norm(u - f, axis=1) for m, f in fit.items()}
-    labels = [min(err, key=lambda m: err[m][i]) for i in range(rec.n_segments)]
+    # where the mountings predict nearly the same force (y, z near 0) a plateau takes its neighbour's
+    distinct = np.linalg.norm(fit["z_up"] - fit["z_down"], axis=1) > 0.2 * g
+    labels = _fill([min(err, key=lambda m: err[m][i]) if distinct[i] else None for i in range(rec.n_segments)])
     if "run" not in rec.segments:
         run, names = _runs_from(labels, rec)
         rec.segments["run"] = run
@@ -131,8 +145,7 @@ def turn_runs(rec: Recording) -> None:
             j = int(np.argmax(np.abs(u[i])))
             last = f"{'pqr'[j]}_{'up' if u[i, j] * rate[i] > 0 else 'down'}"
         labels.append(last)
-    first = next(lb for lb in labels if lb)
-    labels = [lb or first for lb in labels]
+    labels = _fill(labels)
     run, names = _runs_from(labels, rec)
     rec.segments["run"] = run
     rec.segment_units["run"] = "1"
