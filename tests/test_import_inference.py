@@ -259,3 +259,17 @@ def test_cli_info_and_calibrate_take_a_minimal_file(tilt, tmp_path, capsys):
     assert main(["info", str(bare)]) == 2
     assert "no site" in capsys.readouterr().err
     assert main(["info", str(bare), "--site", "delft"]) == 0
+
+
+def test_readme_minimal_file_parses(tmp_path):
+    """The README's minimal file goes in with its structure inferred (two samples: one plateau
+    would need a second, so none; the rate and the site are inferred)."""
+    from pathlib import Path
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    block = readme.split("### The minimal file")[1].split("```")[1]
+    p = tmp_path / "minimal.csv"
+    p.write_text(block.strip() + "\n")
+    rec = read_csv(p)
+    assert rec.meta["rig"] == "tilt_table" and rec.meta["site"]["latitude_deg"] == 52.0
+    assert rec.units["temp_box"] == "K" and rec.meta["inferred"]["sample_rate_hz"]["value"] == pytest.approx(1 / 0.0098)
