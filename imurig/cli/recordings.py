@@ -9,6 +9,7 @@ from pathlib import Path
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError
 from imurig.kernel.files import load
+from imurig.kernel.infer import inference_report
 from imurig.kernel.labcsv import write_csv
 from imurig.kernel.outputs import OutputFolder
 from imurig.kernel.recording import save_h5
@@ -95,8 +96,10 @@ def _run_calibrate(a):
                  **{f"figure_{k}": v for k, v in figs.items()}}
         out.write_json("calibration.json", res["main"].to_dict())
         s = summary_dict(None, rec, res, {}, files)
+        imported, section = inference_report(rec.meta)
+        s.update(imported)
         out.write_json("summary.json", s)
-        out.write_text("report.md", _report_md(None, rec, res, figs, {}))
+        out.write_text("report.md", _report_md(None, rec, res, figs, {}) + ("\n" + section if section else ""))
     print_summary(s, a.out)
 
 

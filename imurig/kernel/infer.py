@@ -254,3 +254,18 @@ def scan_list(rec: Recording, order: list[str]) -> None:
     rec.meta["adc"] = {**(adc if isinstance(adc, dict) else {}), "scan_list": lst}
     note(rec, "adc.scan_list", lst, "no 'adc.scan_list' given: the file's column order is taken as the ADC's "
                                     "scan order (crosstalk tests rely on it; give it if it differs)")
+
+
+def inference_report(meta: dict) -> tuple[dict, str]:
+    """What the import inferred, for a report: ({"inferred", "import_warnings"}, Markdown section);
+    ({}, "") for a recording that declared everything."""
+    inferred, warnings = meta.get("inferred", {}), meta.get("import_warnings", [])
+    if not inferred and not warnings:
+        return {}, ""
+    lines = ["## What the import inferred", "", "| what | value | evidence |", "|---|---|---|"]
+    for k, d in inferred.items():
+        v = str(d.get("value"))
+        lines.append(f"| {k} | {v if len(v) <= 80 else v[:77] + '...'} | {d.get('evidence', '')} |")
+    if warnings:
+        lines += ["", "Warnings:", ""] + [f"- {w}" for w in warnings]
+    return {"inferred": inferred, "import_warnings": warnings}, "\n".join(lines) + "\n"
