@@ -290,3 +290,18 @@ def test_cli_calibrate_a_minimal_file(tmp_path):
     assert s["inferred"]["runs"]["value"] == ["z_down", "z_up"]
     sens = [q for q in s["parameters"] if q["name"].startswith("sensitivity_")]
     assert len(sens) == 3 and all(abs(q["estimate"] - S_ACC) < 4 * q["std_error"] for q in sens)
+
+
+def test_matlab_export_layout_is_read_as_declared(tmp_path):
+    """The layout `imurig export` writes (channels/units structs, segments, meta as JSON)."""
+    t = np.arange(400) / 100.0
+    v = np.sin(t)
+    seg = {"start_s": np.array([[0.5], [2.5]]), "stop_s": np.array([[1.5], [3.5]]), "run": np.array([[0], [1]]),
+           "theta_deg": np.array([[0.0], [90.0]])}
+    scipy.io.savemat(tmp_path / "e.mat", {"time_s": t.reshape(-1, 1), "channels": {"acc_x": v.reshape(-1, 1)},
+                                          "units": {"acc_x": "V"}, "events": {}, "segments": seg,
+                                          "meta_json": json.dumps({"rig": "tilt_table", "runs": ["z_down", "z_up"]})})
+    rec = load(tmp_path / "e.mat")
+    np.testing.assert_array_equal(rec.channels["acc_x"], v)
+    np.testing.assert_allclose(rec.segments["theta"], [0, np.pi / 2])
+    assert rec.meta["runs"] == ["z_down", "z_up"] and "inferred" not in rec.meta

@@ -1,5 +1,8 @@
 """MATLAB recordings (``.mat`` v5 through scipy.io, v7.3 through h5py), read like the lab CSV.
 
+A file in the layout ``imurig export`` writes (``channels`` and ``units`` structs, ``meta_json``)
+is read as declared.
+
 The file holds vectors named like the CSV columns (``time_s``, ``theta_deg``, ``acc_x_V``,
 ``pulse_V`` ...), either as top-level variables or as the fields of one struct. Text variables or
 fields ``rig`` and ``site`` (a site name such as 'delft') and a struct ``meta`` (nested structs
@@ -8,6 +11,7 @@ minimal lab CSV then applies (:func:`imurig.kernel.labcsv.build_recording`).
 """
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +19,7 @@ import numpy as np
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.import_lab import check_memory
 from imurig.kernel.labcsv import build_recording
+from imurig.kernel.recording import Recording
 
 TEXT_KEYS = ("rig", "site")
 
@@ -31,6 +36,8 @@ def read_mat(path, rig: str | None = None, site=None, pulse_channel: str | None 
         variables = _read_v73(path, memory_limit_bytes)
     else:
         variables = _read_v5(path, memory_limit_bytes)
+    if "meta_json" in variables and isinstance(variables.get("channels"), dict):
+        return _from_export(variables, path)
     meta = variables.pop("meta", {})
     if not isinstance(meta, dict):
         raise RecordingError(f"{path}: the variable 'meta' must be a struct of metadata")
@@ -51,6 +58,34 @@ def read_mat(path, rig: str | None = None, site=None, pulse_channel: str | None 
     header = ["time_s"] + [k for k in arrays if k != "time_s"]
     return build_recording({k: np.asarray(arrays[k], float) for k in header}, header, meta, str(path), path.name,
                            rig=rig, site=site, pulse_channel=pulse_channel)
+
+
+def _from_export(v: dict, path: Path):
+    """The layout ``imurig export`` writes (SI channels, a units struct, segments, meta as JSON)."""
+    meta = json.loads(v["meta_json"])
+    units = v.get("units", {})
+    channels = {k: np.asarray(x, float).ravel() for k, x in v["channels"].items()}
+    missing = [k for k in channels if not isinstance(units.get(k), str)]
+    if missing:
+        raise RecordingError(f"{path}: channel(s) {missing} have no unit in the 'units' struct")
+    events = {k: np.atleast_1d(np.asarray(x, float)).ravel() for k, x in (v.get("events") or {}).items()}
+    segments, seg_units = {}, {}
+    for k, x in (v.get("segments") or {}).items():
+        a = np.atleast_1d(np.asarray(x))
+        if k == "segment" or k.startswith("ref_"):
+            continue
+        if a.dtype.kind in "OUS":
+            segments[k], seg_units[k] = a.astype(str), ""
+        elif k in ("start_s", "stop_s"):
+            segments[k], seg_units[k] = a.astype(float), "s"
+        elif k == "run":
+            segments[k], seg_units[k] = a.astype(int), "1"
+        elif k.endswith("_deg"):
+            segments[k[:-4]], seg_units[k[:-4]] = np.radians(a.astype(float)), "rad"
+    rec = Recording(time_s=np.asarray(v["time_s"], float).ravel(), channels=channels,
+                    units={k: units[k] for k in channels}, segments=segments, segment_units=seg_units,
+                    meta=meta, events=events)
+    return rec.validate()
 
 
 def _from_struct(struct: dict, meta: dict, path: Path, rig, site, pulse_channel):
@@ -81,6 +116,8 @@ def _read_v5(path: Path, limit):
 
 
 def _plain_v5(v):
+    if isinstance(v, np.ndarray) and v.dtype.kind == "O":
+        return np.array([_plain_v5(e) for e in v.ravel()], dtype=object)
     if hasattr(v, "_fieldnames"):
         return {f: _plain_v5(getattr(v, f)) for f in v._fieldnames}
     if isinstance(v, str):
