@@ -305,3 +305,15 @@ def test_matlab_export_layout_is_read_as_declared(tmp_path):
     np.testing.assert_array_equal(rec.channels["acc_x"], v)
     np.testing.assert_allclose(rec.segments["theta"], [0, np.pi / 2])
     assert rec.meta["runs"] == ["z_down", "z_up"] and "inferred" not in rec.meta
+
+
+def test_a_set_point_that_never_holds_gives_no_segment_and_a_weak_sensitivity_is_marginal(tmp_path):
+    cols, _ = tilt_table(dwell=1.5)
+    n = cols["time_s"].size
+    ramp = dict(cols, theta_deg=np.linspace(0, 180, n), phi_deg=np.linspace(0, 90, n))
+    rec = read_csv(write(tmp_path / "r.csv", ramp))
+    assert rec.n_segments == 0
+    weak = dict(cols, **{f"acc_{a}_V": cols[f"acc_{a}_V"] * 0.3 for a in "xyz"})
+    rec = read_csv(write(tmp_path / "w.csv", weak, head=("# rig: tilt_table", "# site: delft",
+                                                         "# acc_nominal_sensitivity_V_per_m_s2: 0.1017")))
+    assert any(w.startswith("MARGINAL") and "sensitivity" in w for w in rec.meta["import_warnings"])

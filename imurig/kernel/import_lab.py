@@ -147,6 +147,7 @@ def infer_structure(rec: Recording, where: str, order: list[str], rig: str | Non
             gravity_check.tilt_runs(rec, where)
         elif r == "turn_table":
             gravity_check.turn_runs(rec)
+            infer.gyro_noise_model(rec)
     else:
         infer.warn(rec, "no set-point columns (theta_deg, phi_deg, psi_deg or rate_dps): no segments")
     return rec

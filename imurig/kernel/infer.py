@@ -207,9 +207,12 @@ def pulses(rec: Recording) -> None:
     frac = (thr - x[i]) / (x[i + 1] - x[i])
     ev = t[i] + frac * (t[i + 1] - t[i])
     rec.events["pulse_channel"] = ev
+    if not any(k.startswith("pulse_") and k != "pulse_channel" for k in rec.events):
+        rec.meta.setdefault("timer", "channel")  # the only timer: the pulse channel's edges
     note(rec, "pulses", {"event": "pulse_channel", "count": int(ev.size), "threshold_V": float(thr)},
          f"rising edges of 'pulse' through the midpoint of its levels {lo:.4g} V and {hi:.4g} V, "
-         "times interpolated between samples (use timer 'channel')")
+         "times interpolated between samples (timer 'channel'; meta 'timer' names it when no "
+         "counter's events are given)")
 
 
 def sensitivities(rec: Recording) -> None:
@@ -269,3 +272,28 @@ def inference_report(meta: dict) -> tuple[dict, str]:
     if warnings:
         lines += ["", "Warnings:", ""] + [f"- {w}" for w in warnings]
     return {"inferred": inferred, "import_warnings": warnings}, "\n".join(lines) + "\n"
+
+
+def gyro_noise_model(rec: Recording) -> None:
+    """``gyro_noise_model`` from the data when the file gives none: white rate noise sigma per sample
+    from the first differences within the plateaus, sigma = std(diff) / sqrt(2) (a slow drift
+    cancels), floored at the ADC's q / sqrt(12); ARW N = sigma / sqrt(fs) (the bench's convention:
+    sample noise N sqrt(fs)), the median over the axes, in rad/s/sqrt(Hz). The bias instability is
+    not resolved from a calibration record: 0, with a warning."""
+    if "gyro_noise_model" in rec.meta or not all(c in rec.channels for c in GYRO) or rec.n_segments == 0:
+        return
+    s = np.broadcast_to(np.asarray(rec.meta[GYRO_KEY], float), (3,))
+    fs = rec.sample_rate_hz
+    sig = []
+    for j, c in enumerate(GYRO):
+        d = np.concatenate([np.diff(rec.channels[c][sl]) for sl in rec.segment_slices() if sl.stop - sl.start > 2])
+        q = rec.channel_quantum.get(c, 0.0)
+        sig.append(max(float(np.std(d)) / math.sqrt(2), q / math.sqrt(12)) / s[j])
+    arw = float(np.median(sig)) / math.sqrt(fs)
+    rec.meta["gyro_noise_model"] = {"arw_rad_s_per_sqrt_hz": arw, "bias_instability_rad_s": 0.0,
+                                    "bias_instability_tau_s": 100.0}
+    note(rec, "gyro_noise_model", rec.meta["gyro_noise_model"],
+         f"white noise per sample {np.array2string(np.array(sig), precision=3)} rad/s from first differences in "
+         f"the plateaus (floored at q/sqrt(12)), ARW = sigma/sqrt(fs), median over the axes")
+    warn(rec, "gyro_noise_model inferred from the data with no bias instability; give '# gyro_noise_model: "
+              "{...}' from an Allan variance if you have one")
