@@ -216,6 +216,12 @@ def test_turn_table_pulses_mounts_and_rate_dial(tmp_path):
     assert rec.n_segments == 3 and rec.meta["runs"] == ["r_up", "p_down"]
     np.testing.assert_allclose(rec.segments["rate_dial"], np.array([20, -30, 40]) * DEG, atol=1e-12)
     assert rec.meta["inferred"]["channel_names"]["value"]["gyro_x"] == "gyro_p"
+    assert rec.meta["timer"] == "channel"
+    # white noise 1e-4 V per sample: ARW = 1e-4 / s / sqrt(fs). A plateau's ~1560 first differences
+    # (lag-1 correlation -1/2) give the std to sqrt(3 / n) / 2 = 2.2 % (1 sigma); the medians over
+    # plateaus and axes do not widen it by more than ~1.2: 9 % is about 4 sigma
+    arw_true = 1e-4 / (6e-3 / DEG) / np.sqrt(200.0)
+    assert abs(rec.meta["gyro_noise_model"]["arw_rad_s_per_sqrt_hz"] / arw_true - 1) < 0.09
 
 
 def test_event_column_names_and_pulse_channel_option(tmp_path):

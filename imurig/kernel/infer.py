@@ -276,8 +276,8 @@ def inference_report(meta: dict) -> tuple[dict, str]:
 
 def gyro_noise_model(rec: Recording) -> None:
     """``gyro_noise_model`` from the data when the file gives none: white rate noise sigma per sample
-    from the first differences within the plateaus, sigma = std(diff) / sqrt(2) (a slow drift
-    cancels), floored at the ADC's q / sqrt(12); ARW N = sigma / sqrt(fs) (the bench's convention:
+    from the first differences within the plateaus (2 % trimmed at each end), sigma = median over
+    the plateaus of std(diff) / sqrt(2) (a slow drift cancels, a step at an edge does not count), floored at the ADC's q / sqrt(12); ARW N = sigma / sqrt(fs) (the bench's convention:
     sample noise N sqrt(fs)), the median over the axes, in rad/s/sqrt(Hz). The bias instability is
     not resolved from a calibration record: 0, with a warning."""
     if "gyro_noise_model" in rec.meta or not all(c in rec.channels for c in GYRO) or rec.n_segments == 0:
@@ -286,14 +286,21 @@ def gyro_noise_model(rec: Recording) -> None:
     fs = rec.sample_rate_hz
     sig = []
     for j, c in enumerate(GYRO):
-        d = np.concatenate([np.diff(rec.channels[c][sl]) for sl in rec.segment_slices() if sl.stop - sl.start > 2])
+        per = []
+        for sl in rec.segment_slices():
+            trim = max(1, (sl.stop - sl.start) // 50)
+            x = rec.channels[c][sl.start + trim:sl.stop - trim]
+            if x.size > 10:
+                per.append(float(np.std(np.diff(x))))
+        if not per:
+            return
         q = rec.channel_quantum.get(c, 0.0)
-        sig.append(max(float(np.std(d)) / math.sqrt(2), q / math.sqrt(12)) / s[j])
+        sig.append(max(float(np.median(per)) / math.sqrt(2), q / math.sqrt(12)) / s[j])
     arw = float(np.median(sig)) / math.sqrt(fs)
     rec.meta["gyro_noise_model"] = {"arw_rad_s_per_sqrt_hz": arw, "bias_instability_rad_s": 0.0,
                                     "bias_instability_tau_s": 100.0}
     note(rec, "gyro_noise_model", rec.meta["gyro_noise_model"],
          f"white noise per sample {np.array2string(np.array(sig), precision=3)} rad/s from first differences in "
-         f"the plateaus (floored at q/sqrt(12)), ARW = sigma/sqrt(fs), median over the axes")
+         f"the plateaus (median over plateaus) (floored at q/sqrt(12)), ARW = sigma/sqrt(fs), median over the axes")
     warn(rec, "gyro_noise_model inferred from the data with no bias instability; give '# gyro_noise_model: "
               "{...}' from an Allan variance if you have one")
