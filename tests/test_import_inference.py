@@ -153,6 +153,9 @@ def test_counts_and_physical_units(tmp_path):
         phys[f"acc_{a}_m_s2"] = truth["f"][:, j] + 0.02
     rec = read_csv(write(tmp_path / "p.csv", phys))
     assert rec.units["acc_x"] == "m/s^2" and rec.meta["acc_nominal_sensitivity_V_per_m_s2"] == [1.0] * 3
+    in_g = read_csv(write(tmp_path / "g.csv", {k: (v / 9.80665 if k.startswith("acc") else v) for k, v in phys.items()},
+                          rename={f"acc_{a}_m_s2": f"acc_{a}_g" for a in "xyz"}))
+    np.testing.assert_allclose(in_g.channels["acc_z"], rec.channels["acc_z"], rtol=1e-9)
     u, _ = indicated(rec)  # the calibration reads them with 1 V per m/s^2
     sl = rec.segment_slices()[3]
     assert u[3, 0] == pytest.approx(np.median(rec.channels["acc_x"][sl]))

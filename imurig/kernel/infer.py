@@ -78,7 +78,7 @@ def resolve_site(rec: Recording, site: str | None, where: str) -> None:
     if "gravity_m_s2" not in s:
         s = dict(s)
         s["gravity_m_s2"] = normal_gravity(float(s["latitude_deg"]), float(s.get("altitude_m", 0.0)))
-        note(rec, "site.gravity_m_s2", s["gravity_m_s2"], "WGS-84 normal gravity at the site's latitude and "
+        note(rec, "site_gravity_m_s2", s["gravity_m_s2"], "WGS-84 normal gravity at the site's latitude and "
                                                             "altitude (give site.gravity_m_s2 if measured)")
         warn(rec, "local gravity not given: WGS-84 normal gravity is used (differs from a measured value by up "
                   "to ~1e-3 m/s^2)")
@@ -255,7 +255,7 @@ def scan_list(rec: Recording, order: list[str]) -> None:
     if not lst:
         return
     rec.meta["adc"] = {**(adc if isinstance(adc, dict) else {}), "scan_list": lst}
-    note(rec, "adc.scan_list", lst, "no 'adc.scan_list' given: the file's column order is taken as the ADC's "
+    note(rec, "adc_scan_list", lst, "no 'adc.scan_list' given: the file's column order is taken as the ADC's "
                                     "scan order (crosstalk tests rely on it; give it if it differs)")
 
 
