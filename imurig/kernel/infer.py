@@ -277,8 +277,9 @@ def inference_report(meta: dict) -> tuple[dict, str]:
 def gyro_noise_model(rec: Recording) -> None:
     """``gyro_noise_model`` from the data when the file gives none: white rate noise sigma per sample
     from the first differences within the plateaus (2 % trimmed at each end), sigma = median over
-    the plateaus of std(diff) / sqrt(2) (a slow drift cancels, a step at an edge does not count), floored at the ADC's q / sqrt(12); ARW N = sigma / sqrt(fs) (the bench's convention:
-    sample noise N sqrt(fs)), the median over the axes, in rad/s/sqrt(Hz). The bias instability is
+    the plateaus of std(diff) / sqrt(2) (a slow drift cancels, a step at an edge does not count),
+    floored at the ADC's q / sqrt(12); ARW N = sigma / sqrt(fs) (the bench's convention: sample
+    noise N sqrt(fs)), the median over the axes, in rad/s/sqrt(Hz). The bias instability is
     not resolved from a calibration record: 0, with a warning."""
     if "gyro_noise_model" in rec.meta or not all(c in rec.channels for c in GYRO) or rec.n_segments == 0:
         return
