@@ -137,7 +137,8 @@ def test_readme_csv_example_parses(tmp_path):
     from pathlib import Path
 
     readme = (Path(__file__).parents[1] / "README.md").read_text()
-    block = readme.split("## The lab CSV format")[1].split("```")[1]
+    blocks = readme.split("## The lab CSV format")[1].split("```")
+    block = next(b for b in blocks[1::2] if "table_survey" in b)  # the full file (the minimal one comes first)
     p = tmp_path / "example.csv"
     p.write_text(block.strip() + "\n")
     rec = read_csv(p)

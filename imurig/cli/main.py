@@ -49,6 +49,10 @@ def main(argv=None) -> int:
     except ImurigError as e:
         print(f"imurig: error: {e}", file=sys.stderr)
         return 2
+    except MemoryError as e:  # an allocation refused (numpy's _ArrayMemoryError is one): a message, not a traceback
+        print(f"imurig: error: out of memory ({e}); cut the recording (e.g. per run) or lower its sample rate",
+              file=sys.stderr)
+        return 2
     return 0
 
 

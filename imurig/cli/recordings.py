@@ -9,6 +9,7 @@ from pathlib import Path
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError
 from imurig.kernel.files import load
+from imurig.kernel.infer import inference_report
 from imurig.kernel.labcsv import write_csv
 from imurig.kernel.outputs import OutputFolder
 from imurig.kernel.recording import save_h5
@@ -18,8 +19,9 @@ def add_recording_parsers(sub) -> None:
     """The five commands on the ``imurig`` subparsers ``sub``."""
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    cal.add_argument("recording", help=".csv (lab format, see README) or .h5")
-    cal.add_argument("--rig", default="tilt-table")
+    cal.add_argument("recording", help=".csv (lab format, see README), .mat (MATLAB) or .h5")
+    _lab_options(cal, rig=False)
+    cal.add_argument("--rig", default=None, help="the rig (default: the file's '# rig:' line, else tilt-table)")
     cal.add_argument("--model", default="physical",
                      choices=["physical", "linear", "cross", "seed_final", "stepwise", "backward"])
     cal.add_argument("--out", default="imurig-out/calibration")
@@ -48,6 +50,7 @@ def add_recording_parsers(sub) -> None:
                          "default")
     dg.add_argument("--twin-without-earth-rate", action="store_true",
                     help="turn table: a twin whose reference leaves the Earth's rate out (as many labs do)")
+    _lab_options(dg)
     dg.set_defaults(func=_run_diagnose)
 
     conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")
@@ -58,14 +61,32 @@ def add_recording_parsers(sub) -> None:
 
     info = sub.add_parser("info", help="summarise a recording")
     info.add_argument("recording")
+    _lab_options(info)
     info.set_defaults(func=_run_info)
+
+
+def _lab_options(p, rig: bool = True) -> None:
+    """What a lab file (.csv, .mat) may lack and the import cannot infer."""
+    g = p.add_argument_group("lab files (.csv, .mat): what the file does not say")
+    if rig:
+        g.add_argument("--rig", default=None, help="tilt_table, turn_table ... (default: the file's '# rig:' line)")
+    g.add_argument("--site", default=None, help="a named site (delft) when the file has no '# site:' line")
+    g.add_argument("--pulse-channel", default=None, metavar="NAME",
+                   help="the channel holding the index pulse (default: 'pulse', i.e. a column pulse_V)")
+
+
+def _load(a):
+    """The recording named on the command line, with the lab options."""
+    return load(a.recording, rig=a.rig.replace("-", "_") if a.rig else None, site=a.site,
+                pulse_channel=a.pulse_channel)
 
 
 def _run_calibrate(a):
     # heavy (matplotlib, the campaigns' MuJoCo rigs): loaded when the command runs, not for --help
     from imurig.reports.tilt_table import _report_md, analyse, make_figures, summary_dict
 
-    rec = load(a.recording).validate()
+    rec = _load(a).validate()
+    a.rig = (a.rig or str(rec.meta.get("rig", "tilt-table"))).replace("_", "-")
     if a.rig != "tilt-table":
         raise ImurigError(f"rig {a.rig!r} is not supported yet; use --rig tilt-table")
     with OutputFolder(a.out, overwrite=a.overwrite) as out:
@@ -75,8 +96,10 @@ def _run_calibrate(a):
                  **{f"figure_{k}": v for k, v in figs.items()}}
         out.write_json("calibration.json", res["main"].to_dict())
         s = summary_dict(None, rec, res, {}, files)
+        imported, section = inference_report(rec.meta)
+        s.update(imported)
         out.write_json("summary.json", s)
-        out.write_text("report.md", _report_md(None, rec, res, figs, {}))
+        out.write_text("report.md", _report_md(None, rec, res, figs, {}) + ("\n" + section if section else ""))
     print_summary(s, a.out)
 
 
@@ -112,7 +135,7 @@ def _run_diagnose(a):
     elif a.recording.lower().endswith(".csv") and _is_appendix_b(a.recording):
         rec = read_simona(a.recording)
     else:
-        rec = load(a.recording).validate()
+        rec = _load(a).validate()
     # the twin: the recording's own meta["diagnose_twin"] (if any), overridden by the flags given
     d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
             earth_rate=False if a.twin_without_earth_rate else None)
@@ -142,10 +165,11 @@ def _run_convert(a):
 
 
 def _run_info(a):
-    rec = load(a.recording)
+    rec = _load(a)
     info = {"samples": rec.n, "duration_s": float(rec.time_s[-1] - rec.time_s[0]),
             "sample_rate_hz": rec.sample_rate_hz, "blocks": len(rec.blocks()),
             "channels": {k: rec.units[k] for k in rec.channels}, "segments": rec.n_segments,
             "segment_columns": sorted(rec.segments), "meta_keys": sorted(rec.meta),
-            "has_truth": rec.truth is not None}
-    print(json.dumps(info, indent=2))
+            "has_truth": rec.truth is not None, "inferred": rec.meta.get("inferred", {}),
+            "import_warnings": rec.meta.get("import_warnings", [])}
+    print(json.dumps(info, indent=2, default=float))

@@ -77,7 +77,8 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str | None = None, earth
     if kind == "thermal":
         return {"kind": kind, **diagnose_thermal(rec, rng)}
     if kind == "turn_table":
-        return {"kind": kind, **diagnose_turn_table(rec, rng, earth_rate=o.get("earth_rate", True))}
+        return {"kind": kind, **diagnose_turn_table(rec, rng, earth_rate=o.get("earth_rate", True),
+                                                               timer=str(rec.meta.get("timer", "hp6700")))}
     if kind == "magnetometer":
         return {"kind": kind, **diagnose_magnetometer(rec, rng, twin_model=o.get("twin_model", "nominal"))}
     return {"kind": kind, **diagnose_tilt_table(rec, rng, twin_model=o.get("twin_model", "physical"),

@@ -38,11 +38,12 @@ from pathlib import Path
 import numpy as np
 
 from imurig.kernel.errors import RecordingError
+from imurig.kernel.import_lab import check_memory, columns_to_channels, count_rows, infer_structure, is_minimal
+from imurig.kernel.infer import resolve_site
 from imurig.kernel.outputs import atomic_write
 from imurig.kernel.recording import Recording
-from imurig.kernel.units import from_si, split_column, to_si
+from imurig.kernel.units import from_si, split_column
 
-INDEX_COLUMNS = ("segment", "run")
 
 
 def _parse_value(text: str):
@@ -76,11 +77,66 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def read_csv(path) -> Recording:
-    """Read a lab CSV into a Recording (SI inside). Raises RecordingError with the fix."""
+def read_csv(path, rig: str | None = None, site=None, pulse_channel: str | None = None,
+             memory_limit_bytes: int | None = None) -> Recording:
+    """Read a lab CSV into a Recording (SI inside). Raises RecordingError with the fix.
+
+    A file without a ``segment`` column and without ``# setpoints:`` is a minimal lab file: its
+    structure is inferred and reported (:func:`imurig.kernel.import_lab.infer_structure`); ``rig``,
+    ``site`` (a name such as 'delft') and ``pulse_channel`` stand in for what the file lacks.
+    """
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path} does not exist")
+    meta_flat, header, n_head = _read_head(path)
+    check_memory(count_rows(path) - n_head, len(header), str(path), memory_limit_bytes)
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=n_head, ndmin=2, dtype=float)
+    except ValueError as exc:
+        raise RecordingError(f"{path}: a value is not a number ({exc}); use '.' as decimal point and "
+                             "'nan' for missing values") from None
+    if data.shape[1] != len(header):
+        raise RecordingError(f"{path}: {data.shape[1]} values per row but {len(header)} header names")
+    cols = {h: data[:, i] for i, h in enumerate(header)}
+    del data
+    meta = _nest(meta_flat)
+    return build_recording(cols, header, meta, str(path), path.name, rig=rig, site=site,
+                           pulse_channel=pulse_channel)
+
+
+def build_recording(cols: dict, header: list[str], meta: dict, where: str, source: str, rig=None, site=None,
+                    pulse_channel=None) -> Recording:
+    """Named columns (``time_s``, ``name_unit`` ..., optional ``segment``/``run``) and metadata to a
+    validated Recording: as declared, or inferred for a minimal file (see :func:`read_csv`)."""
+    if "time_s" not in header:
+        raise RecordingError(f"{where}: no 'time_s' column; the lab format needs a time column in seconds "
+                             f"(columns are {header})")
+    channels, units, events, notes = columns_to_channels(cols, meta, where)
+    rec = Recording(time_s=cols["time_s"], channels=channels, units=units, meta=meta, events=events)
+    rec.meta.setdefault("source", source)
+    minimal = is_minimal(header, meta)
+    if minimal:
+        _check_time(rec, where)
+        order = [split_name(h) for h in header if h != "time_s"]
+        infer_structure(rec, where, order, rig=rig, site=site, pulse_channel=pulse_channel, column_notes=notes)
+        return rec.validate()
+    if rig:
+        rec.meta["rig"] = rig.replace("-", "_")
+    if site is not None or isinstance(meta.get("site"), str):
+        resolve_site(rec, site, where)
+    setpoints = meta.get("setpoints", [])
+    if isinstance(setpoints, str):
+        setpoints = [s.strip() for s in setpoints.split(",") if s.strip()]
+        meta["setpoints"] = setpoints
+    for sp in setpoints:
+        if sp not in channels:
+            raise RecordingError(f"{where}: metadata names set-point '{sp}' but there is no column '{sp}_<unit>'")
+    rec.validate()
+    rec.segments, rec.segment_units = _segments_from_columns(rec, cols.get("segment"), cols.get("run"), setpoints)
+    return rec.validate()
+
+
+def _read_head(path: Path):
     meta_flat: dict = {}
     header = None
     n_head = 0
@@ -102,61 +158,26 @@ def read_csv(path) -> Recording:
             break
     if header is None:
         raise RecordingError(f"{path}: no header row found after the '#' metadata block")
-    if "time_s" not in header:
-        raise RecordingError(f"{path}: no 'time_s' column; the lab format needs a time column in seconds "
-                             f"(header is {header})")
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise RecordingError(f"{path}: duplicate columns {dup}")
-    specs = {}
-    for h in header:
-        if h in INDEX_COLUMNS or _event_name(h):
-            continue
-        specs[h] = split_column(h)
-    try:
-        data = np.loadtxt(path, delimiter=",", skiprows=n_head, ndmin=2, dtype=float)
-    except ValueError as exc:
-        raise RecordingError(f"{path}: a value is not a number ({exc}); use '.' as decimal point and "
-                             "'nan' for missing values") from None
-    if data.shape[1] != len(header):
-        raise RecordingError(f"{path}: {data.shape[1]} values per row but {len(header)} header names")
-    cols = {h: data[:, i] for i, h in enumerate(header)}
-    events = {}
-    for h in list(cols):
-        if _event_name(h):
-            x = cols.pop(h)
-            events[_event_name(h)] = np.sort(x[np.isfinite(x)])
-    time_s = cols.pop("time_s")
-    channels, units = {}, {}
-    for h, x in cols.items():
-        if h in INDEX_COLUMNS:
-            continue
-        name, spec = specs[h]
-        if name in channels:
-            raise RecordingError(f"{path}: channel '{name}' appears twice with different units")
-        channels[name] = to_si(x, spec)
-        units[name] = spec.si
-    meta = _nest(meta_flat)
-    setpoints = meta.get("setpoints", [])
-    if isinstance(setpoints, str):
-        setpoints = [s.strip() for s in setpoints.split(",") if s.strip()]
-        meta["setpoints"] = setpoints
-    for sp in setpoints:
-        if sp not in channels:
-            raise RecordingError(f"{path}: metadata names set-point '{sp}' but there is no column '{sp}_<unit>'")
-    rec = Recording(time_s=time_s, channels=channels, units=units, meta=meta, events=events)
-    rec.meta.setdefault("source", str(path.name))
-    rec.validate()
-    seg_id = cols.get("segment")
-    run = cols.get("run")
-    rec.segments, rec.segment_units = _segments_from_columns(rec, seg_id, run, setpoints)
-    return rec.validate()
+    return meta_flat, header, n_head
 
 
-def _event_name(header: str) -> str | None:
-    if header.startswith("event_") and header.endswith("_s") and len(header) > 8:
-        return header[len("event_"):-2]
-    return None
+def _check_time(rec: Recording, where: str) -> None:
+    t = rec.time_s
+    if t.size < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        try:
+            rec.validate()
+        except RecordingError as e:
+            raise RecordingError(f"{where}: {e}") from None
+
+
+def split_name(header: str) -> str:
+    """The channel name of a column header (its unit suffix dropped)."""
+    if header.endswith("_counts"):
+        return header[:-7]
+    return header.rpartition("_")[0] if header.endswith("_g") else split_column(header)[0]
 
 
 def _segments_from_columns(rec: Recording, seg_id, run, setpoints):

@@ -105,15 +105,20 @@ class Recording:
     def require(self, needed: Mapping[str, str]) -> None:
         """Check that each channel in ``needed`` (name -> SI unit) exists with that unit.
 
-        Raises RecordingError naming the missing or mislabelled channel and the fix.
+        Raises RecordingError naming the missing or mislabelled channel and the fix. A channel the
+        import found in physical units (``meta["physical_unit_channels"]``: name -> SI unit, e.g.
+        m/s^2 from a maker-scaled logger) meets a "V" requirement: it stands for volts with an
+        effective sensitivity of 1 V per SI unit, which the import writes into the nominal
+        sensitivity metadata.
         """
+        physical = self.meta.get("physical_unit_channels", {}) if isinstance(self.meta, dict) else {}
         missing = [k for k in needed if k not in self.channels]
         if missing:
             raise RecordingError(
                 f"recording lacks channel(s) {missing}; it has {sorted(self.channels)}. "
                 f"Add them (CSV columns such as '{missing[0]}_V') or rename the existing columns")
         for k, unit in needed.items():
-            if self.units[k] != unit:
+            if self.units[k] != unit and not (unit == "V" and physical.get(k) == self.units[k]):
                 raise RecordingError(
                     f"channel '{k}' is in {self.units[k]} but {unit} is needed; if the data are really "
                     f"in {unit}, fix the unit suffix of the CSV column, otherwise convert them")

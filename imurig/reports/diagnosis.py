@@ -13,6 +13,7 @@ from imurig.diagnose.dispatch import TWIN_OPTIONS, diagnose, record_kind, twin_o
 from imurig.diagnose.rate_table import SEED_SAYS
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.kernel.infer import inference_report
 from imurig.reports.common import md_table
 from imurig.reports.diagnosis_figures import figure_fit_before_after
 from imurig.reports.diagnosis_figures_tilt import figure_tilt_positions, figure_tilt_slews
@@ -51,6 +52,10 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
               *[f"\n![{cap}]({f})\n\n{cap}\n" for f, cap in figs],
               ("\n`diagnosis.rrd` overlays the recording, the twin and the corrected twin per channel "
               "(`signals/<channel>/<observable>/...`).\n")]
+        imported, section = inference_report(rec.meta)
+        if imported:
+            md.append("\n" + section)
+            d["import"] = imported
         out.write_text("report.md", "\n".join(md))
         out.write_json("diagnosis.json", clean_json(d))
     return d
