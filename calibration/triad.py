@@ -64,18 +64,52 @@ class TriadSpec:
         return TermLibrary.from_names(["1", *self.inputs, f"{self.inputs[self.axes.index(axis)]}^2"])
 
 
+def nominal_sensitivity(rec: Recording, spec: TriadSpec, channels=None) -> tuple[np.ndarray, str]:
+    """(nominal sensitivity s (3,), channel unit) so that the indicated quantity is u = x / s (SI).
+
+    What is assumed, by the channels' unit (all three the same):
+    - ``V``: volts per SI unit from the metadata ``spec.sensitivity_key`` (required);
+    - ``1`` (ADC counts): counts per SI unit from the metadata key with ``_V_per_`` replaced by
+      ``_counts_per_`` (e.g. ``acc_nominal_sensitivity_counts_per_m_s2``), else ``spec.sensitivity_key``;
+    - the triad's own SI unit (m/s^2, rad/s: values already scaled by the maker): s = 1 (SI per SI),
+      and the calibration fits the errors that remain.
+    """
+    channels = spec.channels if channels is None else channels
+    missing = [c for c in channels if c not in rec.channels]
+    if missing:
+        raise RecordingError(f"recording lacks channel(s) {missing}; it has {sorted(rec.channels)}. Add them "
+                             f"(CSV columns such as '{missing[0]}_V', '{missing[0]}_counts' or in SI units)")
+    units = {rec.units[c] for c in channels}
+    if len(units) != 1:
+        raise RecordingError(f"the {spec.kind} channels {list(channels)} come in different units "
+                             f"{sorted(units)}; give all three in one unit (V, counts or {spec.quantity_unit})")
+    unit = units.pop()
+    if unit == spec.quantity_unit:
+        return np.ones(3), unit
+    if unit not in ("V", "1"):
+        raise RecordingError(f"the {spec.kind} channels are in {unit}; give them in V, ADC counts or "
+                             f"{spec.quantity_unit}")
+    keys = [spec.sensitivity_key.replace("_V_per_", "_counts_per_")] * (unit == "1") + [spec.sensitivity_key]
+    s = next((rec.meta[k] for k in keys if rec.meta.get(k) is not None), None)
+    if s is None:
+        per = "volts" if unit == "V" else "ADC counts"
+        raise RecordingError(f"the recording has no '{keys[0]}' metadata ({per} per {spec.quantity_unit} of "
+                             f"each {spec.kind}{spec.sensitivity_hint if unit == 'V' else ''}); add it as "
+                             f"'# {keys[0]}: [s_1, s_2, s_3]' or pass it")
+    s = np.broadcast_to(np.asarray(s, float), (3,)).copy()
+    if not np.all(np.isfinite(s)) or np.any(s == 0):
+        raise RecordingError(f"the nominal sensitivity '{keys[0]}' = {s.tolist()} must be finite and non-zero")
+    return s, unit
+
+
 def indicated(rec: Recording, spec: TriadSpec, statistic: str = "median", sensitivity=None):
-    """Indicated quantity u (SI) per segment (statistic='median'/'mean') or per sample ('raw').
+    """Indicated quantity u = x / s_nom (SI) per segment (statistic='median'/'mean') or per sample ('raw'),
+    with s_nom from :func:`nominal_sensitivity` (volts, counts or SI channels) unless given.
 
     Returns (u (m,3), segment index (m,)).
     """
-    rec.require({c: "V" for c in spec.channels})
-    s = sensitivity if sensitivity is not None else rec.meta.get(spec.sensitivity_key)
-    if s is None:
-        raise RecordingError(f"the recording has no '{spec.sensitivity_key}' metadata (volts per "
-                             f"{spec.quantity_unit} of each {spec.kind}{spec.sensitivity_hint}); add it as "
-                             f"'# {spec.sensitivity_key}: [s_1, s_2, s_3]' or pass it")
-    s = np.broadcast_to(np.asarray(s, float), (3,))
+    s_meta, _ = nominal_sensitivity(rec, spec)
+    s = np.broadcast_to(np.asarray(sensitivity if sensitivity is not None else s_meta, float), (3,))
     if statistic == "raw":
         v, seg = segment_samples(rec, spec.channels)
     else:
@@ -156,8 +190,7 @@ class TriadCalibration(Estimator):
         spec = self.SPEC
         if reference is None:
             raise ValueError(f"{type(self).__name__}.fit needs the reference quantity per segment (n_segments, 3)")
-        s = rec.meta.get(spec.sensitivity_key)
-        self.sensitivity_ = None if s is None else np.broadcast_to(np.asarray(s, float), (3,)).copy()
+        self.sensitivity_, self.channel_unit_ = nominal_sensitivity(rec, spec)
         u, seg = indicated(rec, spec, self.statistic)
         reference = np.asarray(reference, float)
         if reference.shape != (rec.n_segments, 3):
@@ -197,7 +230,7 @@ class TriadCalibration(Estimator):
                              f"array, got {segment_cov.shape}")
         if self.model in ("stepwise", "backward") or self.statistic == "raw" or response_cov is not None:
             raise ValueError("segment_cov needs a fixed model, per-segment statistics and no response_cov")
-        sens = np.broadcast_to(np.asarray(rec.meta[spec.sensitivity_key], float), (3,))
+        sens = nominal_sensitivity(rec, spec)[0]
         within = np.nanmean(segment_statistic_variance(rec, spec.channels, self.statistic), axis=0) / sens**2
         return segment_cov[seg], np.nan_to_num(within)
 
@@ -286,7 +319,8 @@ class TriadCalibration(Estimator):
             return np.array(out)
 
         q = spec.quantity_unit
-        labels = ([(f"sensitivity_{a}", f"V/({q})") for a in axes]
+        cu = getattr(self, "channel_unit_", "V")
+        labels = ([(f"sensitivity_{a}", f"{_unit_word(cu)}/({q})") for a in axes]
                   + [(f"misalignment_{axes[i]}{axes[j]}", "rad") for i in range(3) for j in range(3) if i != j]
                   + [(f"bias_{a}", q) for a in axes]
                   + [(f"nonlinearity_{a}", f"1/({q})") for a in axes])
@@ -312,7 +346,7 @@ class TriadCalibration(Estimator):
         return {"kind": spec.json_kind, "version": 1, "model": str(self.model),
                 "statistic": self.statistic,
                 "nominal_sensitivity": None if self.sensitivity_ is None else self.sensitivity_.tolist(),
-                "nominal_sensitivity_unit": f"V/({spec.quantity_unit})",
+                "nominal_sensitivity_unit": f"{_unit_word(getattr(self, 'channel_unit_', 'V'))}/({spec.quantity_unit})",
                 "equation": f"ref_i [{spec.quantity_unit}] = sum_k coef_ik * term_k(u), u = volts / "
                             "nominal_sensitivity",
                 "axes": {a: {"terms": n, "coef": c.tolist()} for a, (n, c) in self.models().items()}}
@@ -333,10 +367,7 @@ class TriadCalibration(Estimator):
         """Add calibrated channels ``<prefix><axis>`` (SI) to a copy of ``rec``."""
         self.check_fitted()
         spec = self.SPEC
-        rec.require({c: "V" for c in spec.channels})
-        s = self.sensitivity_ if self.sensitivity_ is not None else rec.meta.get(spec.sensitivity_key)
-        if s is None:
-            raise RecordingError("no nominal sensitivity in the calibration or the recording's metadata")
+        s = self.sensitivity_ if self.sensitivity_ is not None else nominal_sensitivity(rec, spec)[0]
         u = rec.stack(spec.channels) / np.asarray(s, float)
         f = self.predict(u)
         channels, units = dict(rec.channels), dict(rec.units)
@@ -349,6 +380,10 @@ class TriadCalibration(Estimator):
         """Seed-style table: coefficients per axis and sigma_res, MS_res, R, R_adj."""
         self._require_results("table")
         return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
+
+
+def _unit_word(unit: str) -> str:
+    return "counts" if unit == "1" else unit
 
 
 def forward_parameters(axes, sensitivity, bias, k2, misalignment) -> dict:
