@@ -19,9 +19,19 @@ def add_recording_parsers(sub) -> None:
     cal = sub.add_parser("calibrate", help="calibrate a recording (yours or simulated)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     cal.add_argument("recording", help=".csv (lab format, see README) or .h5")
-    cal.add_argument("--rig", default="tilt-table")
-    cal.add_argument("--model", default="physical",
-                     choices=["physical", "linear", "cross", "seed_final", "stepwise", "backward"])
+    cal.add_argument("--rig", default=None,
+                     choices=["tilt-table", "turn-table", "six-face", "thermal", "magnetometer"],
+                     help="default: the recording's '# rig:' line, else inferred from its set-points "
+                          "(none: six-face, a box on its six faces and rotated about each axis)")
+    cal.add_argument("--model", default=None,
+                     choices=["auto", "physical", "linear", "cross", "seed_final", "stepwise", "backward"],
+                     help="default: the rig's (tilt and turn table: physical; six-face: auto, the linear model "
+                          "plus the terms the faces identify)")
+    cal.add_argument("--timer", default="auto", choices=["auto", "adc", "hp6700", "gps_mark"],
+                     help="turn table: the timer of the once-per-round pulses (auto: the HP counter's events, "
+                          "another timer's, else the ADC pulse channel)")
+    cal.add_argument("--rotation-deg", type=float, default=360.0,
+                     help="six-face: the known angle of each hand rotation")
     cal.add_argument("--out", default="imurig-out/calibration")
     cal.add_argument("--overwrite", action="store_true")
     cal.set_defaults(func=_run_calibrate)
@@ -63,13 +73,44 @@ def add_recording_parsers(sub) -> None:
 
 def _run_calibrate(a):
     # heavy (matplotlib, the campaigns' MuJoCo rigs): loaded when the command runs, not for --help
-    from imurig.reports.tilt_table import _report_md, analyse, make_figures, summary_dict
+    from imurig.reports import calibrate_rigs as cr
 
     rec = load(a.recording).validate()
-    if a.rig != "tilt-table":
-        raise ImurigError(f"rig {a.rig!r} is not supported yet; use --rig tilt-table")
+    rig = a.rig or cr.infer_rig(rec)
+    model = cr.check_model(rig, a.model)
+    if rig == "tilt-table":
+        return _calibrate_tilt_table(a, rec, model)
+    if not (a.rotation_deg > 0):
+        raise ImurigError(f"--rotation-deg must be positive, got {a.rotation_deg}")
     with OutputFolder(a.out, overwrite=a.overwrite) as out:
-        res = analyse(rec, a.model)
+        if rig == "turn-table":
+            s = cr.calibrate_turn_table(rec, out, model, a.timer)
+        elif rig == "six-face":
+            s = cr.calibrate_six_face(rec, out, model, a.rotation_deg)
+        elif rig == "thermal":
+            s = cr.calibrate_thermal(rec, out)
+        else:
+            s = cr.calibrate_magnetometer(rec, out)
+    _print_parameters(s, a.out)
+
+
+def _print_parameters(s: dict, out) -> None:
+    for n in s.get("notes", []):
+        print(f"- {n}")
+    print(f"{'parameter':28s} {'estimate':>14s} {'std.err':>10s} {'z':>6s}")
+    for p in s["parameters"]:
+        z = "–" if p.get("z") is None else f"{p['z']:+.2f}"
+        est = "–" if p["estimate"] is None else f"{p['estimate']:+.6e}"
+        se = "–" if p["std_error"] is None else f"{p['std_error']:.2e}"
+        print(f"{p['name']:28s} {est:>14s} {se:>10s} {z:>6s}")
+    print(f"report: {Path(out) / 'report.md'}")
+
+
+def _calibrate_tilt_table(a, rec, model):
+    from imurig.reports.tilt_table import _report_md, analyse, make_figures, summary_dict
+
+    with OutputFolder(a.out, overwrite=a.overwrite) as out:
+        res = analyse(rec, model)
         figs = make_figures(out, rec, res)
         files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                  **{f"figure_{k}": v for k, v in figs.items()}}

@@ -1,0 +1,171 @@
+"""The six-position-and-rotation protocol, the smallest protocols and `imurig calibrate` for every rig.
+
+The recordings here come from a forward model written in this file with numpy only (no imports
+from the rigs or sensors): a box still on its six faces, turned between them, then rotated by hand
+through 360 deg about each axis. Per sample, with f the specific force and w the rate in the body:
+
+    acc = K_a f + b_a + n_a,    gyro = K_g w + b_g + n_g,    K = diag(1 + s) (I + M),
+
+white noise n of known standard deviation. Estimates are checked against this truth within
+k standard errors, with the standard errors from the noise.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imurig.calibration.six_face import FACES, detect, face_table, fit_accelerometer
+from imurig.calibration.six_face_gyro import fit_gyro
+from imurig.kernel.recording import Recording
+
+G = 9.81
+FS = 102.4
+SIG_A = 0.02            # m/s^2 per sample
+SIG_G = math.radians(0.2)  # rad/s per sample
+
+
+def _rot(axis: int, angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    R = np.eye(3)
+    i, j = [k for k in range(3) if k != axis]
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+def truth(rng: np.random.Generator) -> dict:
+    def k(scale, mis):
+        M = rng.normal(0, mis, (3, 3))
+        np.fill_diagonal(M, 0)
+        return np.diag(1 + rng.normal(0, scale, 3)) @ (np.eye(3) + M)
+    return {"K_a": k(0.01, 0.005), "b_a": rng.normal(0, 0.1, 3),
+            "K_g": k(0.01, 0.005), "b_g": rng.normal(0, math.radians(0.5), 3)}
+
+
+#: (axis, angle deg, duration s) of the turns: four 90 deg turns and one 180 deg turn onto the six
+#: faces (+z, +y, -z, -y, -x, +x), then 360 deg about x, y and z
+TURNS = [(0, 90, 2.0), (0, 90, 2.0), (0, 90, 2.0), (2, 90, 2.0), (2, 180, 3.0),
+         (0, 360, 4.0), (1, 360, 5.0), (2, -360, 4.0)]
+
+
+def make_session(rng: np.random.Generator, tr: dict, still_s: float = 8.0, units=("m_s2", "dps")) -> Recording:
+    """A six-face-and-rotation recording at FS from the forward model of the module doc."""
+    f0 = np.array([0.0, 0.0, G])
+    fs, ws = [], []
+    n_still = int(still_s * FS)
+    for turn in TURNS + [None]:
+        fs.append(np.tile(f0, (n_still, 1)))
+        ws.append(np.zeros((n_still, 3)))
+        if turn is None:
+            break
+        ax, deg, dur = turn
+        n = int(dur * FS)
+        t = (np.arange(n) + 0.5) / FS
+        rate = math.radians(deg) * 2 / dur * np.sin(np.pi * t / dur) ** 2   # integrates to the angle
+        phi = np.cumsum(rate) / FS
+        w = np.zeros((n, 3))
+        w[:, ax] = rate
+        fs.append(np.array([_rot(ax, -p) @ f0 for p in phi]))
+        ws.append(w)
+        f0 = _rot(ax, -phi[-1]) @ f0
+        f0[np.abs(f0) < 1e-9] = 0.0
+    f, w = np.vstack(fs), np.vstack(ws)
+    acc = f @ tr["K_a"].T + tr["b_a"] + rng.normal(0, SIG_A, f.shape)
+    gyro = w @ tr["K_g"].T + tr["b_g"] + rng.normal(0, SIG_G, w.shape)
+    chans = {f"acc_{a}": acc[:, j] for j, a in enumerate("xyz")}
+    chans.update({f"gyro_{a}": gyro[:, j] for j, a in enumerate("pqr")})
+    units_si = {"m_s2": "m/s^2", "dps": "rad/s"}
+    rec = Recording(time_s=np.arange(len(f)) / FS, channels=chans,
+                    units={k: "m/s^2" if k.startswith("acc") else "rad/s" for k in chans},
+                    meta={"rig": "six_face", "site": {"gravity_m_s2": G}, "source": "forward-model"})
+    assert units_si[units[0]] == "m/s^2"
+    return rec.validate()
+
+
+def true_params(K: np.ndarray, b: np.ndarray, axes: str, prefix: str = "") -> dict:
+    """The forward model's parameters as the calibration names them: sensitivity K_jj, misalignment
+    K_jk / K_jj, bias b_j / K_jj."""
+    out = {f"{prefix}sensitivity_{a}": K[j, j] for j, a in enumerate(axes)}
+    out.update({f"{prefix}misalignment_{axes[i]}{axes[k]}": K[i, k] / K[i, i]
+                for i in range(3) for k in range(3) if i != k})
+    out.update({f"{prefix}bias_{a}": b[j] / K[j, j] for j, a in enumerate(axes)})
+    return out
+
+
+@pytest.fixture(scope="module")
+def session():
+    rng = np.random.default_rng(20261124)
+    tr = truth(rng)
+    return tr, make_session(rng, tr)
+
+
+def test_protocol_recognised_six_faces_and_three_rotations(session):
+    _, rec = session
+    p = detect(rec)
+    assert all(len(p.faces[f]) >= 1 for f in FACES)
+    assert len(p.faces["+x"]) == 4          # the last face, and the still windows between the rotations
+    assert [(r["axis"], r["sign"]) for r in p.rotations] == [(0, 1.0), (1, 1.0), (2, -1.0)]
+
+
+def test_six_face_estimates_within_4_se_of_truth(session):
+    tr, rec = session
+    p = detect(rec)
+    acc = rec.stack(["acc_x", "acc_y", "acc_z"])
+    m, v, _ = face_table(acc, p.faces)
+    ra = fit_accelerometer(m, v, G)
+    gy = fit_gyro(rec.stack(["gyro_p", "gyro_q", "gyro_r"]), FS, p.faces, p.rotations)
+    want = {**true_params(tr["K_a"], tr["b_a"], "xyz"), **true_params(tr["K_g"], tr["b_g"], "pqr")}
+    got = ra["parameters"] + gy["parameters"]
+    assert len(got) == 24
+    for q in got:
+        assert abs(q["estimate"] - want[q["name"]]) < 4 * q["std_error"], q
+    # six faces: the linear model only; the own square would leave one degree of freedom, the cross
+    # products are zero on every face; each is named with its reason
+    assert all(t == ["1", "fx", "fy", "fz"] for t in ra["terms"].values())
+    assert any("fx^2" in s and "degree(s) of freedom" in s for s in ra["left_out"])
+    assert any("fx*fy" in s and "not identifiable" in s for s in ra["left_out"])
+    # the gyro's standard errors come from the noise: the scale's SE is the white noise integrated
+    # over the rotation, sqrt(sigma^2 T / fs) / angle, within the bias's share
+    T = np.array([r["slice"].stop - r["slice"].start for r in p.rotations]) / FS
+    se_scale = SIG_G * np.sqrt(T / FS) / (2 * np.pi)
+    got_se = np.array([q["std_error"] for q in gy["parameters"][:3]])
+    assert np.all(got_se > 0.8 * se_scale * np.diag(tr["K_g"])) and np.all(got_se < 1.5 * se_scale)
+
+
+def test_face_level_standard_errors_are_honest():
+    """80 six-face sessions drawn at the face level (means with the noise of 800 samples):
+    z of the 12 accelerometer parameters has RMS within N(0,1)'s scatter."""
+    rng = np.random.default_rng(7)
+    F = np.array([[0, 0, G], [0, 0, -G], [0, G, 0], [0, -G, 0], [G, 0, 0], [-G, 0, 0]], float)
+    order = [4, 5, 2, 3, 0, 1]   # FACES order: +x, -x, +y, -y, +z, -z
+    F = F[order]
+    z = []
+    for _ in range(80):
+        tr = truth(rng)
+        var = np.full((6, 3), SIG_A**2 / 800)
+        m = F @ tr["K_a"].T + tr["b_a"] + rng.normal(0, np.sqrt(var))
+        # the variance of the means as the fit sees it: from 10 batch means of the face's samples
+        v = var * rng.chisquare(9, var.shape) / 9
+        want = true_params(tr["K_a"], tr["b_a"], "xyz")
+        z += [(q["estimate"] - want[q["name"]]) / q["std_error"] for q in fit_accelerometer(m, v, G)["parameters"]]
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.85 < rms < 1.25, rms
+
+
+def test_standard_errors_do_not_shrink_when_faces_are_cut(session):
+    """1 window per face vs each face cut into 5 sub-windows: the same independent observations, so
+    the same standard errors (here equal to rounding; the bound is the SE's own sampling scatter,
+    sqrt(1 / (2 dof)) with dof = 2 residual degrees of freedom of six faces)."""
+    _, rec = session
+    p = detect(rec)
+    one = {f: [slice(p.faces[f][0].start, p.faces[f][0].stop)] for f in FACES}
+    cut = {f: [slice(a, min(a + (s.stop - s.start) // 5 + 1, s.stop))
+               for s in one[f] for a in range(s.start, s.stop, (s.stop - s.start) // 5 + 1)] for f in FACES}
+    assert all(len(cut[f]) == 5 for f in FACES)
+    acc = rec.stack(["acc_x", "acc_y", "acc_z"])
+    se = []
+    for faces in (one, cut):
+        m, v, _ = face_table(acc, faces)
+        se.append(np.array([q["std_error"] for q in fit_accelerometer(m, v, G)["parameters"]]))
+    assert np.all(np.abs(se[1] / se[0] - 1) < 0.5), se[1] / se[0]
