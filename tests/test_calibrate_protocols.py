@@ -11,14 +11,20 @@ k standard errors, with the standard errors from the noise.
 """
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
 
+from imurig.calibration.preprocess import lowpass_downsample
 from imurig.calibration.six_face import FACES, detect, face_table, fit_accelerometer
 from imurig.calibration.six_face_gyro import fit_gyro
-from imurig.kernel.recording import Recording
+from imurig.campaigns.turn_table import TurnTableCampaign
+from imurig.cli.main import main
+from imurig.kernel.labcsv import write_csv
+from imurig.kernel.recording import Recording, save_h5
+from imurig.rigs.turn_table import TurnTableProtocol
 
 G = 9.81
 FS = 102.4
@@ -169,3 +175,96 @@ def test_standard_errors_do_not_shrink_when_faces_are_cut(session):
         m, v, _ = face_table(acc, faces)
         se.append(np.array([q["std_error"] for q in fit_accelerometer(m, v, G)["parameters"]]))
     assert np.all(np.abs(se[1] / se[0] - 1) < 0.5), se[1] / se[0]
+
+
+# ------------------------------------------------------------------ the command line
+def _csv(rec: Recording, path) -> str:
+    write_csv(rec, path)
+    return str(path)
+
+
+def test_cli_six_face_csv_in_physical_units(session, tmp_path, capsys):
+    """A 102.4 Hz lab CSV in m/s^2 and deg/s with only a '# rig:' line calibrates from the command line."""
+    tr, rec = session
+    path = _csv(rec.replace(meta={"rig": "six_face", "site": {"gravity_m_s2": G}}), tmp_path / "box.csv")
+    assert main(["calibrate", path, "--out", str(tmp_path / "cal")]) == 0
+    s = json.loads((tmp_path / "cal" / "summary.json").read_text())
+    want = {**true_params(tr["K_a"], tr["b_a"], "xyz"), **true_params(tr["K_g"], tr["b_g"], "pqr", "gyro_")}
+    assert {p["name"] for p in s["parameters"]} == set(want)
+    for p in s["parameters"]:
+        assert abs(p["estimate"] - want[p["name"]]) < 4 * p["std_error"], p
+    # the calibrations apply: the gyro's calibrated rate on a still face is the bias removed
+    assert main(["apply", str(tmp_path / "cal" / "calibration_gyro.json"), path, "--out",
+                 str(tmp_path / "applied.h5")]) == 0
+
+
+def test_cli_refuses_a_gyro_nonlinearity_from_one_rotation_per_axis(session, tmp_path, capsys):
+    _, rec = session
+    path = _csv(rec, tmp_path / "box.csv")
+    assert main(["calibrate", path, "--model", "physical", "--out", str(tmp_path / "cal")]) == 2
+    err = capsys.readouterr().err
+    assert "nonlinearity cannot be identified" in err and "--model linear" in err and "Traceback" not in err
+    assert not (tmp_path / "cal").exists()
+
+
+def test_cli_refuses_a_missing_face(session, tmp_path, capsys):
+    _, rec = session
+    p = detect(rec)
+    keep = np.ones(rec.n, bool)
+    keep[p.faces["-y"][0]] = False   # the box never rests on -y
+    cut = rec.replace(time_s=rec.time_s[keep], channels={k: v[keep] for k, v in rec.channels.items()})
+    assert main(["calibrate", _csv(cut, tmp_path / "box.csv"), "--out", str(tmp_path / "cal")]) == 2
+    err = capsys.readouterr().err
+    assert "missing ['-y']" in err and "Traceback" not in err
+
+
+def test_counts_need_their_sensitivity_and_then_calibrate(session, tmp_path, capsys):
+    """ADC counts: refused without counts per SI unit in the metadata, calibrated with it (the
+    sensitivity then comes out in counts/(m/s^2) at the nominal value times the true scale)."""
+    tr, rec = session
+    k = 1000.0  # counts per m/s^2 and per rad/s
+    ch = {n: np.round(v * k) for n, v in rec.channels.items()}
+    counts = rec.replace(channels=ch, units={n: "1" for n in ch})
+    assert main(["calibrate", _csv(counts, tmp_path / "c.csv"), "--rig", "six-face", "--out",
+                 str(tmp_path / "c0")]) == 2
+    assert "acc_nominal_sensitivity_counts_per_m_s2" in capsys.readouterr().err
+    meta = {**rec.meta, "acc_nominal_sensitivity_counts_per_m_s2": k, "gyro_nominal_sensitivity_counts_per_rad_s": k}
+    assert main(["calibrate", _csv(counts.replace(meta=meta), tmp_path / "c1.csv"), "--rig", "six-face",
+                 "--out", str(tmp_path / "c1")]) == 0
+    s = {p["name"]: p for p in json.loads((tmp_path / "c1" / "summary.json").read_text())["parameters"]}
+    for j, a in enumerate("xyz"):
+        p = s[f"sensitivity_{a}"]
+        assert p["unit"] == "counts/(m/s^2)"
+        assert abs(p["estimate"] - k * tr["K_a"][j, j]) < 4 * p["std_error"], p
+
+
+def test_any_sample_rate_goes_through_the_preprocessing(session):
+    """102.4 Hz has no whole ratio to 100 Hz: the record keeps its rate (and is low-passed)."""
+    _, rec = session
+    seg = rec.replace(segments={"start_s": np.array([0.0]), "stop_s": np.array([5.0])},
+                      segment_units={"start_s": "s", "stop_s": "s"})
+    out = lowpass_downsample(seg)
+    assert out.n == rec.n and math.isclose(out.meta["sample_rate_hz"], FS)
+    fast = seg.replace(time_s=np.arange(rec.n) / 250.0)
+    assert math.isclose(lowpass_downsample(fast).meta["sample_rate_hz"], 125.0)
+
+
+@pytest.fixture(scope="module")
+def turn_table_h5(tmp_path_factory):
+    """A short turn-table campaign (one rate, both directions, three mountings) as the project records it."""
+    path = tmp_path_factory.mktemp("tt") / "turn.h5"
+    p = TurnTableProtocol(dial_rates_dps=(100,), min_window_s=2.0, settle_s=1.0, ramp_s=1.0, remount_s=5.0)
+    save_h5(TurnTableCampaign(protocol=p, seed=5).simulate(), path)
+    return path
+
+
+def test_cli_calibrates_a_turn_table_recording(turn_table_h5, tmp_path, capsys):
+    assert main(["calibrate", str(turn_table_h5), "--rig", "turn-table", "--model", "linear",
+                 "--out", str(tmp_path / "cal")]) == 0
+    s = json.loads((tmp_path / "cal" / "summary.json").read_text())
+    assert len(s["parameters"]) == 12
+    for p in s["parameters"]:
+        assert abs(p["z"]) < 4, p
+    assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["kind"] == "imurig.gyro_inverse_model"
+    assert main(["calibrate", str(turn_table_h5), "--model", "cross", "--out", str(tmp_path / "x")]) == 2
+    assert "--model" in capsys.readouterr().err
