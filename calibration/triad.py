@@ -33,7 +33,7 @@ from imurig.calibration.preprocess import segment_samples, segment_statistic, se
 from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.terms import TermLibrary, polynomial
-from imurig.kernel.errors import NotFittedError, RecordingError
+from imurig.kernel.errors import NotFittedError, RecordingError, UnidentifiableTermsError
 from imurig.kernel.estimator import Estimator
 from imurig.kernel.recording import Recording
 
@@ -247,6 +247,11 @@ class TriadCalibration(Estimator):
                 sel = backward_elimination(lib, inputs, y, keep=linear, criterion=self.stepwise_criterion)
             return sel.result, np.linalg.pinv(TermLibrary.from_names(sel.result.names).design(inputs)), sel, 0.0
         lib = self._library(a)
+        if len(lib) >= len(y):
+            raise UnidentifiableTermsError(
+                f"{len(y)} observations cannot fit the {len(lib)} terms of the '{self.model}' model of "
+                f"{spec.kind} axis {a} ({lib.names}): least squares needs more observations than terms. Add "
+                "positions or choose a smaller model", list(lib.names))
         X = lib.design(inputs)
         if response_cov is not None:
             V = response_cov

@@ -24,6 +24,7 @@ from imurig.campaigns.turn_table import TurnTableCampaign
 from imurig.cli.main import main
 from imurig.kernel.labcsv import write_csv
 from imurig.kernel.recording import Recording, save_h5
+from imurig.reports.tilt_table import _report_md, analyse
 from imurig.rigs.turn_table import TurnTableProtocol
 
 G = 9.81
@@ -268,3 +269,26 @@ def test_cli_calibrates_a_turn_table_recording(turn_table_h5, tmp_path, capsys):
     assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["kind"] == "imurig.gyro_inverse_model"
     assert main(["calibrate", str(turn_table_h5), "--model", "cross", "--out", str(tmp_path / "x")]) == 2
     assert "--model" in capsys.readouterr().err
+
+
+def test_tilt_table_with_six_positions_selects_only_what_the_data_can_test(small_recording):
+    """Six tilt-table positions (fewer than the ten-term library): the selection keeps the linear model,
+    says which terms it could not test and why, and every parameter stays within 4 SE of the truth
+    (the analysis `imurig calibrate` runs, without its figures)."""
+    rec = small_recording
+    s = rec.segments
+    th, ph = np.round(np.degrees(s["theta"])), np.round(np.degrees(s["phi"]))
+    idx = [i for i in range(rec.n_segments) if (th[i] == 0 and ph[i] == 0) or (th[i] == 90 and ph[i] in (0, 120, 240))]
+    seg = {k: v[idx[:6]] for k, v in s.items()}
+    keep = np.zeros(rec.n, bool)
+    for a, b in zip(seg["start_s"], seg["stop_s"]):
+        keep |= (rec.time_s >= a - 0.5) & (rec.time_s < b + 0.5)   # the six windows only (a short record)
+    six = rec.replace(segments=seg, time_s=rec.time_s[keep], channels={k: v[keep] for k, v in rec.channels.items()},
+                      truth_signals={k: v[keep] for k, v in rec.truth_signals.items()})
+    res = analyse(six, "linear")
+    assert res["main"].results_["x"].n == 6
+    for p in res["parameters"]:
+        assert abs(p["z"]) < 4, p
+    for key in ("stepwise", "backward"):
+        assert all(res[key].results_[a].names == ["1", "ax", "ay", "az"] for a in "xyz")
+    assert "fewer than 2 residual degrees of freedom" in _report_md(None, six, res, {}, {})
