@@ -235,10 +235,11 @@ def fit_accelerometer(u_faces: np.ndarray, var_faces: np.ndarray, g: float, sens
     {'parameters': [{name, unit, estimate, std_error}], 'terms': {axis: names}, 'left_out': [...],
     'C', 'c' (the forward model's linear part and constant)}."""
     F = face_reference(g) if F is None else F
-    betas, covs, terms, left = [], [], {}, []
+    betas, covs, terms, left = [], [], {}, {}
     for j, a in enumerate("xyz"):
         chosen, lo = select_terms(F, u_faces[:, j], var_faces[:, j], j, min_dof)
-        left += [f"A_{a}: {n}: {r}" for n, r in lo]
+        for n, r in lo:
+            left.setdefault((n if "*" in n else "own square", r), []).append(f"A_{a}")
         X = np.column_stack([np.ones(len(F)), F] + [_term(F, c) for c in chosen])
         K = np.diag(var_faces[:, j])
         V = K + white_variance_reml(X, u_faces[:, j], K) * np.eye(len(F))
@@ -272,7 +273,8 @@ def fit_accelerometer(u_faces: np.ndarray, var_faces: np.ndarray, g: float, sens
     c = np.array([beta[off[j]] for j in range(3)])
     return {"parameters": [{"name": n, "unit": u, "estimate": float(e), "std_error": float(s)}
                            for (n, u), e, s in zip(names, est, se)],
-            "terms": terms, "left_out": left, "C": C, "c": c, "coef_cov": cov}
+            "terms": terms, "left_out": [f"left out: {n} ({', '.join(ax)}): {r}" for (n, r), ax in left.items()],
+            "C": C, "c": c, "coef_cov": cov}
 
 
 def site_gravity(rec: Recording) -> float:

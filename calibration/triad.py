@@ -32,6 +32,7 @@ from imurig.calibration.gls import delta_cov, fit_jointly, gls_projection, refer
 from imurig.calibration.preprocess import segment_samples, segment_statistic, segment_statistic_variance
 from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
+from imurig.calibration.sensitivity import nominal_sensitivity
 from imurig.calibration.terms import TermLibrary, polynomial
 from imurig.kernel.errors import NotFittedError, RecordingError, UnidentifiableTermsError
 from imurig.kernel.estimator import Estimator
@@ -62,44 +63,6 @@ class TriadSpec:
     def physical(self, axis: str) -> TermLibrary:
         """Linear in all three inputs plus the axis' own square."""
         return TermLibrary.from_names(["1", *self.inputs, f"{self.inputs[self.axes.index(axis)]}^2"])
-
-
-def nominal_sensitivity(rec: Recording, spec: TriadSpec, channels=None) -> tuple[np.ndarray, str]:
-    """(nominal sensitivity s (3,), channel unit) so that the indicated quantity is u = x / s (SI).
-
-    What is assumed, by the channels' unit (all three the same):
-    - ``V``: volts per SI unit from the metadata ``spec.sensitivity_key`` (required);
-    - ``1`` (ADC counts): counts per SI unit from the metadata key with ``_V_per_`` replaced by
-      ``_counts_per_`` (e.g. ``acc_nominal_sensitivity_counts_per_m_s2``), else ``spec.sensitivity_key``;
-    - the triad's own SI unit (m/s^2, rad/s: values already scaled by the maker): s = 1 (SI per SI),
-      and the calibration fits the errors that remain.
-    """
-    channels = spec.channels if channels is None else channels
-    missing = [c for c in channels if c not in rec.channels]
-    if missing:
-        raise RecordingError(f"recording lacks channel(s) {missing}; it has {sorted(rec.channels)}. Add them "
-                             f"(CSV columns such as '{missing[0]}_V', '{missing[0]}_counts' or in SI units)")
-    units = {rec.units[c] for c in channels}
-    if len(units) != 1:
-        raise RecordingError(f"the {spec.kind} channels {list(channels)} come in different units "
-                             f"{sorted(units)}; give all three in one unit (V, counts or {spec.quantity_unit})")
-    unit = units.pop()
-    if unit == spec.quantity_unit:
-        return np.ones(3), unit
-    if unit not in ("V", "1"):
-        raise RecordingError(f"the {spec.kind} channels are in {unit}; give them in V, ADC counts or "
-                             f"{spec.quantity_unit}")
-    keys = [spec.sensitivity_key.replace("_V_per_", "_counts_per_")] * (unit == "1") + [spec.sensitivity_key]
-    s = next((rec.meta[k] for k in keys if rec.meta.get(k) is not None), None)
-    if s is None:
-        per = "volts" if unit == "V" else "ADC counts"
-        raise RecordingError(f"the recording has no '{keys[0]}' metadata ({per} per {spec.quantity_unit} of "
-                             f"each {spec.kind}{spec.sensitivity_hint if unit == 'V' else ''}); add it as "
-                             f"'# {keys[0]}: [s_1, s_2, s_3]' or pass it")
-    s = np.broadcast_to(np.asarray(s, float), (3,)).copy()
-    if not np.all(np.isfinite(s)) or np.any(s == 0):
-        raise RecordingError(f"the nominal sensitivity '{keys[0]}' = {s.tolist()} must be finite and non-zero")
-    return s, unit
 
 
 def indicated(rec: Recording, spec: TriadSpec, statistic: str = "median", sensitivity=None):
@@ -372,6 +335,11 @@ class TriadCalibration(Estimator):
         """Add calibrated channels ``<prefix><axis>`` (SI) to a copy of ``rec``."""
         self.check_fitted()
         spec = self.SPEC
+        missing = [c for c in spec.channels if c not in rec.channels]
+        bad = {rec.units[c] for c in spec.channels if c in rec.channels} - {"V", "1", spec.quantity_unit}
+        if missing or bad:
+            raise RecordingError(f"applying the {spec.kind} calibration needs channels {list(spec.channels)} in V, "
+                                 f"counts or {spec.quantity_unit}; the recording lacks {missing} or has units {bad}")
         s = self.sensitivity_ if self.sensitivity_ is not None else nominal_sensitivity(rec, spec)[0]
         u = rec.stack(spec.channels) / np.asarray(s, float)
         f = self.predict(u)
