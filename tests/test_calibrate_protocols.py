@@ -269,6 +269,10 @@ def test_cli_calibrates_a_turn_table_recording(turn_table_h5, tmp_path, capsys):
     assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["kind"] == "imurig.gyro_inverse_model"
     assert main(["calibrate", str(turn_table_h5), "--model", "cross", "--out", str(tmp_path / "x")]) == 2
     assert "--model" in capsys.readouterr().err
+    # one rate per direction cannot carry the seed's ten-term model: refused with the count, no traceback
+    assert main(["calibrate", str(turn_table_h5), "--model", "seed_final", "--out", str(tmp_path / "y")]) == 2
+    err = capsys.readouterr().err
+    assert "6 observations cannot fit the 10 terms" in err and "Traceback" not in err
 
 
 def test_tilt_table_with_six_positions_selects_only_what_the_data_can_test(small_recording):

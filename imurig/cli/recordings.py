@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError
 from imurig.kernel.files import load
@@ -76,8 +78,19 @@ def _run_calibrate(a):
     from imurig.reports import calibrate_rigs as cr
 
     rec = load(a.recording).validate()
+    rec.meta.setdefault("source", Path(a.recording).name)
     rig = a.rig or cr.infer_rig(rec)
     model = cr.check_model(rig, a.model)
+    try:
+        _calibrate_rig(a, rec, rig, model, cr)
+    except ImurigError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as e:  # a fit the data cannot carry: a message, not a traceback
+        raise ImurigError(f"{a.recording}: the {rig} calibration (model {model}) cannot be fitted to these data: "
+                          f"{e}") from None
+
+
+def _calibrate_rig(a, rec, rig: str, model: str, cr) -> None:
     if rig == "tilt-table":
         return _calibrate_tilt_table(a, rec, model)
     if not (a.rotation_deg > 0):
