@@ -15,17 +15,24 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     """Digital low-pass then keep every k-th sample, per contiguous block (seed C.1.1).
 
     The seed filters 1 kHz data with a 5th-order Butterworth, Wn = 50 / (1000 / 2), then
-    downsamples to 100 Hz. ``zero_phase`` runs the filter forwards and backwards
+    downsamples to 100 Hz. Any sample rate goes in: when fs / rate_hz is not a whole number the
+    record keeps every k-th sample with k = floor(fs / rate_hz) (>= 1), i.e. the nearest rate at or
+    above ``rate_hz`` that the samples give without interpolation (102.4 Hz stays 102.4 Hz, 250 Hz
+    becomes 125 Hz); a cut-off at or above the Nyquist frequency is lowered to 0.8 x Nyquist.
+    The rate reached is in ``meta['sample_rate_hz']`` and the preprocessing log. ``zero_phase`` runs the filter forwards and backwards
     (scipy ``sosfiltfilt``), which keeps the per-position windows aligned in time.
     Truth signals are filtered the same way so that they stay comparable.
     """
     fs = rec.sample_rate_hz
-    k = fs / rate_hz
-    if abs(k - round(k)) > 1e-6 or round(k) < 1:
-        raise RecordingError(f"cannot downsample {fs:g} Hz to {rate_hz:g} Hz: the ratio must be a whole number")
-    k = int(round(k))
-    if cutoff_hz >= fs / 2:
-        raise RecordingError(f"cut-off {cutoff_hz} Hz must lie below the Nyquist frequency {fs / 2:g} Hz")
+    if not (np.isfinite(rate_hz) and rate_hz > 0 and cutoff_hz > 0):
+        raise RecordingError(f"rate_hz ({rate_hz}) and cutoff_hz ({cutoff_hz}) must be positive")
+    ratio = fs / rate_hz
+    if abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1:
+        k = int(round(ratio))
+    else:
+        k = max(int(np.floor(ratio)), 1)
+        rate_hz = fs / k
+    cutoff_hz = min(cutoff_hz, 0.8 * fs / 2)
     sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
     keep_idx, blocks = [], rec.blocks()
     names = list(rec.channels)

@@ -32,6 +32,8 @@ from .terms import TermLibrary
 __all__ = ["SelectionResult", "forward_selection", "backward_elimination", "CRITERIA"]
 
 CRITERIA = ("bic", "aic", "r2_adj", "f_test")
+#: residual degrees of freedom a backward elimination's starting model must leave (else it cannot test a term)
+MIN_START_DOF = 2
 
 
 @dataclass
@@ -149,7 +151,8 @@ def forward_selection(
 
     ``inputs`` maps input names to (n,) arrays, ``y`` is (n,). Stops when no
     candidate improves the criterion, when ``max_terms`` terms are selected,
-    or when another term would leave no residual degree of freedom. With an
+    or when another term would leave fewer than ``MIN_START_DOF`` residual
+    degrees of freedom (recorded as a ``"stop"`` row naming the untested terms). With an
     empty ``start`` the first step always adds the best single term.
     """
     _check_criterion(criterion)
@@ -170,7 +173,7 @@ def forward_selection(
         history.append(_row(0, "start", ",".join(res.names), res, criterion, value))
     excluded: set[int] = set()
     limit = len(names) if max_terms is None else max_terms
-    while len(current) < limit and len(current) + 1 < n:
+    while len(current) < limit and len(current) + 1 <= n - MIN_START_DOF:
         step += 1
         best = None  # (key, j, res)
         for j in range(len(names)):
@@ -210,6 +213,11 @@ def forward_selection(
         history.append(_row(step, "add", names[j], res, criterion, value, F))
     if res is None:
         raise ValueError("forward selection found no identifiable term to start from")
+    untested = [names[j] for j in range(len(names)) if j not in current and j not in excluded]
+    if untested and len(current) + 1 > n - MIN_START_DOF:
+        history.append({"step": step + 1, "action": "stop", "term": ",".join(untested),
+                        "reason": f"{n} observations would leave fewer than {MIN_START_DOF} residual degrees of "
+                                  "freedom with another term: the data cannot test these", "dependent_terms": []})
     return SelectionResult(list(res.names), res, history, criterion, alpha)
 
 
@@ -225,9 +233,12 @@ def backward_elimination(
     """Backward elimination: start from the whole library, remove one term at a time.
 
     Terms in ``keep`` are never removed. If the whole library is rank
-    deficient, the starting model is built by taking terms in library order
-    (``keep`` first) and skipping each term that is linearly dependent on
-    the ones already taken (recorded as ``"skip"``).
+    deficient, or leaves fewer than ``MIN_START_DOF`` residual degrees of
+    freedom (e.g. six positions for a ten-term library), the starting model is
+    built by taking terms in library order (``keep`` first) and skipping each
+    term that is linearly dependent on the ones already taken or that would
+    leave fewer than ``MIN_START_DOF`` residual degrees of freedom (each recorded
+    as ``"skip"`` with its reason).
     """
     _check_criterion(criterion)
     if not 0 < alpha < 1:
@@ -236,13 +247,27 @@ def backward_elimination(
     fitter = _Fitter(D, y, names, weights)
     keep_idx = {library.index(s) for s in library.subset(keep).names} if keep else set()
     history: list[dict] = []
+    n = D.shape[0]
+    if len(keep_idx) > n - 1:
+        raise UnidentifiableTermsError(f"{n} observations cannot identify the {len(keep_idx)} terms that are always "
+                                       f"kept ({[names[j] for j in sorted(keep_idx)]}); add observations",
+                                       [names[j] for j in sorted(keep_idx)])
     try:
+        if len(names) > n - MIN_START_DOF:
+            raise UnidentifiableTermsError("too few observations for the whole library", [])
         current = set(range(len(names)))
         res = fitter.fit(current)
     except UnidentifiableTermsError:
         current = set()
         order = sorted(keep_idx) + [j for j in range(len(names)) if j not in keep_idx]
         for j in order:
+            if j not in keep_idx and len(current) + 1 > n - MIN_START_DOF:
+                history.append({
+                    "step": 0, "action": "skip", "term": names[j],
+                    "reason": f"{n} observations would leave fewer than {MIN_START_DOF} residual degrees of "
+                              "freedom with it: the data cannot test it", "dependent_terms": [],
+                })
+                continue
             try:
                 check_identifiable(D[:, sorted(current | {j})], [names[i] for i in sorted(current | {j})])
             except UnidentifiableTermsError as e:

@@ -32,8 +32,9 @@ from imurig.calibration.gls import delta_cov, fit_jointly, gls_projection, refer
 from imurig.calibration.preprocess import segment_samples, segment_statistic, segment_statistic_variance
 from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
+from imurig.calibration.sensitivity import nominal_sensitivity
 from imurig.calibration.terms import TermLibrary, polynomial
-from imurig.kernel.errors import NotFittedError, RecordingError
+from imurig.kernel.errors import NotFittedError, RecordingError, UnidentifiableTermsError
 from imurig.kernel.estimator import Estimator
 from imurig.kernel.recording import Recording
 
@@ -65,17 +66,13 @@ class TriadSpec:
 
 
 def indicated(rec: Recording, spec: TriadSpec, statistic: str = "median", sensitivity=None):
-    """Indicated quantity u (SI) per segment (statistic='median'/'mean') or per sample ('raw').
+    """Indicated quantity u = x / s_nom (SI) per segment (statistic='median'/'mean') or per sample ('raw'),
+    with s_nom from :func:`nominal_sensitivity` (volts, counts or SI channels) unless given.
 
     Returns (u (m,3), segment index (m,)).
     """
-    rec.require({c: "V" for c in spec.channels})
-    s = sensitivity if sensitivity is not None else rec.meta.get(spec.sensitivity_key)
-    if s is None:
-        raise RecordingError(f"the recording has no '{spec.sensitivity_key}' metadata (volts per "
-                             f"{spec.quantity_unit} of each {spec.kind}{spec.sensitivity_hint}); add it as "
-                             f"'# {spec.sensitivity_key}: [s_1, s_2, s_3]' or pass it")
-    s = np.broadcast_to(np.asarray(s, float), (3,))
+    s_meta, _ = nominal_sensitivity(rec, spec)
+    s = np.broadcast_to(np.asarray(sensitivity if sensitivity is not None else s_meta, float), (3,))
     if statistic == "raw":
         v, seg = segment_samples(rec, spec.channels)
     else:
@@ -156,8 +153,7 @@ class TriadCalibration(Estimator):
         spec = self.SPEC
         if reference is None:
             raise ValueError(f"{type(self).__name__}.fit needs the reference quantity per segment (n_segments, 3)")
-        s = rec.meta.get(spec.sensitivity_key)
-        self.sensitivity_ = None if s is None else np.broadcast_to(np.asarray(s, float), (3,)).copy()
+        self.sensitivity_, self.channel_unit_ = nominal_sensitivity(rec, spec)
         u, seg = indicated(rec, spec, self.statistic)
         reference = np.asarray(reference, float)
         if reference.shape != (rec.n_segments, 3):
@@ -197,7 +193,7 @@ class TriadCalibration(Estimator):
                              f"array, got {segment_cov.shape}")
         if self.model in ("stepwise", "backward") or self.statistic == "raw" or response_cov is not None:
             raise ValueError("segment_cov needs a fixed model, per-segment statistics and no response_cov")
-        sens = np.broadcast_to(np.asarray(rec.meta[spec.sensitivity_key], float), (3,))
+        sens = nominal_sensitivity(rec, spec)[0]
         within = np.nanmean(segment_statistic_variance(rec, spec.channels, self.statistic), axis=0) / sens**2
         return segment_cov[seg], np.nan_to_num(within)
 
@@ -214,6 +210,11 @@ class TriadCalibration(Estimator):
                 sel = backward_elimination(lib, inputs, y, keep=linear, criterion=self.stepwise_criterion)
             return sel.result, np.linalg.pinv(TermLibrary.from_names(sel.result.names).design(inputs)), sel, 0.0
         lib = self._library(a)
+        if len(lib) >= len(y):
+            raise UnidentifiableTermsError(
+                f"{len(y)} observations cannot fit the {len(lib)} terms of the '{self.model}' model of "
+                f"{spec.kind} axis {a} ({lib.names}): least squares needs more observations than terms. Add "
+                "positions or choose a smaller model", list(lib.names))
         X = lib.design(inputs)
         if response_cov is not None:
             V = response_cov
@@ -286,7 +287,8 @@ class TriadCalibration(Estimator):
             return np.array(out)
 
         q = spec.quantity_unit
-        labels = ([(f"sensitivity_{a}", f"V/({q})") for a in axes]
+        cu = getattr(self, "channel_unit_", "V")
+        labels = ([(f"sensitivity_{a}", f"{_unit_word(cu)}/({q})") for a in axes]
                   + [(f"misalignment_{axes[i]}{axes[j]}", "rad") for i in range(3) for j in range(3) if i != j]
                   + [(f"bias_{a}", q) for a in axes]
                   + [(f"nonlinearity_{a}", f"1/({q})") for a in axes])
@@ -312,7 +314,7 @@ class TriadCalibration(Estimator):
         return {"kind": spec.json_kind, "version": 1, "model": str(self.model),
                 "statistic": self.statistic,
                 "nominal_sensitivity": None if self.sensitivity_ is None else self.sensitivity_.tolist(),
-                "nominal_sensitivity_unit": f"V/({spec.quantity_unit})",
+                "nominal_sensitivity_unit": f"{_unit_word(getattr(self, 'channel_unit_', 'V'))}/({spec.quantity_unit})",
                 "equation": f"ref_i [{spec.quantity_unit}] = sum_k coef_ik * term_k(u), u = volts / "
                             "nominal_sensitivity",
                 "axes": {a: {"terms": n, "coef": c.tolist()} for a, (n, c) in self.models().items()}}
@@ -333,10 +335,12 @@ class TriadCalibration(Estimator):
         """Add calibrated channels ``<prefix><axis>`` (SI) to a copy of ``rec``."""
         self.check_fitted()
         spec = self.SPEC
-        rec.require({c: "V" for c in spec.channels})
-        s = self.sensitivity_ if self.sensitivity_ is not None else rec.meta.get(spec.sensitivity_key)
-        if s is None:
-            raise RecordingError("no nominal sensitivity in the calibration or the recording's metadata")
+        missing = [c for c in spec.channels if c not in rec.channels]
+        bad = {rec.units[c] for c in spec.channels if c in rec.channels} - {"V", "1", spec.quantity_unit}
+        if missing or bad:
+            raise RecordingError(f"applying the {spec.kind} calibration needs channels {list(spec.channels)} in V, "
+                                 f"counts or {spec.quantity_unit}; the recording lacks {missing} or has units {bad}")
+        s = self.sensitivity_ if self.sensitivity_ is not None else nominal_sensitivity(rec, spec)[0]
         u = rec.stack(spec.channels) / np.asarray(s, float)
         f = self.predict(u)
         channels, units = dict(rec.channels), dict(rec.units)
@@ -349,6 +353,10 @@ class TriadCalibration(Estimator):
         """Seed-style table: coefficients per axis and sigma_res, MS_res, R, R_adj."""
         self._require_results("table")
         return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
+
+
+def _unit_word(unit: str) -> str:
+    return "counts" if unit == "1" else unit
 
 
 def forward_parameters(axes, sensitivity, bias, k2, misalignment) -> dict:

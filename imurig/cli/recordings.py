@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError
 from imurig.kernel.files import load
@@ -21,9 +23,19 @@ def add_recording_parsers(sub) -> None:
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     cal.add_argument("recording", help=".csv (lab format, see README), .mat (MATLAB) or .h5")
     _lab_options(cal, rig=False)
-    cal.add_argument("--rig", default=None, help="the rig (default: the file's '# rig:' line, else tilt-table)")
-    cal.add_argument("--model", default="physical",
-                     choices=["physical", "linear", "cross", "seed_final", "stepwise", "backward"])
+    cal.add_argument("--rig", default=None,
+                     choices=["tilt-table", "turn-table", "six-face", "thermal", "magnetometer"],
+                     help="default: the recording's '# rig:' line, else inferred from its set-points "
+                          "(none: six-face, a box on its six faces and rotated about each axis)")
+    cal.add_argument("--model", default=None,
+                     choices=["auto", "physical", "linear", "cross", "seed_final", "stepwise", "backward"],
+                     help="default: the rig's (tilt and turn table: physical; six-face: auto, the linear model "
+                          "plus the terms the faces identify)")
+    cal.add_argument("--timer", default="auto", choices=["auto", "adc", "hp6700", "gps_mark"],
+                     help="turn table: the timer of the once-per-round pulses (auto: the HP counter's events, "
+                          "another timer's, else the ADC pulse channel)")
+    cal.add_argument("--rotation-deg", type=float, default=360.0,
+                     help="six-face: the known angle of each hand rotation")
     cal.add_argument("--out", default="imurig-out/calibration")
     cal.add_argument("--overwrite", action="store_true")
     cal.set_defaults(func=_run_calibrate)
@@ -77,20 +89,61 @@ def _lab_options(p, rig: bool = True) -> None:
 
 def _load(a):
     """The recording named on the command line, with the lab options."""
-    return load(a.recording, rig=a.rig.replace("-", "_") if a.rig else None, site=a.site,
-                pulse_channel=a.pulse_channel)
+    rig = a.rig.replace("-", "_") if a.rig else None
+    return load(a.recording, rig=rig, site=a.site, pulse_channel=a.pulse_channel)
 
 
 def _run_calibrate(a):
     # heavy (matplotlib, the campaigns' MuJoCo rigs): loaded when the command runs, not for --help
-    from imurig.reports.tilt_table import _report_md, analyse, make_figures, summary_dict
+    from imurig.reports import calibrate_rigs as cr
 
     rec = _load(a).validate()
-    a.rig = (a.rig or str(rec.meta.get("rig", "tilt-table"))).replace("_", "-")
-    if a.rig != "tilt-table":
-        raise ImurigError(f"rig {a.rig!r} is not supported yet; use --rig tilt-table")
+    rec.meta.setdefault("source", Path(a.recording).name)
+    rig = a.rig or cr.infer_rig(rec)
+    model = cr.check_model(rig, a.model)
+    try:
+        _calibrate_rig(a, rec, rig, model, cr)
+    except ImurigError:
+        raise
+    except (ValueError, np.linalg.LinAlgError) as e:  # a fit the data cannot carry: a message, not a traceback
+        raise ImurigError(f"{a.recording}: the {rig} calibration (model {model}) cannot be fitted to these data: "
+                          f"{e}") from None
+
+
+def _calibrate_rig(a, rec, rig: str, model: str, cr) -> None:
+    if rig == "tilt-table":
+        return _calibrate_tilt_table(a, rec, model)
+    if not (a.rotation_deg > 0):
+        raise ImurigError(f"--rotation-deg must be positive, got {a.rotation_deg}")
     with OutputFolder(a.out, overwrite=a.overwrite) as out:
-        res = analyse(rec, a.model)
+        if rig == "turn-table":
+            s = cr.calibrate_turn_table(rec, out, model, a.timer)
+        elif rig == "six-face":
+            s = cr.calibrate_six_face(rec, out, model, a.rotation_deg)
+        elif rig == "thermal":
+            s = cr.calibrate_thermal(rec, out)
+        else:
+            s = cr.calibrate_magnetometer(rec, out)
+    _print_parameters(s, a.out)
+
+
+def _print_parameters(s: dict, out) -> None:
+    for n in s.get("notes", []):
+        print(f"- {n}")
+    print(f"{'parameter':28s} {'estimate':>14s} {'std.err':>10s} {'z':>6s}")
+    for p in s["parameters"]:
+        z = "–" if p.get("z") is None else f"{p['z']:+.2f}"
+        est = "–" if p["estimate"] is None else f"{p['estimate']:+.6e}"
+        se = "–" if p["std_error"] is None else f"{p['std_error']:.2e}"
+        print(f"{p['name']:28s} {est:>14s} {se:>10s} {z:>6s}")
+    print(f"report: {Path(out) / 'report.md'}")
+
+
+def _calibrate_tilt_table(a, rec, model):
+    from imurig.reports.tilt_table import _report_md, analyse, make_figures, summary_dict
+
+    with OutputFolder(a.out, overwrite=a.overwrite) as out:
+        res = analyse(rec, model)
         figs = make_figures(out, rec, res)
         files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                  **{f"figure_{k}": v for k, v in figs.items()}}

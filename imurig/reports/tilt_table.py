@@ -205,6 +205,10 @@ def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str
     L.append(md_table(["axis", "method", "selected terms", "σ_res", "R_adj", "BIC"],
                       [[a, meth, ", ".join(c.results_[a].names), c.results_[a].sigma_res, c.results_[a].R_adj,
                         c.results_[a].bic] for a in AXES for meth, c in (("forward", st), ("backward", bw))]))
+    left = sorted({f"{h['term']}: {h['reason']}" for c in (st, bw) for sel in c.selection_.values()
+                   for h in sel.history if h["action"] in ("skip", "stop")})
+    if left:
+        L.append("\nLeft out of the selection, and why:\n\n" + "\n".join(f"- {x}" for x in left) + "\n")
     L.append("\n## Medians vs raw samples (cf. seed Table 4.2)\n")
     raw, med = res["raw"], res["median_linear"]
     t42 = pub["table_4_2"]
