@@ -64,7 +64,7 @@ def time_tags(n: int, fs_hz: float) -> np.ndarray:
 
 def _decimals(step: float) -> int:
     """Decimals that keep a value on a grid of ``step`` exact to print."""
-    return max(0, int(math.ceil(-math.log10(step))) + 2)
+    return max(0, int(math.ceil(-math.log10(step))) + 3)
 
 
 def write_csv(path: Path, meta: dict, columns: dict[str, np.ndarray], steps: dict[str, float]) -> None:
