@@ -98,7 +98,8 @@ def test_turn_table_round_times_and_gyro_rate_follow_the_dial_the_mains_factor_a
         t, dial, pulse = cols["time_s"], cols["rate_dps"], cols["pulse_V"]
         rising = t[1:][(pulse[1:] > 2.4) & (pulse[:-1] <= 2.4)]
         d_at = np.interp(rising, t, dial)
-        same = (np.diff(d_at) == 0) & (d_at[1:] != 0) & (np.diff(rising) < 1.05 * 360 / np.abs(d_at[1:] * factor))
+        settled = np.interp(rising - 3.0, t, dial) == d_at       # 10 motor time constants on the hold
+        same = (np.diff(d_at) == 0) & settled[:-1] & (d_at[1:] != 0)
         T_round = np.diff(rising)[same]
         expect = 360.0 / np.abs(d_at[1:][same] * factor)
         assert same.sum() >= 10 and np.all(np.abs(T_round - expect) < 1.0 / fs + 1e-9), (effect, T_round - expect)
