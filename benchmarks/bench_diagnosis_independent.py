@@ -84,7 +84,7 @@ def _params(f: dict) -> dict:
     for name, p in items:
         if isinstance(p, dict) and "estimate" in p:
             se = p.get("std_error", p.get("se"))
-            out[str(name)] = (float(p["estimate"]), float(se) if se is not None else float("nan"))
+            out[str(name).split(":")[-1]] = (float(p["estimate"]), float(se) if se is not None else float("nan"))
     return out
 
 
@@ -160,7 +160,8 @@ def worker(csv_path: str, out_path: str, mem_gb: float) -> None:
         from imurig.diagnose.dispatch import diagnose
         rec = load(csv_path)
         res["stage"] = "diagnose"
-        d = diagnose(rec, seed=int(truth["seed"]))
+        # the manifest's twin is what `imurig diagnose --twin-model` would be given (none: the default)
+        d = diagnose(rec, seed=int(truth["seed"]), twin=truth.get("diagnose_twin") or None)
         res["findings"] = findings_of(d, truth["rig"])
         res["unexplained"] = d.get("unexplained", [])
         try:

@@ -139,6 +139,7 @@ def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s:
         Dr = np.array(tri["K_V_per_m_s2"]) / K_NOMINAL
         inv = np.linalg.inv(np.eye(3) + M) / Dr[None, :]
         eff.append({"effect": effect, "channel": "acc", "parameters": {"M_rad": M.tolist(), "m_jk": inv.tolist()},
+                    "diagnose_twin": {"twin_model": "own_axis"},
                     "score": {"name": "m_xy", "value": float(inv[0, 1]), "channel": "acc_x"},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
     s = f_b @ (np.eye(3) + M).T
@@ -149,6 +150,7 @@ def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s:
         Dr = np.array(tri["K_V_per_m_s2"]) / K_NOMINAL
         lib = (-k2 / Dr ** 2).tolist()
         eff.append({"effect": effect, "channel": "acc", "parameters": {"k2_per_m_s2": k2.tolist(), "k2": lib},
+                    "diagnose_twin": {"twin_model": "linear"},
                     "score": {"name": "k2", "value": lib[0], "channel": "acc_x"},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
     kT = np.zeros(3)
@@ -158,9 +160,11 @@ def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s:
         lib = (-kT / 0.01).tolist()
         eff.append({"effect": effect, "channel": "acc", "parameters": {"bias_tempco_m_s2_per_K": kT.tolist(),
                                                                        "drift": lib},
-                    "score": {"name": "bias_tempco_m_s2_per_K", "value": float(kT[0]), "channel": "acc_x"},
+                    "score": {"name": "drift", "value": float(-kT[0]), "channel": "acc_x",
+                              "unit": "m/s^2 per degC of the logged reading"},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"],
-                    "note": "drift is the library's inverse coefficient per volt of a 10 mV/K reading"})
+                    "note": "drift (the library's inverse coefficient) is per volt of a 10 mV/K reading; this lab "
+                            "logs degC, so the diagnosis' drift per unit of the reading is -kT"})
     K, b = np.array(tri["K_V_per_m_s2"]), np.array(tri["bias_V"])
     sigma = tri["noise_V_rtHz"] * math.sqrt(fs_hz / 2)
     u = b + K * (s + k2 * s ** 2 + kT * (T - T_REF_C)[:, None])
@@ -195,5 +199,7 @@ def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s:
     truth = {"rig": "tilt_table", "seed": seed, "fs_hz": fs_hz, "adc": adc.as_dict(), "adc_name": converter,
              "site": LAB_SITE, "g_m_s2": G_LAB, "triad": tri, "noise_V_rms_per_sample": sigma, "dwell_s": dwell_s,
              "slew_deg_s": slew_deg_s, "effects": eff, "null": effect is None,
-             "expected": sorted(x for e in eff for x in e["expected"])}
+             "expected": sorted(x for e in eff for x in e["expected"]),
+             # the twin to compare with (imurig diagnose --twin-model): one without the concealed effect
+             "diagnose_twin": next((e["diagnose_twin"] for e in eff if "diagnose_twin" in e), {})}
     return cols, steps, truth
