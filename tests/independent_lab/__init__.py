@@ -24,9 +24,10 @@ GENERATORS = {"tilt_table": tilt.record, "turn_table": turn.record}
 
 def recording(rig: str, effect: str | None, seed: int, fs_hz: float | None = None, converter: str | None = None):
     """(columns, steps, manifest) of one recording; the rate and converter cycle with the seed
-    unless given (the 12-bit converter is kept for the turn table, whose gyro steps it resolves)."""
-    fs_hz = fs_hz or RATES_HZ[seed % len(RATES_HZ)]
-    converter = converter or CONVERTER_NAMES[(seed // len(RATES_HZ) + seed) % len(CONVERTER_NAMES)]
+    unless given."""
+    k = seed % 1000 + seed // 1000           # the set's seeds are 1000 s + i: cycle over both s and i
+    fs_hz = fs_hz or RATES_HZ[k % len(RATES_HZ)]
+    converter = converter or CONVERTER_NAMES[(k + k // len(RATES_HZ)) % len(CONVERTER_NAMES)]
     return GENERATORS[rig](seed, effect, fs_hz, converter)
 
 
