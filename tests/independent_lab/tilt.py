@@ -105,6 +105,16 @@ def _spikes(n, fs, rng, rate_hz, amp_V):
     return out
 
 
+def fluxgate_V(rot: np.ndarray, rng: np.random.Generator, n: int, fs_hz: float) -> np.ndarray:
+    """The IMU's fluxgate (when the lab logs it): 0.08 V/uT on the Earth's field at the site, lab frame
+    z up with 18.5 uT north at 2 deg declination from the table's zero and 45 uT down (n, 3)."""
+    dec = math.radians(2.0)
+    B_lab_uT = np.array([18.5 * math.cos(dec), 18.5 * math.sin(dec), -45.0])
+    v = 0.08 * (rot @ B_lab_uT) + 0.002 * rng.standard_normal(3)
+    v = v + 4e-5 * math.sqrt(fs_hz / 100) * rng.standard_normal((n, 3))
+    return v
+
+
 def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s: float | None = None,
            slew_deg_s: float = 20.0) -> tuple[dict, dict, dict]:
     """One tilt-table recording: (columns, column steps, manifest)."""
@@ -181,24 +191,33 @@ def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s:
         eff.append({"effect": effect, "channel": "acc_z", "parameters": {"upper_limit_V": lim},
                     "score": {"name": "upper_limit_V", "value": lim, "channel": "acc_z"},
                     "expected": [f"acc_z:{effect}"], "note": "the amplifier's output saturates (not in the library)"})
+    with_mag = effect == "adc_crosstalk" or seed % 2 == 0
+    m = fluxgate_V(rot, rng, t.size, fs_hz) if with_mag else None
+    scan = ["acc_x", "mag_x", "acc_y", "mag_y", "acc_z", "mag_z"] if with_mag else ["ground", "acc_x", "acc_y", "acc_z"]
     if effect == "adc_crosstalk":
         c, f_mux = 2e-4, 200e3
-        prev = np.column_stack([np.zeros(t.size), u[:, 0], u[:, 1]])   # scan: ground, x, y, z
-        u = (1 - c) * u + c * prev
-        lib = {f"acc_{a}": -c / (K[j] * (1 - c)) for j, a in enumerate("xyz") if j > 0}
-        eff.append({"effect": effect, "channel": "acc_y,acc_z",
+        # the amplifier keeps c of the channel converted before: acc_y after mag_x, acc_z after mag_y
+        u = (1 - c) * u + c * m[:, [2, 0, 1]]
+        lib = {f"acc_{a}": -c / (K[j] * (1 - c)) for j, a in enumerate("xyz")}
+        eff.append({"effect": effect, "channel": "acc_x,acc_y,acc_z",
                     "parameters": {"settling_tau_s": -1 / (f_mux * math.log(c)), "mux_hz": f_mux,
-                                   "leak_fraction": c, "c": lib},
+                                   "leak_fraction": c, "c": lib, "scan_list": scan},
                     "score": {"name": "c", "value": lib["acc_y"], "channel": "acc_y"},
-                    "expected": ["acc_y:adc_crosstalk", "acc_z:adc_crosstalk"]})
+                    "expected": ["acc_x:adc_crosstalk", "acc_y:adc_crosstalk", "acc_z:adc_crosstalk"],
+                    "note": "the leak comes from the magnetometer channel scanned before each accelerometer "
+                            "(acc_x after the previous scan's mag_z)"})
     V = adc.read(u, rng)
     cols = {"time_s": t, "theta_deg": np.round(sp[:, 0], 4), "phi_deg": np.round(sp[:, 1], 4),
             "acc_x_V": V[:, 0], "acc_y_V": V[:, 1], "acc_z_V": V[:, 2], "temp_box_degC": T}
+    if with_mag:
+        Vm = adc.read(m, rng)
+        cols.update({f"mag_{a}_V": Vm[:, j] for j, a in enumerate("xyz")})
     steps = {"time_s": 1e-7 if fs_hz != int(fs_hz) else 1e-4, "theta_deg": 1e-4, "phi_deg": 1e-4,
-             "acc_x_V": adc.step_V, "acc_y_V": adc.step_V, "acc_z_V": adc.step_V, "temp_box_degC": 0.01}
+             "acc_x_V": adc.step_V, "acc_y_V": adc.step_V, "acc_z_V": adc.step_V, "temp_box_degC": 0.01,
+             **{f"mag_{a}_V": adc.step_V for a in "xyz"}}
     truth = {"rig": "tilt_table", "seed": seed, "fs_hz": fs_hz, "adc": adc.as_dict(), "adc_name": converter,
              "site": LAB_SITE, "g_m_s2": G_LAB, "triad": tri, "noise_V_rms_per_sample": sigma, "dwell_s": dwell_s,
-             "slew_deg_s": slew_deg_s, "effects": eff, "null": effect is None,
+             "slew_deg_s": slew_deg_s, "scan_list": scan, "effects": eff, "null": effect is None,
              "expected": sorted(x for e in eff for x in e["expected"]),
              # the twin to compare with (imurig diagnose --twin-model): one without the concealed effect
              "diagnose_twin": next((e["diagnose_twin"] for e in eff if "diagnose_twin" in e), {})}
