@@ -220,7 +220,8 @@ def independent_study(out_dir: Path, seeds, n_null: int, timeout_s: float, mem_g
 # ---------------------------------------------------------------------------------------------- the project's suite
 def suite_study(seeds, case_filter=None, log=print) -> dict:
     """The project's concealed suite at realistic size: the same figures from ``cases.score``."""
-    from imurig.concealed import cases, suite
+    from imurig.concealed import cases, suite   # lazy: the child processes need not import the suite
+    bd = _bench_diagnose()
     records = []
     for case in suite.CASES:
         name = f"{case.rig}:{case.effect}"
@@ -233,12 +234,14 @@ def suite_study(seeds, case_filter=None, log=print) -> dict:
                     rec = cases.case_recording(case, seed, null=null)
                     d = suite.diagnose_case(case, rec, seed, null=null)
                     s = cases.score(case, rec, d)
-                    s.update(ok=True, error=None)
+                    tests = bd.record_tests(d, bd.engine_alpha(case.rig))
+                    s.update(ok=True, error=None, nominal_fwer=1 - float(np.prod([1 - t[2] for t in tests])))
                 except Exception as e:
                     s = {"ok": False, "error": f"{type(e).__name__}: {str(e)[:300]}", "found": [], "correct": False}
                 r = {"rig": case.rig, "effect": None if null else case.effect, "ok": s["ok"], "error": s["error"],
                      "found": s["found"], "right": bool(s.get("correct")) and not null,
                      "false_discovery": null and bool(s["found"]), "z": s.get("z"),
+                     "nominal_fwer": s.get("nominal_fwer"),
                      "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
                      "file": f"{name}{'-null' if null else ''}-s{seed}"}
                 log(f"  {r['file']:48s} {'right' if r['right'] else ('FD' if r['false_discovery'] else '-'):5s} "

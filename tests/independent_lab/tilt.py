@@ -115,6 +115,44 @@ def fluxgate_V(rot: np.ndarray, rng: np.random.Generator, n: int, fs_hz: float) 
     return v
 
 
+def _sensor_errors(effect, tri: dict, rng: np.random.Generator, eff: list) -> tuple:
+    """(M, k2, kT) of the triad: zero but for the concealed one (recorded in ``tri`` and ``eff``)."""
+    M = np.zeros((3, 3))
+    if effect == "axis_misalignment":
+        M = 1e-3 * rng.standard_normal((3, 3))
+        np.fill_diagonal(M, 0.0)
+        tri["misalignment_rad"] = M.tolist()
+        Dr = np.array(tri["K_V_per_m_s2"]) / K_NOMINAL
+        inv = np.linalg.inv(np.eye(3) + M) / Dr[None, :]
+        eff.append({"effect": effect, "channel": "acc", "parameters": {"M_rad": M.tolist(), "m_jk": inv.tolist()},
+                    "diagnose_twin": {"twin_model": "own_axis"},
+                    "score": {"name": "m_xy", "value": float(inv[0, 1]), "channel": "acc_x"},
+                    "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
+    k2 = np.zeros(3)
+    if effect == "scale_nonlinearity":
+        k2 = 48e-6 / 9.80665 * rng.choice((-1.0, 1.0), 3)
+        tri["k2_per_m_s2"] = k2.tolist()
+        Dr = np.array(tri["K_V_per_m_s2"]) / K_NOMINAL
+        lib = (-k2 / Dr ** 2).tolist()
+        eff.append({"effect": effect, "channel": "acc", "parameters": {"k2_per_m_s2": k2.tolist(), "k2": lib},
+                    "diagnose_twin": {"twin_model": "linear"},
+                    "score": {"name": "k2", "value": lib[0], "channel": "acc_x"},
+                    "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
+    kT = np.zeros(3)
+    if effect == "temperature_drift":
+        kT = 2 * 70e-6 * 9.80665 * np.array([1.0, -0.7, 0.5])
+        tri["bias_tempco_m_s2_per_K"] = kT.tolist()
+        lib = (-kT / 0.01).tolist()
+        eff.append({"effect": effect, "channel": "acc", "parameters": {"bias_tempco_m_s2_per_K": kT.tolist(),
+                                                                       "drift": lib},
+                    "score": {"name": "drift", "value": float(-kT[0]), "channel": "acc_x",
+                              "unit": "m/s^2 per degC of the logged reading"},
+                    "expected": [f"acc_{a}:{effect}" for a in "xyz"],
+                    "note": "drift (the library's inverse coefficient) is per volt of a 10 mV/K reading; this lab "
+                            "logs degC, so the diagnosis' drift per unit of the reading is -kT"})
+    return M, k2, kT
+
+
 def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s: float | None = None,
            slew_deg_s: float = 20.0) -> tuple[dict, dict, dict]:
     """One tilt-table recording: (columns, column steps, manifest)."""
@@ -141,40 +179,8 @@ def record(seed: int, effect: str | None, fs_hz: float, converter: str, dwell_s:
         f_b = f_b + _vibration(t, rot, rng, rms, f0)
         eff.append({"effect": effect, "channel": "acc", "parameters": {"rms_m_s2": rms, "fundamental_hz": f0},
                     "score": {"name": "frequency_hz", "value": f0}, "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
-    M = np.zeros((3, 3))
-    if effect == "axis_misalignment":
-        M = 1e-3 * rng.standard_normal((3, 3))
-        np.fill_diagonal(M, 0.0)
-        tri["misalignment_rad"] = M.tolist()
-        Dr = np.array(tri["K_V_per_m_s2"]) / K_NOMINAL
-        inv = np.linalg.inv(np.eye(3) + M) / Dr[None, :]
-        eff.append({"effect": effect, "channel": "acc", "parameters": {"M_rad": M.tolist(), "m_jk": inv.tolist()},
-                    "diagnose_twin": {"twin_model": "own_axis"},
-                    "score": {"name": "m_xy", "value": float(inv[0, 1]), "channel": "acc_x"},
-                    "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
+    M, k2, kT = _sensor_errors(effect, tri, rng, eff)
     s = f_b @ (np.eye(3) + M).T
-    k2 = np.zeros(3)
-    if effect == "scale_nonlinearity":
-        k2 = 48e-6 / 9.80665 * rng.choice((-1.0, 1.0), 3)
-        tri["k2_per_m_s2"] = k2.tolist()
-        Dr = np.array(tri["K_V_per_m_s2"]) / K_NOMINAL
-        lib = (-k2 / Dr ** 2).tolist()
-        eff.append({"effect": effect, "channel": "acc", "parameters": {"k2_per_m_s2": k2.tolist(), "k2": lib},
-                    "diagnose_twin": {"twin_model": "linear"},
-                    "score": {"name": "k2", "value": lib[0], "channel": "acc_x"},
-                    "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
-    kT = np.zeros(3)
-    if effect == "temperature_drift":
-        kT = 2 * 70e-6 * 9.80665 * np.array([1.0, -0.7, 0.5])
-        tri["bias_tempco_m_s2_per_K"] = kT.tolist()
-        lib = (-kT / 0.01).tolist()
-        eff.append({"effect": effect, "channel": "acc", "parameters": {"bias_tempco_m_s2_per_K": kT.tolist(),
-                                                                       "drift": lib},
-                    "score": {"name": "drift", "value": float(-kT[0]), "channel": "acc_x",
-                              "unit": "m/s^2 per degC of the logged reading"},
-                    "expected": [f"acc_{a}:{effect}" for a in "xyz"],
-                    "note": "drift (the library's inverse coefficient) is per volt of a 10 mV/K reading; this lab "
-                            "logs degC, so the diagnosis' drift per unit of the reading is -kT"})
     K, b = np.array(tri["K_V_per_m_s2"]), np.array(tri["bias_V"])
     sigma = tri["noise_V_rtHz"] * math.sqrt(fs_hz / 2)
     u = b + K * (s + k2 * s ** 2 + kT * (T - T_REF_C)[:, None])
