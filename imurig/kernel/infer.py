@@ -73,6 +73,10 @@ def resolve_site(rec: Recording, site: str | None, where: str) -> None:
         rec.meta["site"] = SITES[s.strip().lower()].to_dict()
         note(rec, "site", rec.meta["site"], f"the named site '{s}'")
         return
+    if isinstance(s, dict) and "latitude_deg" not in s and "gravity_m_s2" in s:
+        warn(rec, "the site gives gravity but no latitude: nothing that needs the Earth's rate or the "
+                  "field (turn-table Earth rate, IGRF) can be computed")
+        return
     if not isinstance(s, dict) or "latitude_deg" not in s:
         raise RecordingError(f"{where}: the site needs at least 'site.latitude_deg' (and longitude_deg, altitude_m)")
     if "gravity_m_s2" not in s:
@@ -231,6 +235,8 @@ def sensitivities(rec: Recording) -> None:
             rec.meta[key] = [1.0, 1.0, 1.0]
             note(rec, key, [1.0] * 3, f"{kind} channels come in {PHYSICAL[kind]}: they stand for volts with an "
                                       "effective sensitivity of 1 V per SI unit; the calibration fits what remains")
+        elif any(rec.units[n] != "V" for n in have):
+            continue   # counts (unit "1"): their counts per SI unit come from the file or are refused later
         elif key not in rec.meta:
             rec.meta[key] = [default] * 3
             note(rec, key, [default] * 3, "datasheet default (no sensitivity given)")
