@@ -34,6 +34,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view
+from imurig.sensors.effects.adc_quantisation import step_of
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -98,7 +99,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         entry = d.to_dict()
         if alias is not None:
             entry["indistinguishable"] = [alias]
-        entry["scatter"] = _scatter(rec100, ch, mid)
+        entry["scatter"] = _scatter(rec100, ch, mid, step_of(rec.meta, ch, rec.channels[ch], rec.channel_quantum))
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
                                          reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry
@@ -199,15 +200,16 @@ def _with_survey_nuisance(X0: np.ndarray, names: list, Jj: np.ndarray, rtol: flo
     return X, out
 
 
-def _scatter(rec100: Recording, ch: str, mid: np.ndarray) -> dict:
+def _scatter(rec100: Recording, ch: str, mid: np.ndarray, quantum_V: float = 0.0) -> dict:
     """Within-position scatter: each scatter effect of the library runs its own test (the pump's
     spectral peak located in the day, with its refit; the loose cable's spikes) on the samples
-    of every position; a test that fires reports its finding under the effect's key."""
+    of every position; a test that fires reports its finding under the effect's key.
+    ``quantum_V``: the recorded channel's ADC step q (V), the floor q / sqrt(12) of every noise level."""
     j = "xyz".index(ch[-1])
     sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
     view = ScatterView(channel=ch, samples=rec100.channels[ch], positions=rec100.segment_slices(),
                        sample_rate_hz=rec100.sample_rate_hz, hour_of_day=_hours(rec100, mid),
-                       sensitivity_V_per_SI=float(sens[j]) if sens is not None else None)
+                       sensitivity_V_per_SI=float(sens[j]) if sens is not None else None, quantum_V=quantum_V)
     out = {}
     for cls in for_view(ScatterView.kind):
         res = dict(cls().test(view))
