@@ -28,13 +28,13 @@ from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view
-from imurig.sensors.effects.adc_quantisation import step_of
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -99,7 +99,8 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         entry = d.to_dict()
         if alias is not None:
             entry["indistinguishable"] = [alias]
-        entry["scatter"] = _scatter(rec100, ch, mid, step_of(rec.meta, ch, rec.channels[ch], rec.channel_quantum))
+        entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
+        entry["scatter"].update(raw_channel_tests(rec, ch, alpha))
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
                                          reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry

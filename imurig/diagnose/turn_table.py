@@ -43,6 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.samples import raw_channel_tests
 from imurig.diagnose.steps import effect_steps
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
@@ -127,6 +128,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                               "convention": "residual = the twin's reference rate - the recording through the "
                                             "gyro calibration (whole-round means per step)"}
         entry["scatter"] = _slip_rings(rec, rw, timer, f"gyro_{a}", alpha / 3)
+        entry["scatter"].update(raw_channel_tests(rec, f"gyro_{a}", alpha))
         out["gyros"][a] = entry
     return out
 

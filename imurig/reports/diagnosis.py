@@ -153,6 +153,11 @@ def _findings_rows(d: dict) -> list[list]:
     if d.get("kind") == "turn_table":
         for g, e in d["gyros"].items():
             rows += [_engine_row(f"gyro_{g} whole-round means", f, SEED_SAYS_TURN) for f in e["findings"]]
+            sat = e.get("scatter", {}).get("finding_saturation")
+            if sat:
+                rows.append([f"gyro_{g} samples", sat["effect"], sat["physics"],
+                             f"{sat['fraction'] * 100:.2f} % of the samples at {sat['level_V']:.6g} V in {sat['runs']} runs",
+                             "–"])
             sc = e.get("scatter", {}).get("finding")
             if sc:
                 rows.append([f"gyro_{g} sample noise", sc["effect"], sc["physics"],
@@ -163,7 +168,7 @@ def _findings_rows(d: dict) -> list[list]:
     if d.get("kind") == "tilt_table":
         for a, e in d["axes"].items():
             rows += [_engine_row(f"acc_{a} position means", f, SEED_SAYS_TILT) for f in e["findings"]]
-            for k in ("finding_spikes", "finding_vibration"):
+            for k in ("finding_spikes", "finding_vibration", "finding_saturation"):
                 if k in e["scatter"]:
                     f = e["scatter"][k]
                     ev = ", ".join(f"{kk} = {vv}" for kk, vv in f.items() if kk not in ("effect", "physics"))

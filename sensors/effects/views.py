@@ -187,3 +187,21 @@ def across_field(B_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u1 = np.cross(up, Bhat)
     u1 /= np.linalg.norm(u1)
     return u1, np.cross(Bhat, u1)
+
+
+@dataclass
+class RawChannelView:
+    """One recorded channel as logged, before any filtering or segmenting (n samples).
+
+    channel; samples (n,) in the channel's unit (V); time_s (n,); quantum_V: the ADC step q (0 when
+    unknown); range_V: the converter's full scale +-range (None when unknown); alpha: the tests'
+    false-alarm level over the record.
+    """
+
+    channel: str
+    samples: np.ndarray
+    time_s: np.ndarray
+    quantum_V: float = 0.0
+    range_V: float | None = None
+    alpha: float = 0.01
+    kind: ClassVar[str] = "raw_samples"
