@@ -11,6 +11,7 @@ import numpy as np
 # TWIN_OPTIONS re-exported: the twin options `imurig diagnose` reads (the concealed suite checks its cases)
 from imurig.diagnose.dispatch import TWIN_OPTIONS, diagnose, record_kind, twin_options  # noqa: F401
 from imurig.diagnose.rate_table import SEED_SAYS
+from imurig.diagnose.summary import summarise
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_table
@@ -33,12 +34,14 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
         return run_magnetometer(rec, out_dir, overwrite, seed, o.get("twin_model", "nominal"))
     d = diagnose(rec, seed, twin_model, earth_rate, twin)
     fit_entries(d)  # AIC beside BIC
+    d.update(summarise(d))  # the rig-free top level: findings, unexplained, verdict (docs/diagnosis-json.md)
     with OutputFolder(out_dir, overwrite=overwrite) as out:
         figs = _figures(out, rec, d)
         _rrd(out.file("diagnosis.rrd"), rec, d)
         rows = _findings_rows(d)
         md = ["# Diagnosis: where the recording and its twin differ\n",
               f"Recording: {rec.meta.get('source', rec.meta.get('rig', '–'))}. Twin: {d.get('twin', '–')}.\n",
+              f"**Verdict:** {d['verdict']}.\n",
               "" if rows else "No effect accepted: the recording agrees with its twin.\n",
               "## What differs and where, the physics left out, beside what the seed says\n",
               md_table(["observable", "effect", "physics left out", "fitted / evidence", "seed"], rows) if rows else "",
