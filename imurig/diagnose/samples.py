@@ -10,6 +10,17 @@ from imurig.sensors.effects import RawChannelView, for_view
 from imurig.sensors.effects.adc_quantisation import step_of
 
 
+def scan_order(rec: Recording) -> tuple[list[str], str]:
+    """The ADC's scan order and where it comes from: ``meta["adc"]["scan_list"]`` when given, else
+    the order of the file's voltage channels (a multiplexed logger writes its channels in the order
+    it converts them), said so in the second element."""
+    scan = list((rec.meta.get("adc") or {}).get("scan_list", []))
+    if scan:
+        return scan, "adc.scan_list in the metadata"
+    return ([c for c in rec.channels if rec.units.get(c) == "V"],
+            "the channel order of the file (no adc.scan_list in the metadata)")
+
+
 def adc_step(rec: Recording, ch: str) -> float:
     """The ADC step q (V) of channel ``ch`` of ``rec`` (0.0 when neither the metadata nor the values show one)."""
     return step_of(rec.meta, ch, rec.channels[ch], rec.channel_quantum)

@@ -74,8 +74,11 @@ def _engine_finding(f: dict, channel: str, observable: str, entry: dict, unit: s
     else:
         fit = {"before_rms": f.get("cv_rms_before"), "after_rms": f.get("cv_rms_after"), "unit": unit,
                "note": "held-out (cross-validated) RMS"}
-    return {"effect": f["effect"], "channel": f.get("channel", channel), "observable": observable,
-            "parameters": params, "fit": fit}
+    out = {"effect": f["effect"], "channel": f.get("channel", channel), "observable": observable,
+           "parameters": params, "fit": fit}
+    if f.get("scan_order_from"):
+        out["note"] = f"previous channel '{f.get('previous_channel')}' in the scan order from {f['scan_order_from']}"
+    return out
 
 
 def _test_finding(f: dict, channel: str, observable: str) -> dict:

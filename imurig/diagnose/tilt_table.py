@@ -28,7 +28,7 @@ from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.samples import adc_step, raw_channel_tests
+from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
 from imurig.kernel.errors import ConfigError
@@ -65,9 +65,9 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     u, _ = indicated(rec100)
     seg = rec100.segments
     mid = 0.5 * (seg["start_s"] + seg["stop_s"])
-    scan = list(rec.meta.get("adc", {}).get("scan_list", []))
+    scan, scan_source = scan_order(rec)
     out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position medians", "twin_model": twin_model,
-           "axes": {}}
+           "adc_scan_order": {"channels": scan, "from": scan_source}, "axes": {}}
     inputs = {n: u[:, j] for j, n in enumerate(("ax", "ay", "az"))}
     median_cache = {}
 
@@ -97,6 +97,9 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
             lib = [c for c in lib if c.name != "adc_crosstalk"]
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
         entry = d.to_dict()
+        for f in entry["findings"]:
+            if f["effect"] == "adc_crosstalk":
+                f.update(previous_channel=prev, scan_order_from=scan_source)
         if alias is not None:
             entry["indistinguishable"] = [alias]
         entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
