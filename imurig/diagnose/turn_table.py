@@ -43,7 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.samples import raw_channel_tests
+from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
@@ -158,7 +158,7 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     t, x = rec.time_s, rec.channels[ch]
     w = SlipRingNoise.window
     h = w // 2
-    ang, res = [], []
+    ang, res, sig, tim, win = [], [], [], [], []
     for a, b, rate in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"]):
         i0, i1 = np.searchsorted(t, [a, b])
         if i1 - i0 < 200:
@@ -169,11 +169,19 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
         k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
         frac = (tt - p[k]) / (p[k + 1] - p[k])
         ang.append(2 * np.pi * (frac if rate >= 0 else 1 - frac))
-        res.append(r[h:-h] if r.size > 2 * h else r)
-        ang[-1] = ang[-1][h:-h] if r.size > 2 * h else ang[-1]
+        # the signal as logged (the ripple test removes each window's mean and trend): a ripple
+        # locked to the angle stays
+        cut = slice(h, -h) if r.size > 2 * h else slice(None)
+        res.append(r[cut])
+        sig.append(x[i0:i1][cut])
+        tim.append(tt[cut])
+        win.append(np.full(tim[-1].size, len(win)))
+        ang[-1] = ang[-1][cut]
     if not ang:
         return {"tested": False}
-    view = TurnSampleView(channel=ch, angle_rad=np.concatenate(ang), residual_V=np.concatenate(res), alpha=alpha)
+    view = TurnSampleView(channel=ch, angle_rad=np.concatenate(ang), residual_V=np.concatenate(res), alpha=alpha,
+                          signal_V=np.concatenate(sig), quantum_V=adc_step(rec, ch), window=np.concatenate(win),
+                          time_s=np.concatenate(tim))
     out = {"tested": True}
     for cls in for_view(TurnSampleView.kind):
         out.update(cls().test(view))

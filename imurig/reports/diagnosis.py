@@ -163,9 +163,15 @@ def _findings_rows(d: dict) -> list[list]:
                              "–"])
             sc = e.get("scatter", {}).get("finding")
             if sc:
-                rows.append([f"gyro_{g} sample noise", sc["effect"], sc["physics"],
-                             (f"noise up to {sc['peak_to_median_noise']:.2f}× the median at table angles "
-                             f"{', '.join(f'{x:.0f}' for x in sc['angles_deg'])} deg; p = {sc['p_value']:.2g}"),
+                ev = []
+                if "angles_deg" in sc:
+                    ev.append(f"noise up to {sc['peak_to_median_noise']:.2f}× the median at table angles "
+                              f"{', '.join(f'{x:.0f}' for x in sc['angles_deg'])} deg; p = {sc['p_value']:.2g}")
+                if "ripple" in sc:
+                    rp = sc["ripple"]
+                    ev.append(f"ripple of harmonic {rp['harmonic']} of the table angle: {rp['amplitude_V']:.3g} ± "
+                              f"{rp['amplitude_se_V']:.2g} V at {rp['phase_deg']:.0f} deg; p = {rp['p_value']:.2g}")
+                rows.append([f"gyro_{g} sample noise", sc["effect"], sc["physics"], "; ".join(ev),
                              SEED_SAYS_TURN.get(sc["effect"], "–")])
         return rows
     if d.get("kind") == "tilt_table":
