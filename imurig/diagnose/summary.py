@@ -132,6 +132,13 @@ def findings(d: dict) -> list[dict]:
         ch = f.get("channel", "acc")
         out.append(_engine_finding(f, "acc" if ch == "acc" else f"acc_{ch}", "slews against the dynamic twin",
                                    d["dynamic"], (d["dynamic"].get("residuals") or {}).get("unit", "m/s^2")))
+    tr = d.get("table_rate") or {}
+    if tr.get("finding_mains"):
+        out.append({**_test_finding(tr["finding_mains"], "table_rate", "measured / dial rate per whole-round window"),
+                    "fit": {"before_rms": None, "after_rms": None, "unit": "1",
+                            "note": "the measured/dial ratio matched to a motor's mains factor, not a regression"}})
+    for f in (tr.get("shortfall") or {}).get("findings", []):
+        out.append(_engine_finding(f, "table_rate", "relative rate shortfall per whole-round window", {}, "1"))
     if d.get("rate_factor"):
         rf = d["rate_factor"]
         out.append({"effect": rf["effect"], "channel": "rate", "observable": "stopwatch rate per timed row",

@@ -45,6 +45,7 @@ from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
 from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
+from imurig.diagnose.table_rate import diagnose_table_rate
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
@@ -89,7 +90,11 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                              "bias_instability_rad_s, bias_instability_tau_s): the diagnosis needs it to weight "
                              "the steps; add it as a '# gyro_noise_model: {...}' line in the CSV")
     cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
-    out = {"twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
+    # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
+    table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
+                                alpha=alpha, n_sim=n_sim)
+    out = {"table_rate": table,
+           "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
                    + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
            "earth_rate_in_twin": earth_rate, "specific_force_from": f_source, "gyros": {}}
     for j, a in enumerate(AXES):
