@@ -66,3 +66,21 @@ def test_spikes_found_on_quantised_data(fs):
     x[idx] += 30 * Q16 * rng.choice([-1.0, 1.0], 5)
     res = LooseCable().test(ScatterView("acc_y", x, pos, fs, np.full(len(pos), 12.0), quantum_V=Q16))
     assert res["spikes_total"] == 5 and res["finding"]["spikes"] == 5
+
+
+@pytest.mark.parametrize("fs,expected", [(50.0, 50.0), (100.0, 100.0), (102.4, 102.4), (250.0, 125.0),
+                                         (1000.0, 100.0), (1024.0, 102.4)])
+def test_working_rate_any_logger_rate(fs, expected):
+    """The tilt diagnosis' working record from any rate 50 Hz - 1 kHz: decimated by a whole number
+    where there is something to decimate, as logged otherwise (no refusal, no cut-off at Nyquist);
+    a tone at 5 Hz (in the pass band) keeps its amplitude to the filter's pass-band ripple."""
+    from imurig.diagnose.samples import working_record
+    from imurig.kernel.recording import Recording
+
+    t = np.arange(int(20 * fs)) / fs
+    x = np.sin(2 * np.pi * 5.0 * t)
+    w = working_record(Recording(t, {"acc_x": x}, {"acc_x": "V"}))
+    assert w.sample_rate_hz == pytest.approx(expected, rel=1e-9)
+    inner = slice(w.n // 4, 3 * w.n // 4)
+    amp = np.sqrt(2 * np.mean(w.channels["acc_x"][inner] ** 2))
+    assert abs(amp - 1.0) < 2e-3     # |H(5 Hz)|^2 = 1 - 1e-10; 2e-3: a part period in the half-record mean

@@ -5,9 +5,25 @@ the metadata, else the greatest common step of the values) and the converter's r
 metadata gives it (``adc.range_V`` or ``inferred.adc_range_V``)."""
 from __future__ import annotations
 
+import numpy as np
+
+from imurig.calibration.preprocess import lowpass_downsample
 from imurig.kernel.recording import Recording
 from imurig.sensors.effects import RawChannelView, for_view
 from imurig.sensors.effects.adc_quantisation import step_of
+
+
+def working_record(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float = 50.0) -> Recording:
+    """The record at the diagnosis' working rate: the seed's 50 Hz Butterworth low-pass and
+    decimation by the whole number k = floor(f_s / ``rate_hz``) when k >= 2 (1 kHz -> 100 Hz,
+    250 Hz -> 125 Hz, 1024 Hz -> 102.4 Hz); a record at up to twice the working rate (50 Hz,
+    100 Hz, 102.4 Hz, 150 Hz) is used as logged: there is nothing to decimate, and a 50 Hz cut-off
+    would sit at or beyond its Nyquist frequency."""
+    fs = float(rec.sample_rate_hz)
+    k = int(np.floor(fs / rate_hz + 1e-9))
+    if k < 2:
+        return rec
+    return lowpass_downsample(rec, rate_hz=fs / k, cutoff_hz=cutoff_hz)
 
 
 def scan_order(rec: Recording) -> tuple[list[str], str]:

@@ -24,11 +24,11 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.calibration.accelerometer import AXES, indicated
-from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
+from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order
+from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
 from imurig.kernel.errors import ConfigError
@@ -60,7 +60,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     """
     if twin_model not in TWIN_MODELS:
         raise ConfigError(f"unknown twin model '{twin_model}'; choose one of {', '.join(TWIN_MODELS)}")
-    rec100 = lowpass_downsample(rec)
+    rec100 = working_record(rec)
     cal = calibrate(rec, model=twin_model, processed=rec100)
     u, _ = indicated(rec100)
     seg = rec100.segments
