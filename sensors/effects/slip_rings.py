@@ -33,9 +33,13 @@ eccentricity) is no noise and the running mean would remove it: it is tested on 
 mean and linear trend in time (gyro bias and drift) projected out of the signal and the
 harmonics alike (Frisch-Waugh-Lovell),
 
-    s = sum_{k=1..K} (a_k cos k theta + b_k sin k theta) + e,    F = (SS_reg / 2K) / (SS_res / (N - 2K))
+    s = sum_{k=2..K+1} (a_k cos k theta + b_k sin k theta) + e,   F = (SS_reg / 2K) / (SS_res / dof)
 
-with the residual variance floored at q^2 / 12; p < alpha names the effect with the largest
+with the residual variance floored at q^2 / 12. Harmonic 1 is a nuisance, projected out too: the
+Earth's horizontal rate, the spin axis' tilt and the gyro's misalignment all put a 1/rev signal
+on a gyro across the spin axis, physics the whole-round twin holds. Where the noise is below the
+ADC step (no dither), the rounding of that 1/rev signal itself makes harmonics of up to about
+q / 2: a ripple must then exceed q / 2 as well. p < alpha names the effect with the largest
 harmonic's amplitude A_k = sqrt(a_k^2 + b_k^2) +- its SE (V) and phase.
 """
 from __future__ import annotations
@@ -196,18 +200,22 @@ class SlipRingNoise(Effect):
             return {}
         s = np.asarray(view.signal_V, float).copy()
         th = np.asarray(view.angle_rad, float)
-        k = np.arange(1, harmonics + 1)
+        k = np.arange(2, harmonics + 2)
         H = np.column_stack([np.cos(np.outer(th, k)), np.sin(np.outer(th, k))])
+        H1 = np.column_stack([np.cos(th), np.sin(th)])       # harmonic 1: nuisance (module doc)
         win = np.zeros(s.size, int) if view.window is None else np.asarray(view.window)
         t = np.arange(s.size, dtype=float) if view.time_s is None else np.asarray(view.time_s, float)
         for w in np.unique(win):                   # per window: mean and trend off the signal and H
             i = win == w
             T = np.column_stack([np.ones(int(i.sum())), t[i] - t[i].mean()])
-            A = np.column_stack([s[i], H[i]])
+            A = np.column_stack([s[i], H[i], H1[i]])
             A -= T @ np.linalg.lstsq(T, A, rcond=None)[0]
-            s[i], H[i] = A[:, 0], A[:, 1:]
+            s[i], H[i], H1[i] = A[:, 0], A[:, 1:1 + H.shape[1]], A[:, 1 + H.shape[1]:]
+        Q1, _ = np.linalg.qr(H1)                   # harmonic 1 off the signal and the tested harmonics
+        s -= Q1 @ (Q1.T @ s)
+        H -= Q1 @ (Q1.T @ H)
         n, p = H.shape
-        n_nuis = 2 * np.unique(win).size
+        n_nuis = 2 * np.unique(win).size + 2
         if n <= p + 2 * np.unique(win).size + 2:
             return {}
         coef, *_ = np.linalg.lstsq(H, s, rcond=None)
@@ -224,7 +232,11 @@ class SlipRingNoise(Effect):
         g = np.array([a[j], b[j]]) / max(amp[j], 1e-300)
         idx = [j, j + harmonics]
         se = float(np.sqrt(g @ cov[np.ix_(idx, idx)] @ g))
-        return {"found": bool(pv < view.alpha), "F": float(F), "p_value": pv, "harmonic": int(j + 1),
+        # a step above the noise (no dither) distorts the 1/rev signal into harmonics of up to ~q/2
+        q = float(view.quantum_V or 0.0)
+        dithered = float(np.sqrt(r @ r / dof)) >= q
+        return {"found": bool(pv < view.alpha and (dithered or amp[j] > 0.5 * q)), "F": float(F), "p_value": pv,
+                "harmonic": int(j + 2), "dithered": dithered,
                 "amplitude_V": float(amp[j]), "amplitude_se_V": se,
                 "phase_deg": float(np.degrees(np.arctan2(b[j], a[j]))), "amplitudes_V": amp.tolist(),
                 "noise_V": float(np.sqrt(var))}
