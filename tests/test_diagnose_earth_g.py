@@ -1,13 +1,14 @@
 """The Earth's rate cannot masquerade as a gyro g-sensitivity: numpy-made whole-round means of a
 level table (six faces, the spin axis vertical), gyros whose output lacks the Earth's vertical rate
-the twin adds; the g-sensitivity column fits it exactly, the guard names it the Earth's rate."""
+the twin adds; the g-sensitivity column fits it exactly, and the guard never lets it stand as a
+plain g-sensitivity: it names the Earth-rate mismatch as its indistinguishable alternative."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.turn_table import earth_rate_guard
+from imurig.diagnose.turn_table import EARTH_RATE_MISMATCH, earth_rate_guard
 from imurig.kernel.site import EARTH_RATE_RAD_S
 from imurig.sensors.effects import TurnView, for_view
 
@@ -34,17 +35,19 @@ def _windows(j, recorded_earth: bool, G_true=0.0, seed=0, sigma=2e-7):
 def test_missing_earth_rate_is_not_g_sensitivity(j):
     d = _windows(j, recorded_earth=False, seed=j)
     assert [f.name for f in d.findings] == ["g_sensitivity"]          # the engine alone: the false finding
-    kept, moved = earth_rate_guard(d.findings, OMEGA_V, G)
-    assert kept == [] and moved[0]["G_times_g_rad_s"] == pytest.approx(-OMEGA_V, rel=0.05)
+    (mark,) = earth_rate_guard(d.findings, OMEGA_V, G)
+    assert d.findings[0].runner_up == EARTH_RATE_MISMATCH and d.findings[0].to_dict()["indistinguishable_from"] \
+        == EARTH_RATE_MISMATCH
+    assert abs(mark["G_times_g_rad_s"] + OMEGA_V) < 4 * mark["G_se"] * G
 
 
 def test_a_real_g_sensitivity_is_kept():
     """G = 10 deg/h/g (5 times the Earth's vertical rate / g): far from +-Omega_v / g, kept."""
     G_true = 5 * OMEGA_V / G
     d = _windows(0, recorded_earth=True, G_true=G_true, seed=7)
-    kept, moved = earth_rate_guard(d.findings, OMEGA_V, G)
-    assert [f.name for f in kept] == ["g_sensitivity"] and moved == []
-    est, se = kept[0].params["g_sensitivity:G"]
+    assert earth_rate_guard(d.findings, OMEGA_V, G) == []
+    assert [f.name for f in d.findings] == ["g_sensitivity"] and d.findings[0].runner_up is None
+    est, se = d.findings[0].params["g_sensitivity:G"]
     assert abs(est - G_true) < 4 * se
 
 

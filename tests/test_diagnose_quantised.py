@@ -84,3 +84,19 @@ def test_working_rate_any_logger_rate(fs, expected):
     inner = slice(w.n // 4, 3 * w.n // 4)
     amp = np.sqrt(2 * np.mean(w.channels["acc_x"][inner] ** 2))
     assert abs(amp - 1.0) < 2e-3     # |H(5 Hz)|^2 = 1 - 1e-10; 2e-3: a part period in the half-record mean
+
+
+@pytest.mark.parametrize("fs", [50.0, 100.0, 1000.0])
+def test_vibration_peak_on_the_quantised_scale(fs):
+    """The pump's spectral-peak test: no peak on a clean record whose step exceeds the noise (its
+    PSD floored at the rounding's q^2/12 over 0..fs/2), the tone found where it is 10 steps high."""
+    from imurig.sensors.effects.building_vibration import PumpVibration
+
+    rng = np.random.default_rng(int(fs) + 1)
+    x, pos = _positions(rng, fs, sigma_V=0.05 * Q16)
+    view = ScatterView("acc_x", x, pos, fs, np.full(len(pos), 12.0), quantum_V=Q16)
+    assert "finding" not in PumpVibration().test(view)
+    t = np.arange(x.size) / fs
+    tone = np.round((x + 10 * Q16 * np.sin(2 * np.pi * 7.3 * t)) / Q16) * Q16
+    res = PumpVibration().test(ScatterView("acc_x", tone, pos, fs, np.full(len(pos), 12.0), quantum_V=Q16))
+    assert abs(res["finding"]["spectral_peak_hz"] - 7.3) <= fs / min(256, pos[0].stop - pos[0].start)

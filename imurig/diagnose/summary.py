@@ -76,6 +76,8 @@ def _engine_finding(f: dict, channel: str, observable: str, entry: dict, unit: s
                "note": "held-out (cross-validated) RMS"}
     out = {"effect": f["effect"], "channel": f.get("channel", channel), "observable": observable,
            "parameters": params, "fit": fit}
+    if f.get("indistinguishable_from"):
+        out["indistinguishable_from"] = f["indistinguishable_from"]
     if f.get("scan_order_from"):
         out["note"] = f"previous channel '{f.get('previous_channel')}' in the scan order from {f['scan_order_from']}"
     return out
@@ -200,7 +202,8 @@ def unexplained(d: dict) -> list[dict]:
 def verdict(found: list[dict], left: list[dict]) -> str:
     """One line: the effects found (effect on channel) and whether anything is left unexplained."""
     if found:
-        names = "; ".join(f"{f['effect']} on {f['channel']}" for f in found)
+        names = "; ".join(f"{f['effect']}" + (f" (or {f['indistinguishable_from']})" if f.get("indistinguishable_from")
+                                                else "") + f" on {f['channel']}" for f in found)
         line = f"{len(found)} effect(s) found: {names}"
     else:
         line = "no effect found: the recording agrees with its twin"

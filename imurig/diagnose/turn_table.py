@@ -114,7 +114,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
         for fd in d.findings:
             if alias and fd.name == "earth_rate_left_out":
                 fd.runner_up = alias
-        d.findings, earth_alias = earth_rate_guard(d.findings, omega_v, site.gravity_m_s2)
+        earth_alias = earth_rate_guard(d.findings, omega_v, site.gravity_m_s2)
         entry = d.to_dict()
         if earth_alias:
             entry["earth_rate_alias"] = earth_alias
@@ -141,29 +141,35 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     return out
 
 
-def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> tuple[list, list]:
-    """Findings less a g-sensitivity that is the Earth's vertical rate in disguise, and those removed.
+def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> list[dict]:
+    """Mark a g-sensitivity that may be the Earth's vertical rate in disguise; returns the marks.
 
     On a level table the g-sensitivity column is the specific force g e_j, the Earth-rate column
-    Omega_v e_j: a fitted G with |G g -+ Omega_v| < ``k`` SE(G) g is the Earth's vertical rate that the
-    twin's reference holds and the recording does not (or holds along other axes than the mountings
-    say: a compensated output, a wrong mounting), not a g-sensitivity (k = 4: an Earth-rate alias
-    is kept as a g-sensitivity with probability ~1e-4, a t quantile for ~20 windows). It is removed from the
-    findings and reported, with the sign of the Earth rate it matches."""
-    kept, moved = [], []
+    Omega_v e_j: a fitted G with |G g -+ Omega_v| < ``k`` SE(G) g may be the Earth's vertical rate that
+    the twin's reference holds and the recording does not (an Earth-rate-compensated output,
+    mountings other than the metadata say), as well as a g-sensitivity of that size: the data cannot
+    tell. The finding is then never a plain g-sensitivity: it names the Earth-rate mismatch as its
+    indistinguishable alternative (``indistinguishable_from``), and the mark says so."""
+    marks = []
     for f in findings:
         est = next((v for n, v in f.params.items() if n.endswith(":G")), None) if f.name == "g_sensitivity" else None
-        if est is not None and np.isfinite(est[1]) and min(abs(est[0] * g_m_s2 - s * omega_v_rad_s)
-                                                           for s in (1.0, -1.0)) < k * est[1] * g_m_s2:
-            moved.append({"effect": f.name, "G": est[0], "G_se": est[1], "G_times_g_rad_s": est[0] * g_m_s2,
-                          "earth_vertical_rate_rad_s": omega_v_rad_s,
+        if est is None or not np.isfinite(est[1]):
+            continue
+        gap = min(abs(est[0] * g_m_s2 - s * omega_v_rad_s) for s in (1.0, -1.0))
+        if gap < k * est[1] * g_m_s2:
+            f.runner_up = EARTH_RATE_MISMATCH
+            marks.append({"effect": f.name, "G": est[0], "G_se": est[1], "G_times_g_rad_s": est[0] * g_m_s2,
+                          "earth_vertical_rate_rad_s": omega_v_rad_s, "gap_in_se": gap / (est[1] * g_m_s2),
+                          "indistinguishable_from": EARTH_RATE_MISMATCH,
                           "note": "G g equals the Earth's vertical rate within its standard errors: the twin's Earth "
-                                  "term is not in the recording as the mountings say (an Earth-rate-compensated "
-                                  "output or wrong mountings), not a g-sensitivity; check the mountings or rerun "
-                                  "with --twin-without-earth-rate"})
-        else:
-            kept.append(f)
-    return kept, moved
+                                  "term may be missing from the recording (an Earth-rate-compensated output, wrong "
+                                  "mountings) rather than a g-sensitivity; check the mountings, or rerun with "
+                                  "--twin-without-earth-rate"})
+    return marks
+
+
+#: the alternative a g-sensitivity of the Earth's vertical rate's size cannot be told from
+EARTH_RATE_MISMATCH = "earth_rate_mismatch"
 
 
 def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.ndarray) -> float:
