@@ -203,8 +203,9 @@ def test_thermal_hysteresis_found_with_truth(seed, check_concealed_case):
     check_concealed_case(case, seed, case.realistic_size)
 
 
-def test_diagnose_cli_on_thermal_and_turn_table(tmp_path):
-    """`imurig diagnose` dispatches a thermal and a turn-table recording and writes its products."""
+def test_diagnose_cli_on_thermal_and_turn_table(tmp_path, capsys):
+    """`imurig diagnose` dispatches a thermal and a turn-table recording and writes its products,
+    diagnosis.json with its rig-free top level, and ends with the one-line verdict on stdout."""
     from imurig.cli.main import main
     from imurig.concealed.suite import _thermal
     from imurig.kernel.recording import save_h5
@@ -216,6 +217,11 @@ def test_diagnose_cli_on_thermal_and_turn_table(tmp_path):
     d = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     assert d["kind"] == "thermal" and (tmp_path / "d" / "diagnosis.rrd").exists()
     assert "temperature_hysteresis" in (tmp_path / "d" / "report.md").read_text()
+    from imurig.diagnose.summary import check_schema
+
+    assert check_schema(d) == [] and any(f["effect"] == "temperature_hysteresis" for f in d["findings"])
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last == f"verdict: {d['verdict']}"
 
 
 def test_slip_ring_noise_found_at_its_angles():

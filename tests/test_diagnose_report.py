@@ -13,6 +13,7 @@ import pytest
 import rerun as rr
 
 from imurig.cli.main import main
+from imurig.diagnose.summary import check_schema
 from imurig.reports.diagnosis import run
 from imurig.concealed.suite import CASES, found_effects, null_recording
 
@@ -74,6 +75,13 @@ def test_thermal_report_fields_and_numbers(thermal):
     j = json.loads((out / "diagnosis.json").read_text())
     md = (out / "report.md").read_text()
     assert {("acc_x", "temperature_hysteresis")} <= found_effects(d)
+    # the rig-free top level (docs/diagnosis-json.md): the same findings, with units and fits
+    assert check_schema(j) == []
+    assert {(f["channel"], f["effect"]) for f in j["findings"]} == {(c, f["effect"]) for c, e in j["channels"].items()
+                                                                    for f in e["findings"]}
+    top = next(f for f in j["findings"] if f["effect"] == "temperature_hysteresis")
+    assert top["fit"]["after_rms"] < top["fit"]["before_rms"] and top["parameters"][0]["se"] > 0
+    assert "temperature_hysteresis on acc_x" in j["verdict"]
     for f in ("fig_diagnosis.png", "fig_residuals.png", "diagnosis.rrd"):
         assert (out / f).stat().st_size > 1000
     for e in j["channels"].values():
@@ -114,6 +122,9 @@ def test_tilt_report_positions_and_slews(lever):
     for f in ("fig_diagnosis.png", "fig_residuals.png", "fig_residuals_slews.png", "diagnosis.rrd"):
         assert (out / f).stat().st_size > 1000
     j = json.loads((out / "diagnosis.json").read_text())
+    assert check_schema(j) == [] and [(f["channel"], f["effect"]) for f in j["findings"]] == [("acc", "lever_arm")]
+    lv = j["findings"][0]
+    assert {p["unit"] for p in lv["parameters"]} == {"m"} and lv["fit"]["after_rms"] < lv["fit"]["before_rms"]
     for a, e in j["axes"].items():  # null channels: before = after, "no effect accepted"
         _check_fit_steps(e)
         assert e["residuals"]["before"] == e["residuals"]["after"] and not e["residuals"]["variables"]

@@ -194,7 +194,8 @@ def _run_diagnose(a):
             earth_rate=False if a.twin_without_earth_rate else None)
     for r in _findings_rows(d):
         print(f"- {r[1]} ({r[0]}): {r[2]}\n    {r[3]}")
-    print(f"report: {Path(a.out) / 'report.md'}")
+    print(f"report: {Path(a.out) / 'report.md'}; machine-readable: {Path(a.out) / 'diagnosis.json'}")
+    print(f"verdict: {d['verdict']}")
 
 
 def _is_appendix_b(path) -> bool:

@@ -47,13 +47,18 @@ class Finding:
     bic_before: float = 0.0
     bic_after: float = 0.0
     runner_up: str | None = None
+    rms_before: float | None = None                  # residual RMS before / after the effect joined the
+    rms_after: float | None = None                   # model, in the engine's (possibly whitened) space
+    whitened: bool = False
 
     def to_dict(self) -> dict:
         return {"effect": self.name, "physics": self.physics, "scan": None if self.scan_name is None else
                 {self.scan_name: _jsonable(self.theta)}, "statistic": self.statistic, "threshold": self.threshold,
                 "parameters": [{"name": k, "estimate": v[0], "std_error": v[1]} for k, v in self.params.items()],
                 "variance_share": self.variance_share, "cv_rms_before": self.cv_before, "cv_rms_after": self.cv_after,
-                "bic_before": self.bic_before, "bic_after": self.bic_after, "indistinguishable_from": self.runner_up}
+                "bic_before": self.bic_before, "bic_after": self.bic_after, "indistinguishable_from": self.runner_up,
+                "rms_before": self.rms_before, "rms_after": self.rms_after,
+                "rms_unit": "whitened" if self.whitened else "observable"}
 
 
 def _jsonable(v):
@@ -166,6 +171,8 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     noise = noise or (lambda r, m: r.standard_normal(m))
     findings, X, names = _greedy(y, X0, list(names0), candidates, before, rng, alpha, n_sim, cv_blocks, max_effects,
                                  noise)
+    for f in findings:
+        f.whitened = weights is not None or cov is not None
     if len(findings) > 1:
         findings, X, names = _recheck_jointly(findings, y, X0, names0, candidates, rng, alpha, n_sim, noise)
     after = _fit(X, y, names)
@@ -240,7 +247,8 @@ def _greedy(y, X, names, candidates, before, rng, alpha, n_sim, cv_blocks, max_e
             statistic=float(best_F), threshold=thr,
             params={c: (new.coef(c), new.std_error(c)) for c in cols},
             variance_share=float((ss0 - new.ss_res) / before.ss_res) if before.ss_res > 0 else 0.0,
-            cv_before=cv0, cv_after=cv1, bic_before=cur.bic, bic_after=new.bic, runner_up=runner))
+            cv_before=cv0, cv_after=cv1, bic_before=cur.bic, bic_after=new.bic, runner_up=runner,
+            rms_before=float(np.sqrt(cur.ss_res / y.size)), rms_after=float(np.sqrt(new.ss_res / y.size))))
         X, names = X1, names + cols
         remaining.remove(best_c)
     return findings, X, names

@@ -14,6 +14,7 @@ import numpy as np
 
 from imurig.calibration.accelerometer import ACC, AXES
 from imurig.diagnose.engine import Candidate, select_effects
+from imurig.diagnose.samples import scan_order
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_twin import tilt_table_twin
 from imurig.kernel.recording import Recording
@@ -216,7 +217,7 @@ def _crosstalk_columns(rec: Recording, sl: _Slews, crosstalk_axes: tuple) -> tup
     # position means found it (``crosstalk_axes``), its column joins the nuisance here, so that its
     # dynamic signature is not forced onto a delay or a lever arm; it is tested (and reported) in
     # the position means only (as a slew candidate too it fired on 6/30 null records)
-    scan = list(rec.meta.get("adc", {}).get("scan_list", []))
+    scan, _ = scan_order(rec)
     cols, names = [], []
     for a, ax in enumerate(AXES):
         ch = f"acc_{ax}"

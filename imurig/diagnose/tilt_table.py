@@ -24,10 +24,11 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.calibration.accelerometer import AXES, indicated
-from imurig.calibration.preprocess import lowpass_downsample, segment_statistic
+from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
 from imurig.kernel.errors import ConfigError
@@ -42,6 +43,10 @@ def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
 
 
 TWIN_MODELS = ("physical", "own_axis", "linear")
+#: the lowest logger rate at which the slews are compared with the dynamic twin: at 100 Hz its
+#: replay lags the recording by ~3 ms (a 1 kHz time-delay case decimated to 100 Hz gave a delay of
+#: -3.2 +- 0.09 ms on all three axes instead of 0.1 ms on acc_y), so slower records are not tested
+MIN_SLEW_RATE_HZ = 200.0
 
 
 def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
@@ -59,14 +64,14 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     """
     if twin_model not in TWIN_MODELS:
         raise ConfigError(f"unknown twin model '{twin_model}'; choose one of {', '.join(TWIN_MODELS)}")
-    rec100 = lowpass_downsample(rec)
+    rec100 = working_record(rec)
     cal = calibrate(rec, model=twin_model, processed=rec100)
     u, _ = indicated(rec100)
     seg = rec100.segments
     mid = 0.5 * (seg["start_s"] + seg["stop_s"])
-    scan = list(rec.meta.get("adc", {}).get("scan_list", []))
+    scan, scan_source = scan_order(rec)
     out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position medians", "twin_model": twin_model,
-           "axes": {}}
+           "adc_scan_order": {"channels": scan, "from": scan_source}, "axes": {}}
     inputs = {n: u[:, j] for j, n in enumerate(("ax", "ay", "az"))}
     median_cache = {}
 
@@ -96,9 +101,13 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
             lib = [c for c in lib if c.name != "adc_crosstalk"]
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
         entry = d.to_dict()
+        for f in entry["findings"]:
+            if f["effect"] == "adc_crosstalk":
+                f.update(previous_channel=prev, scan_order_from=scan_source)
         if alias is not None:
             entry["indistinguishable"] = [alias]
-        entry["scatter"] = _scatter(rec100, ch, mid)
+        entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
+        entry["scatter"].update(raw_channel_tests(rec, ch, alpha))
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
                                          reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry
@@ -120,8 +129,9 @@ def _dynamic(rec: Recording, cal, axes: dict, rng: np.random.Generator, alpha: f
              skew_in_twin: bool) -> dict:
     """The slews against the dynamic twin (:func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`),
     given what the position means found (``axes``), or why they were not tested."""
-    if rec.sample_rate_hz < 200 or not {"theta", "phi"} <= set(rec.channels):
-        return {"tested": False, "why": "the slews need per-sample theta/phi set-point channels at >= 200 Hz"}
+    if rec.sample_rate_hz < MIN_SLEW_RATE_HZ or not {"theta", "phi"} <= set(rec.channels):
+        return {"tested": False, "why": f"the slews need per-sample theta/phi set-point channels at >= "
+                                        f"{MIN_SLEW_RATE_HZ:g} Hz"}
     if rec.n > MAX_DYNAMIC_SAMPLES:
         return {"tested": False, "why": f"{rec.n} samples: this version replays the whole record five "
                                         f"times in MuJoCo and keeps it in memory; records up to "
@@ -199,15 +209,16 @@ def _with_survey_nuisance(X0: np.ndarray, names: list, Jj: np.ndarray, rtol: flo
     return X, out
 
 
-def _scatter(rec100: Recording, ch: str, mid: np.ndarray) -> dict:
+def _scatter(rec100: Recording, ch: str, mid: np.ndarray, quantum_V: float = 0.0) -> dict:
     """Within-position scatter: each scatter effect of the library runs its own test (the pump's
     spectral peak located in the day, with its refit; the loose cable's spikes) on the samples
-    of every position; a test that fires reports its finding under the effect's key."""
+    of every position; a test that fires reports its finding under the effect's key.
+    ``quantum_V``: the recorded channel's ADC step q (V), the floor q / sqrt(12) of every noise level."""
     j = "xyz".index(ch[-1])
     sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
     view = ScatterView(channel=ch, samples=rec100.channels[ch], positions=rec100.segment_slices(),
                        sample_rate_hz=rec100.sample_rate_hz, hour_of_day=_hours(rec100, mid),
-                       sensitivity_V_per_SI=float(sens[j]) if sens is not None else None)
+                       sensitivity_V_per_SI=float(sens[j]) if sens is not None else None, quantum_V=quantum_V)
     out = {}
     for cls in for_view(ScatterView.kind):
         res = dict(cls().test(view))

@@ -43,7 +43,9 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
+from imurig.diagnose.table_rate import diagnose_table_rate
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
@@ -88,7 +90,11 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                              "bias_instability_rad_s, bias_instability_tau_s): the diagnosis needs it to weight "
                              "the steps; add it as a '# gyro_noise_model: {...}' line in the CSV")
     cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
-    out = {"twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
+    # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
+    table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
+                                alpha=alpha, n_sim=n_sim)
+    out = {"table_rate": table,
+           "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
                    + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
            "earth_rate_in_twin": earth_rate, "specific_force_from": f_source, "gyros": {}}
     for j, a in enumerate(AXES):
@@ -108,7 +114,10 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
         for fd in d.findings:
             if alias and fd.name == "earth_rate_left_out":
                 fd.runner_up = alias
+        earth_alias = earth_rate_guard(d.findings, omega_v, site.gravity_m_s2)
         entry = d.to_dict()
+        if earth_alias:
+            entry["earth_rate_alias"] = earth_alias
         entry["earth_vs_g_sensitivity_correlation"] = float(corr)
         if alias:
             entry["indistinguishable"] = {"effects": ["earth_rate_left_out", "g_sensitivity"], "correlation": float(corr),
@@ -127,8 +136,40 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                               "convention": "residual = the twin's reference rate - the recording through the "
                                             "gyro calibration (whole-round means per step)"}
         entry["scatter"] = _slip_rings(rec, rw, timer, f"gyro_{a}", alpha / 3)
+        entry["scatter"].update(raw_channel_tests(rec, f"gyro_{a}", alpha))
         out["gyros"][a] = entry
     return out
+
+
+def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> list[dict]:
+    """Mark a g-sensitivity that may be the Earth's vertical rate in disguise; returns the marks.
+
+    On a level table the g-sensitivity column is the specific force g e_j, the Earth-rate column
+    Omega_v e_j: a fitted G with |G g -+ Omega_v| < ``k`` SE(G) g may be the Earth's vertical rate that
+    the twin's reference holds and the recording does not (an Earth-rate-compensated output,
+    mountings other than the metadata say), as well as a g-sensitivity of that size: the data cannot
+    tell. The finding is then never a plain g-sensitivity: it names the Earth-rate mismatch as its
+    indistinguishable alternative (``indistinguishable_from``), and the mark says so."""
+    marks = []
+    for f in findings:
+        est = next((v for n, v in f.params.items() if n.endswith(":G")), None) if f.name == "g_sensitivity" else None
+        if est is None or not np.isfinite(est[1]):
+            continue
+        gap = min(abs(est[0] * g_m_s2 - s * omega_v_rad_s) for s in (1.0, -1.0))
+        if gap < k * est[1] * g_m_s2:
+            f.runner_up = EARTH_RATE_MISMATCH
+            marks.append({"effect": f.name, "G": est[0], "G_se": est[1], "G_times_g_rad_s": est[0] * g_m_s2,
+                          "earth_vertical_rate_rad_s": omega_v_rad_s, "gap_in_se": gap / (est[1] * g_m_s2),
+                          "indistinguishable_from": EARTH_RATE_MISMATCH,
+                          "note": "G g equals the Earth's vertical rate within its standard errors: the twin's Earth "
+                                  "term may be missing from the recording (an Earth-rate-compensated output, wrong "
+                                  "mountings) rather than a g-sensitivity; check the mountings, or rerun with "
+                                  "--twin-without-earth-rate"})
+    return marks
+
+
+#: the alternative a g-sensitivity of the Earth's vertical rate's size cannot be told from
+EARTH_RATE_MISMATCH = "earth_rate_mismatch"
 
 
 def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.ndarray) -> float:
@@ -156,7 +197,7 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     t, x = rec.time_s, rec.channels[ch]
     w = SlipRingNoise.window
     h = w // 2
-    ang, res = [], []
+    ang, res, sig, tim, win = [], [], [], [], []
     for a, b, rate in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"]):
         i0, i1 = np.searchsorted(t, [a, b])
         if i1 - i0 < 200:
@@ -167,11 +208,19 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
         k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
         frac = (tt - p[k]) / (p[k + 1] - p[k])
         ang.append(2 * np.pi * (frac if rate >= 0 else 1 - frac))
-        res.append(r[h:-h] if r.size > 2 * h else r)
-        ang[-1] = ang[-1][h:-h] if r.size > 2 * h else ang[-1]
+        # the signal as logged (the ripple test removes each window's mean and trend): a ripple
+        # locked to the angle stays
+        cut = slice(h, -h) if r.size > 2 * h else slice(None)
+        res.append(r[cut])
+        sig.append(x[i0:i1][cut])
+        tim.append(tt[cut])
+        win.append(np.full(tim[-1].size, len(win)))
+        ang[-1] = ang[-1][cut]
     if not ang:
         return {"tested": False}
-    view = TurnSampleView(channel=ch, angle_rad=np.concatenate(ang), residual_V=np.concatenate(res), alpha=alpha)
+    view = TurnSampleView(channel=ch, angle_rad=np.concatenate(ang), residual_V=np.concatenate(res), alpha=alpha,
+                          signal_V=np.concatenate(sig), quantum_V=adc_step(rec, ch), window=np.concatenate(win),
+                          time_s=np.concatenate(tim))
     out = {"tested": True}
     for cls in for_view(TurnSampleView.kind):
         out.update(cls().test(view))

@@ -11,6 +11,7 @@ import numpy as np
 # TWIN_OPTIONS re-exported: the twin options `imurig diagnose` reads (the concealed suite checks its cases)
 from imurig.diagnose.dispatch import TWIN_OPTIONS, diagnose, record_kind, twin_options  # noqa: F401
 from imurig.diagnose.rate_table import SEED_SAYS
+from imurig.diagnose.summary import summarise
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.kernel.infer import inference_report
@@ -34,12 +35,14 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
         return run_magnetometer(rec, out_dir, overwrite, seed, o.get("twin_model", "nominal"))
     d = diagnose(rec, seed, twin_model, earth_rate, twin)
     fit_entries(d)  # AIC beside BIC
+    d.update(summarise(d))  # the rig-free top level: findings, unexplained, verdict (docs/diagnosis-json.md)
     with OutputFolder(out_dir, overwrite=overwrite) as out:
         figs = _figures(out, rec, d)
         _rrd(out.file("diagnosis.rrd"), rec, d)
         rows = _findings_rows(d)
         md = ["# Diagnosis: where the recording and its twin differ\n",
               f"Recording: {rec.meta.get('source', rec.meta.get('rig', '–'))}. Twin: {d.get('twin', '–')}.\n",
+              f"**Verdict:** {d['verdict']}.\n",
               "" if rows else "No effect accepted: the recording agrees with its twin.\n",
               "## What differs and where, the physics left out, beside what the seed says\n",
               md_table(["observable", "effect", "physics left out", "fitted / evidence", "seed"], rows) if rows else "",
@@ -158,17 +161,28 @@ def _findings_rows(d: dict) -> list[list]:
     if d.get("kind") == "turn_table":
         for g, e in d["gyros"].items():
             rows += [_engine_row(f"gyro_{g} whole-round means", f, SEED_SAYS_TURN) for f in e["findings"]]
+            sat = e.get("scatter", {}).get("finding_saturation")
+            if sat:
+                rows.append([f"gyro_{g} samples", sat["effect"], sat["physics"],
+                             f"{sat['fraction'] * 100:.2f} % of the samples at {sat['level_V']:.6g} V in {sat['runs']} runs",
+                             "–"])
             sc = e.get("scatter", {}).get("finding")
             if sc:
-                rows.append([f"gyro_{g} sample noise", sc["effect"], sc["physics"],
-                             (f"noise up to {sc['peak_to_median_noise']:.2f}× the median at table angles "
-                             f"{', '.join(f'{x:.0f}' for x in sc['angles_deg'])} deg; p = {sc['p_value']:.2g}"),
+                ev = []
+                if "angles_deg" in sc:
+                    ev.append(f"noise up to {sc['peak_to_median_noise']:.2f}× the median at table angles "
+                              f"{', '.join(f'{x:.0f}' for x in sc['angles_deg'])} deg; p = {sc['p_value']:.2g}")
+                if "ripple" in sc:
+                    rp = sc["ripple"]
+                    ev.append(f"ripple of harmonic {rp['harmonic']} of the table angle: {rp['amplitude_V']:.3g} ± "
+                              f"{rp['amplitude_se_V']:.2g} V at {rp['phase_deg']:.0f} deg; p = {rp['p_value']:.2g}")
+                rows.append([f"gyro_{g} sample noise", sc["effect"], sc["physics"], "; ".join(ev),
                              SEED_SAYS_TURN.get(sc["effect"], "–")])
         return rows
     if d.get("kind") == "tilt_table":
         for a, e in d["axes"].items():
             rows += [_engine_row(f"acc_{a} position means", f, SEED_SAYS_TILT) for f in e["findings"]]
-            for k in ("finding_spikes", "finding_vibration"):
+            for k in ("finding_spikes", "finding_vibration", "finding_saturation"):
                 if k in e["scatter"]:
                     f = e["scatter"][k]
                     ev = ", ".join(f"{kk} = {vv}" for kk, vv in f.items() if kk not in ("effect", "physics"))

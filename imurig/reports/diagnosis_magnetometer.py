@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from imurig.diagnose.magnetometer import AXES, diagnose_magnetometer
+from imurig.diagnose.summary import summarise
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_table
@@ -110,5 +111,6 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
                "reported as an unexplained structured residual.\n"),
               f"\n![diagnosis]({fig})\n"]
         out.write_text("report.md", "\n".join(md))
+        d.update(summarise(d))  # the rig-free top level (docs/diagnosis-json.md)
         out.write_json("diagnosis.json", clean_json(d))
     return d

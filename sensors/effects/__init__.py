@@ -14,7 +14,7 @@ import pkgutil
 
 from imurig.sensors.effects.base import (STAGES, Candidate, ChainContext, Effect, Param, PositionView,  # noqa: F401
                                          ScanSlot, ScatterView, recording_truth)
-from imurig.sensors.effects.views import (MagView, RateRowView, RateShortfallView, ThermalView,  # noqa: F401
+from imurig.sensors.effects.views import (MagView, RateRowView, RateShortfallView, RawChannelView, ThermalView,  # noqa: F401
                                           TurnSampleView, TurnView, VoltmeterRowView)
 
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+
 from imurig.sensors.effects.base import ChainContext, Effect, Param
 
 
@@ -27,6 +29,64 @@ def variance_V2(lsb_V: float, input_noise_lsb_rms: float = 0.0, averaging: int =
 def floor_V(lsb_V: float) -> float:
     """The smallest noise level a quantised channel can show: q / sqrt(12) (V)."""
     return float(lsb_V) / 12.0 ** 0.5
+
+
+def estimate_step(values, max_codes: int = 1 << 20, rtol: float = 1e-6) -> float:
+    """The ADC step q of a record, estimated as the greatest common step of its values (V), or 0.0
+    when the values are not on a grid (already filtered or scaled, a float logger).
+
+    Statistic: d = the distinct positive differences between sorted distinct values; q = the
+    greatest common divisor of d, found as the smallest d refined by Euclid's algorithm on real
+    numbers with tolerance ``rtol`` x max|x|. Accepted only when every value lies within that
+    tolerance of the grid k q and the grid has at most ``max_codes`` codes over the value range
+    (a float recording gives a tiny, meaningless q and is refused: 0.0).
+    """
+    x = np.asarray(values, float).ravel()
+    x = x[np.isfinite(x)]
+    u = np.unique(x)
+    if u.size < 2:
+        return 0.0
+    tol = rtol * max(float(np.max(np.abs(u))), 1e-300)
+    d = np.unique(np.diff(u))
+    d = d[d > tol]
+    if d.size == 0:
+        return 0.0
+    q = float(d[0])
+    for v in d[1:50]:                       # Euclid on reals: gcd(q, v)
+        a, b = float(v), q
+        while b > tol:
+            a, b = b, a - b * np.floor(a / b + 1e-9)
+            if a < b:
+                a, b = b, a
+        q = a
+    if q <= tol or (u[-1] - u[0]) / q > max_codes:
+        return 0.0
+    k = np.round((u - u[0]) / q)
+    return q if float(np.max(np.abs(u - u[0] - k * q))) <= max(tol, 1e-6 * q) else 0.0
+
+
+def step_of(meta, channel: str | None, values=None, quantum=None) -> float:
+    """The ADC step q (V) of ``channel``: the recording's ``channel_quantum`` (``quantum``), the
+    import's ``meta["inferred"]["adc_step_V"]`` (a number or a {channel: q} mapping), the
+    converter's ``meta["adc"]["lsb_V"]`` (or 2 range_V / 2^bits; over sqrt(averaging)), else estimated from ``values``
+    (:func:`estimate_step`); 0.0 when none says."""
+    meta = meta or {}
+    if quantum and channel in quantum:
+        return float(quantum[channel])
+    inf = (meta.get("inferred") or {}).get("adc_step_V")
+    if isinstance(inf, dict) and channel in inf:
+        return float(inf[channel])
+    if isinstance(inf, (int, float)) and inf > 0:
+        return float(inf)
+    adc = meta.get("adc") or {}
+    # n_avg conversions averaged into one logged sample: the rounding error's spread is that of a
+    # step q / sqrt(n_avg) (module doc); the values are then no longer on the grid
+    n_avg = max(int(adc.get("averaging", 1) or 1), 1)
+    if adc.get("lsb_V"):
+        return float(adc["lsb_V"]) / n_avg ** 0.5
+    if adc.get("range_V") and adc.get("bits"):
+        return 2.0 * float(adc["range_V"]) / 2 ** int(adc["bits"]) / n_avg ** 0.5
+    return estimate_step(values) if values is not None else 0.0
 
 
 @dataclass

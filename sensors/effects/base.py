@@ -153,7 +153,9 @@ class ScatterView:
 
     samples (n,) V: the channel's record; positions: one slice of ``samples`` per position (m);
     sample_rate_hz; hour_of_day (m,): local hours at each position's middle; sensitivity_V_per_SI:
-    the channel's nominal sensitivity (V per m/s^2 ...), to state sizes in SI, or None.
+    the channel's nominal sensitivity (V per m/s^2 ...), to state sizes in SI, or None;
+    quantum_V: the ADC step q of the recorded channel (V; 0 when unknown): no noise level a test
+    uses is below q / sqrt(12).
     """
 
     channel: str
@@ -162,6 +164,7 @@ class ScatterView:
     sample_rate_hz: float
     hour_of_day: np.ndarray
     sensitivity_V_per_SI: float | None = None
+    quantum_V: float = 0.0
     kind: ClassVar[str] = "position_scatter"
 
     def centred(self, i: int) -> np.ndarray:

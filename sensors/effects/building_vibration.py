@@ -118,7 +118,9 @@ class PumpVibration(Effect):
         psd = np.array([signal.welch(x[s_] - np.median(x[s_]), fs=fs, nperseg=nper)[1] for s_ in sl])
         f = signal.welch(x[sl[0]], fs=fs, nperseg=nper)[0]
         band = (f > 2.0) & (f < 0.45 * fs)
-        mean_psd = psd.mean(axis=0)
+        # never below the ADC's rounding noise: q^2/12 spread over 0 .. fs/2 (one-sided PSD)
+        q = float(getattr(view, "quantum_V", 0.0) or 0.0)
+        mean_psd = np.maximum(psd.mean(axis=0), q * q / 12.0 / (fs / 2.0))
         k = np.flatnonzero(band)[np.argmax(mean_psd[band])]
         ratio = float(mean_psd[k] / np.median(mean_psd[band]))
         out = {"spectral_peak_to_median": ratio}

@@ -9,9 +9,15 @@ max(1, floor(U(min, max) f_s)) samples; amplitudes a_e ~ N(0, amplitude). Stage 
 Variance on its line (shot noise of rectangular pulses, p = rate / f_s):
 per sample p amplitude^2 E[L]; mean of N samples p amplitude^2 E[L^2] / N (long-window limit).
 
-Diagnosis (within-position scatter): samples more than 8 robust sigma from their position's
-median (robust sigma: 1.4826 MAD, never below the positions' median of it); three or more spikes
-name the effect (P(|z| > 8) ~ 1e-15 per Gaussian sample).
+Diagnosis (within-position scatter), on the quantised scale: a spike is a sample farther than
+
+    8 s + q / 2,   s = max(1.4826 MAD_position, median_positions(1.4826 MAD), q / sqrt(12))
+
+from its position's median (q: the ADC step, ``ScatterView.quantum_V``). When the step exceeds
+the noise the MAD is 0 (most samples share the median code); the floor q / sqrt(12) (the rounding
+error's own spread) and the half step keep every sample of a clean quantised record, which lies
+within a code or two of the median, inside. Three or more spikes name the effect
+(P(|z| > 8) ~ 1e-15 per Gaussian sample).
 """
 from __future__ import annotations
 
@@ -110,11 +116,12 @@ class LooseCable(Effect):
     def test(self, view: ScatterView) -> dict:
         """The spike count (module doc); 'finding' with three or more."""
         sl, x = view.positions, view.samples
+        q = float(getattr(view, "quantum_V", 0.0) or 0.0)
         robust = np.array([1.4826 * np.median(np.abs(x[s] - np.median(x[s]))) for s in sl])
-        floor = np.median(robust)
-        spikes = np.array([int(np.sum(np.abs(x[s] - np.median(x[s])) > self.spike_sigma * max(r, floor)))
+        floor = max(float(np.median(robust)), q / 12.0 ** 0.5)
+        spikes = np.array([int(np.sum(np.abs(x[s] - np.median(x[s])) > self.spike_sigma * max(r, floor) + 0.5 * q))
                            for s, r in zip(sl, robust)])
-        out = {"robust_sigma_V": float(floor), "spikes_total": int(spikes.sum()),
+        out = {"robust_sigma_V": float(floor), "adc_step_V": q, "spikes_total": int(spikes.sum()),
                "positions_with_spikes": int(np.sum(spikes > 0))}
         if spikes.sum() >= self.min_spikes:
             out["finding"] = {"effect": self.name,

@@ -41,13 +41,20 @@ class TurnSampleView:
 
     angle_rad (N,): the table angle of each sample in [0, 2 pi), from the index pulses;
     residual_V (N,): the channel less its running mean over the slip-ring effect's ``window``
-    samples (the white part; the slow ripple removed); alpha: the test's threshold p.
+    samples (the white part; the slow ripple removed); alpha: the test's threshold p; signal_V (N,):
+    the channel as logged (a ripple locked to the table angle kept), or None; window (N,), time_s
+    (N,): each sample's whole-round window and time, for the per-window mean and trend the ripple
+    test removes; quantum_V: the ADC step q (V; 0 unknown), the floor q / sqrt(12) of the noise.
     """
 
     channel: str
     angle_rad: np.ndarray
     residual_V: np.ndarray
     alpha: float = 0.01
+    signal_V: np.ndarray | None = None
+    quantum_V: float = 0.0
+    window: np.ndarray | None = None
+    time_s: np.ndarray | None = None
     kind: ClassVar[str] = "turn_samples"
 
 
@@ -187,3 +194,21 @@ def across_field(B_W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u1 = np.cross(up, Bhat)
     u1 /= np.linalg.norm(u1)
     return u1, np.cross(Bhat, u1)
+
+
+@dataclass
+class RawChannelView:
+    """One recorded channel as logged, before any filtering or segmenting (n samples).
+
+    channel; samples (n,) in the channel's unit (V); time_s (n,); quantum_V: the ADC step q (0 when
+    unknown); range_V: the converter's full scale +-range (None when unknown); alpha: the tests'
+    false-alarm level over the record.
+    """
+
+    channel: str
+    samples: np.ndarray
+    time_s: np.ndarray
+    quantum_V: float = 0.0
+    range_V: float | None = None
+    alpha: float = 0.01
+    kind: ClassVar[str] = "raw_samples"

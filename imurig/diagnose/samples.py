@@ -1,0 +1,64 @@
+"""The tests every recorded channel gets as logged (any rig, any rate): the effects of the library
+that offer a test on a :class:`~imurig.sensors.effects.views.RawChannelView` (saturation and
+clipping), with the channel's ADC step q (:func:`~imurig.sensors.effects.adc_quantisation.step_of`:
+the metadata, else the greatest common step of the values) and the converter's range when the
+metadata gives it (``adc.range_V`` or ``inferred.adc_range_V``)."""
+from __future__ import annotations
+
+import numpy as np
+
+from imurig.calibration.preprocess import lowpass_downsample
+from imurig.kernel.recording import Recording
+from imurig.sensors.effects import RawChannelView, for_view
+from imurig.sensors.effects.adc_quantisation import step_of
+
+
+def working_record(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float = 50.0) -> Recording:
+    """The record at the diagnosis' working rate: the seed's 50 Hz Butterworth low-pass and
+    decimation by the whole number k = floor(f_s / ``rate_hz``) when k >= 2 (1 kHz -> 100 Hz,
+    250 Hz -> 125 Hz, 1024 Hz -> 102.4 Hz); a record at up to twice the working rate (50 Hz,
+    100 Hz, 102.4 Hz, 150 Hz) is used as logged: there is nothing to decimate, and a 50 Hz cut-off
+    would sit at or beyond its Nyquist frequency."""
+    fs = float(rec.sample_rate_hz)
+    k = int(np.floor(fs / rate_hz + 1e-9))
+    if k < 2:
+        return rec
+    return lowpass_downsample(rec, rate_hz=fs / k, cutoff_hz=cutoff_hz)
+
+
+def scan_order(rec: Recording) -> tuple[list[str], str]:
+    """The ADC's scan order and where it comes from: ``meta["adc"]["scan_list"]`` when given, else
+    the order of the file's voltage channels (a multiplexed logger writes its channels in the order
+    it converts them), said so in the second element."""
+    scan = list((rec.meta.get("adc") or {}).get("scan_list", []))
+    if scan:
+        return scan, "adc.scan_list in the metadata"
+    return ([c for c in rec.channels if rec.units.get(c) == "V"],
+            "the channel order of the file (no adc.scan_list in the metadata)")
+
+
+def adc_step(rec: Recording, ch: str) -> float:
+    """The ADC step q (V) of channel ``ch`` of ``rec`` (0.0 when neither the metadata nor the values show one)."""
+    return step_of(rec.meta, ch, rec.channels[ch], rec.channel_quantum)
+
+
+def adc_range(rec: Recording) -> float | None:
+    """The converter's full scale +-range (V) from the metadata, or None."""
+    r = (rec.meta.get("adc") or {}).get("range_V") or (rec.meta.get("inferred") or {}).get("adc_range_V")
+    return float(r) if r else None
+
+
+def raw_channel_tests(rec: Recording, ch: str, alpha: float = 0.01) -> dict:
+    """Each raw-sample effect's test on channel ``ch``; a test that fires reports its finding under
+    the effect's ``finding_key``; the step used is reported as ``adc_step_V``."""
+    q = adc_step(rec, ch)
+    view = RawChannelView(channel=ch, samples=rec.channels[ch], time_s=rec.time_s, quantum_V=q,
+                          range_V=adc_range(rec), alpha=alpha)
+    out = {"adc_step_V": q}
+    for cls in for_view(RawChannelView.kind):
+        res = dict(cls().test(view))
+        finding = res.pop("finding", None)
+        out.update(res)
+        if finding is not None:
+            out[cls.finding_key] = finding
+    return out

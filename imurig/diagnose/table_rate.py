@@ -1,0 +1,64 @@
+"""The table's own rate in a turn-table time series: mains factor and slip from the index pulses
+(or from the integrated rate), as the appendix-B rows give them from the stopwatch.
+
+Per whole-round window i (:func:`imurig.calibration.gyro.round_windows`) the measured table rate
+r_i = 2 pi n_i / (t_last - t_first) from the n_i rounds between the pulses, against the dial D_i:
+
+    k_i = |r_i| / |D_i|                           (ratio measured / dial)
+    f   = f_mains / f_motor, the motor/mains pair nearest the mean ratio, f_mains from the
+          recording's ``mains_hz`` (default 50 Hz), f_motor 50 or 60 Hz; named when the mean ratio
+          lies more than 5 standard errors from 1 (the :mod:`mains_rate_factor` test)
+    d_i = k_i / f - 1                             (relative shortfall; slip: d = -s0 - s1 r^-alpha)
+
+and the shortfall goes through the engine with the library's :class:`RateShortfallView`
+candidates (table slip), as the rows' diagnosis does (:func:`imurig.diagnose.rate_table._shortfall`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from imurig.diagnose.rate_table import _shortfall
+
+#: the motor designs a synchronous table motor is built for (Hz)
+MOTOR_DESIGNS_HZ = (50.0, 60.0)
+
+
+def mains_factor(k: np.ndarray, mains_hz: float = 50.0) -> dict:
+    """The mean ratio measured / dial with its SE, and the factor f_mains / f_motor it matches:
+    {mean_ratio, mean_ratio_se, factor, pair, named} (named: > 5 SE from 1 and f != 1)."""
+    k = np.asarray(k, float)
+    m = float(np.mean(k))
+    se = float(np.std(k, ddof=1) / np.sqrt(k.size)) if k.size > 1 else float("inf")
+    pairs = {f"{f_m:g} Hz motor on {mains_hz:g} Hz mains": mains_hz / f_m for f_m in MOTOR_DESIGNS_HZ}
+    pair, f = min(pairs.items(), key=lambda it: abs(np.log(m / it[1])))
+    return {"mean_ratio": m, "mean_ratio_se": se, "factor": f, "pair": pair,
+            "named": bool(abs(m - 1) > 5 * se and abs(f - 1) > 1e-12)}
+
+
+def diagnose_table_rate(dial_rad_s: np.ndarray, measured_rad_s: np.ndarray, rng: np.random.Generator,
+                        mains_hz: float = 50.0, alpha: float = 0.01, n_sim: int = 300, min_windows: int = 6) -> dict:
+    """Mains factor and slip of the table from the windows' dial and measured rates (module doc)."""
+    dial, meas = np.abs(np.asarray(dial_rad_s, float)), np.abs(np.asarray(measured_rad_s, float))
+    ok = dial > 0
+    if ok.sum() < min_windows:
+        return {"tested": False, "why": f"{int(ok.sum())} whole-round windows with a dial rate; the table's rate "
+                                        f"needs at least {min_windows}"}
+    k = meas[ok] / dial[ok]
+    mf = mains_factor(k, mains_hz)
+    f_use = mf["factor"] if mf["named"] else 1.0
+    d = k / f_use - 1.0
+    r_dps = np.degrees(meas[ok])
+    out = {"tested": True, "mains_hz": mains_hz, "windows": int(ok.sum()), **mf,
+           "mean_shortfall": float(-np.mean(d)), "note": "d = measured rate / (factor x dial) - 1"}
+    if mf["named"]:
+        out["finding_mains"] = {"effect": "mains_rate_factor",
+                                "physics": f"synchronous table motor: {mf['pair']} turns at {mf['factor']:.4f} of the dial",
+                                "parameters": [{"name": "factor", "estimate": mf["mean_ratio"],
+                                                "std_error": mf["mean_ratio_se"]}],
+                                "matched_factor": mf["factor"]}
+    if np.unique(np.round(r_dps, 6)).size >= 3:
+        _lib, diag = _shortfall(d, r_dps, rng, alpha, n_sim)
+        out["shortfall"] = diag.to_dict()
+        out["residuals"] = {"unit": "1", "rate_dps": r_dps.tolist(), "before": diag.before.residuals_.tolist(),
+                            "after": diag.after.residuals_.tolist()}
+    return out
