@@ -74,6 +74,8 @@ def step_of(meta, channel: str | None, values=None, quantum=None) -> float:
     if quantum and channel in quantum:
         return float(quantum[channel])
     inf = (meta.get("inferred") or {}).get("adc_step_V")
+    if isinstance(inf, dict) and "value" in inf:   # the import's {value, evidence} record
+        inf = inf["value"]
     if isinstance(inf, dict) and channel in inf:
         return float(inf[channel])
     if isinstance(inf, (int, float)) and inf > 0:
