@@ -122,7 +122,8 @@ def timer_pulses(rec: Recording, timer: str) -> np.ndarray:
 def round_windows(rec: Recording, timer: str = "hp6700", min_rounds: int = 1) -> tuple[Recording, np.ndarray]:
     """Segments narrowed to whole rounds between pulses, and the table rate of each (rad/s).
 
-    Returns (recording with segments [t_1, t_N) and a column ``rounds``, rate (n_seg,)).
+    Returns (recording with segments [t_1, t_N) and a column ``rounds``, rate (n_seg,)). A step
+    whose dial is 0 is the table at rest: its whole window, rate 0, 0 rounds.
     Raises RecordingError naming a step whose window holds fewer than ``min_rounds`` rounds.
     """
     if "rate_dial" not in rec.segments:
@@ -131,6 +132,12 @@ def round_windows(rec: Recording, timer: str = "hp6700", min_rounds: int = 1) ->
     seg = rec.segments
     start, stop, rate, rounds = [], [], [], []
     for i, (a, b) in enumerate(zip(seg["start_s"], seg["stop_s"])):
+        if seg["rate_dial"][i] == 0.0:   # the table at rest: its rate is exactly 0, no pulse to time
+            start.append(a)
+            stop.append(b)
+            rate.append(0.0)
+            rounds.append(0)
+            continue
         p = pulses[(pulses >= a) & (pulses < b)]
         n = p.size - 1
         if n < min_rounds:

@@ -326,3 +326,16 @@ def test_a_set_point_that_never_holds_gives_no_segment_and_a_weak_sensitivity_is
     rec = read_csv(write(tmp_path / "w.csv", weak, head=("# rig: tilt_table", "# site: delft",
                                                          "# acc_nominal_sensitivity_V_per_m_s2: 0.1017")))
     assert any(w.startswith("MARGINAL") and "sensitivity" in w for w in rec.meta["import_warnings"])
+
+
+def test_adc_step_survives_printed_decimals_over_thousands_of_codes():
+    """Codes of a 16-bit +-5 V converter printed to 7 decimals over a 1 V span (6,500 codes): the
+    rounding (<= 5e-8 V, 3e-4 q) must not accumulate into the step estimate; a float record is
+    refused (None)."""
+    from imurig.kernel.infer import adc_step
+    q = 10.0 / 2**16
+    rng = np.random.default_rng(3)
+    codes = rng.integers(-100, 6500, 20_000)
+    x = np.round(codes * q, 7)
+    assert abs(adc_step(x) / q - 1) < 1e-6
+    assert adc_step(rng.normal(size=5000)) is None

@@ -113,7 +113,8 @@ def adc_step(x: np.ndarray) -> float | None:
     """The greatest common step q of the values: every value is offset + k q (k integer).
 
     q0 = the least positive difference of the distinct values; q = the median of d / round(d / q0)
-    over the differences d; accepted when every value lies within 0.05 q of the grid.
+    over the differences d, refined by least squares over growing spans of codes; accepted when
+    every value lies within 0.05 q of the grid and the range spans at most 2^24 codes.
     """
     u = np.unique(x)
     if u.size < 3:
@@ -126,8 +127,19 @@ def adc_step(x: np.ndarray) -> float | None:
     q0 = float(d.min())
     k = np.round(d / q0)
     q = float(np.median(d / k))
+    # refine q over growing spans of codes, so that printed values (rounded to a few decimals) do not
+    # accumulate the first estimate's error over thousands of codes
+    span = 64.0
+    while True:
+        sel = u - u[0] <= span * q
+        n = np.round((u[sel] - u[0]) / q)
+        if np.any(n > 0):
+            q = float(np.dot(n, u[sel] - u[0]) / np.dot(n, n))
+        if np.all(sel):
+            break
+        span *= 4.0
     codes = (u - u[0]) / q
-    if q <= 1e-12 * scale or np.max(np.abs(codes - np.round(codes))) > 0.05 or u.size > 0.5 * x.size:
+    if q <= 1e-12 * scale or (u[-1] - u[0]) / q > 2.0 ** 24 or np.max(np.abs(codes - np.round(codes))) > 0.05:
         return None
     return q
 

@@ -17,6 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from imurig.kernel.infer import adc_step
 from imurig.sensors.effects.base import ChainContext, Effect, Param
 
 
@@ -31,38 +32,13 @@ def floor_V(lsb_V: float) -> float:
     return float(lsb_V) / 12.0 ** 0.5
 
 
-def estimate_step(values, max_codes: int = 1 << 20, rtol: float = 1e-6) -> float:
-    """The ADC step q of a record, estimated as the greatest common step of its values (V), or 0.0
-    when the values are not on a grid (already filtered or scaled, a float logger).
-
-    Statistic: d = the distinct positive differences between sorted distinct values; q = the
-    greatest common divisor of d, found as the smallest d refined by Euclid's algorithm on real
-    numbers with tolerance ``rtol`` x max|x|. Accepted only when every value lies within that
-    tolerance of the grid k q and the grid has at most ``max_codes`` codes over the value range
-    (a float recording gives a tiny, meaningless q and is refused: 0.0).
-    """
+def estimate_step(values) -> float:
+    """The ADC step q of a record (V), the greatest common step of its values
+    (:func:`imurig.kernel.infer.adc_step`, the import's own estimate: one statistic for both), or
+    0.0 when the values are not on a grid (already filtered or scaled, a float logger)."""
     x = np.asarray(values, float).ravel()
-    x = x[np.isfinite(x)]
-    u = np.unique(x)
-    if u.size < 2:
-        return 0.0
-    tol = rtol * max(float(np.max(np.abs(u))), 1e-300)
-    d = np.unique(np.diff(u))
-    d = d[d > tol]
-    if d.size == 0:
-        return 0.0
-    q = float(d[0])
-    for v in d[1:50]:                       # Euclid on reals: gcd(q, v)
-        a, b = float(v), q
-        while b > tol:
-            a, b = b, a - b * np.floor(a / b + 1e-9)
-            if a < b:
-                a, b = b, a
-        q = a
-    if q <= tol or (u[-1] - u[0]) / q > max_codes:
-        return 0.0
-    k = np.round((u - u[0]) / q)
-    return q if float(np.max(np.abs(u - u[0] - k * q))) <= max(tol, 1e-6 * q) else 0.0
+    q = adc_step(x[np.isfinite(x)])
+    return float(q) if q else 0.0
 
 
 def step_of(meta, channel: str | None, values=None, quantum=None) -> float:
