@@ -216,7 +216,12 @@ def _scatter(rec100: Recording, ch: str, mid: np.ndarray, quantum_V: float = 0.0
     ``quantum_V``: the recorded channel's ADC step q (V), the floor q / sqrt(12) of every noise level."""
     j = "xyz".index(ch[-1])
     sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
-    view = ScatterView(channel=ch, samples=rec100.channels[ch], positions=rec100.segment_slices(),
+    # each position's edges trimmed by 0.25 s: the working low-pass (and a table that settles) smears
+    # the move into the first and last samples, which would count as spikes
+    trim = int(np.ceil(0.25 * rec100.sample_rate_hz))
+    pos = [slice(s.start + trim, s.stop - trim) if s.stop - s.start > 4 * trim else s
+           for s in rec100.segment_slices()]
+    view = ScatterView(channel=ch, samples=rec100.channels[ch], positions=pos,
                        sample_rate_hz=rec100.sample_rate_hz, hour_of_day=_hours(rec100, mid),
                        sensitivity_V_per_SI=float(sens[j]) if sens is not None else None, quantum_V=quantum_V)
     out = {}

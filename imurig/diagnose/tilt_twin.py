@@ -95,9 +95,17 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
         m.body_quat[bid_base] = _quat_wxyz(R_WB)
         m.body_quat[bid_mount] = _quat_wxyz(MOUNTS[mnt])
         sp = np.stack([rec.channels["theta"][b], rec.channels["phi"][b]], 1)
-        cmd = slew_commands(sp, rate, dt) + np.array([sv.get("theta_zero_rad", 0.0),
+        # a logger that writes the ramp (set-points changing on consecutive samples) gives the
+        # trajectory itself: the twin's servo must not limit it to the protocol's slew rate
+        ramp = np.max(np.abs(np.diff(sp, axis=0)), initial=0.0) / dt
+        run_rate = max(rate, 1.5 * ramp) if _ramped(sp) else rate
+        cmd = slew_commands(sp, run_rate, dt) + np.array([sv.get("theta_zero_rad", 0.0),
                                                       sv.get("phi_zero_rad", {}).get(mnt, 0.0)])
-        ch = np.concatenate(([0], np.flatnonzero(np.any(np.diff(sp, axis=0) != 0, axis=1)) + 1))
+        # a window starts where the set-points start to change after a hold: a stepped log changes
+        # once per move, a ramped one on every sample of the ramp, which is still one move
+        moving = np.any(np.diff(sp, axis=0) != 0, axis=1)
+        first = moving & ~np.concatenate(([False], moving[:-1]))
+        ch = np.concatenate(([0], np.flatnonzero(first) + 1))
         win = np.searchsorted(ch, np.arange(sp.shape[0]), side="right") - 1
         ctrl = [cmd]
         for j in range(2):
@@ -114,3 +122,10 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
         starts.append(b.start + ch)
     return {"f_C": f, "w_C": w, "r0_C": r0, "resp": resp, "window_start": np.concatenate(starts), "gravity_m_s2": g,
             "mounts": mounts}
+
+
+def _ramped(sp: np.ndarray) -> bool:
+    """Whether the logged set-points ramp: some change lasts three or more consecutive samples
+    (a stepped log changes once per move)."""
+    moving = np.any(np.diff(sp, axis=0) != 0, axis=1).astype(np.int8)
+    return bool(np.any(np.convolve(moving, np.ones(3, np.int8), mode="valid") == 3))

@@ -205,6 +205,8 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
         tt = t[i0:i1]
         r = x[i0:i1] - ndimage.uniform_filter1d(x[i0:i1], w, mode="nearest")
         p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]
+        if p.size < 2:      # the table at rest (dial 0): no angle to lock to
+            continue
         k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
         frac = (tt - p[k]) / (p[k + 1] - p[k])
         ang.append(2 * np.pi * (frac if rate >= 0 else 1 - frac))

@@ -56,12 +56,12 @@ def lagged(x: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
 
 
 def crossing_times(t_s: np.ndarray, psi_deg: np.ndarray) -> np.ndarray:
-    """Times where |psi| passes a whole turn (linear between samples)."""
-    turns = np.floor(np.abs(psi_deg) / 360.0)
-    idx = np.nonzero(np.diff(turns) > 0)[0]
-    a = np.abs(psi_deg)
-    level = turns[idx + 1] * 360.0
-    frac = (level - a[idx]) / (a[idx + 1] - a[idx])
+    """Times where the table angle psi passes the index mark (a whole turn), in either direction
+    (linear between samples)."""
+    turns = np.floor(psi_deg / 360.0)
+    idx = np.nonzero(np.diff(turns) != 0)[0]
+    level = np.maximum(turns[idx], turns[idx + 1]) * 360.0
+    frac = (level - psi_deg[idx]) / (psi_deg[idx + 1] - psi_deg[idx])
     return t_s[idx] + frac * (t_s[idx + 1] - t_s[idx])
 
 
