@@ -132,6 +132,11 @@ def _dynamic(rec: Recording, cal, axes: dict, rng: np.random.Generator, alpha: f
     if rec.sample_rate_hz < MIN_SLEW_RATE_HZ or not {"theta", "phi"} <= set(rec.channels):
         return {"tested": False, "why": f"the slews need per-sample theta/phi set-point channels at >= "
                                         f"{MIN_SLEW_RATE_HZ:g} Hz"}
+    if "inferred" in rec.meta and not rec.meta.get("protocol"):
+        return {"tested": False, "why": "the file does not describe its table (protocol, survey, where the IMU "
+                                        "sits from the axes' intersection): the twin's geometry is the bench's, "
+                                        "and another table's own geometry would show as a lever arm or a wrong "
+                                        "gravity; the slews are compared for recordings that give the protocol"}
     if rec.n > MAX_DYNAMIC_SAMPLES:
         return {"tested": False, "why": f"{rec.n} samples: this version replays the whole record five "
                                         f"times in MuJoCo and keeps it in memory; records up to "
