@@ -69,3 +69,14 @@ def test_engine_finding_carries_units_and_fit():
     assert g["fit"] == {"before_rms": 3e-3, "after_rms": 1e-3, "unit": "m/s^2"}
     assert check_schema(s) == []
     assert check_schema({"findings": [{"effect": "x"}], "unexplained": [], "verdict": "a"}) != []
+
+
+def test_residuals_without_spread_are_not_unexplained():
+    """A fit as large as its data leaves residuals of zero: no lag-1 correlation exists, and the
+    channel must not be reported as unexplained (it was, through a NaN correlation)."""
+    from imurig.diagnose.summary import unexplained
+    flat = {"findings": [], "residuals": {"after": [0.0] * 7, "unit": "rad/s"}}
+    ripple = {"findings": [], "residuals": {"after": np.sin(np.arange(20) * 2 * np.pi / 20).tolist(),
+                                            "unit": "rad/s"}}
+    assert unexplained({"kind": "turn_table", "gyros": {"p": flat}}) == []
+    assert [u["channel"] for u in unexplained({"kind": "turn_table", "gyros": {"q": ripple}})] == ["gyro_q"]
