@@ -204,7 +204,7 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
             continue
         tt = t[i0:i1]
         r = x[i0:i1] - ndimage.uniform_filter1d(x[i0:i1], w, mode="nearest")
-        p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]
+        p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]   # the angle: all the window's rounds
         if p.size < 2:      # the table at rest (dial 0): no angle to lock to
             continue
         k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)

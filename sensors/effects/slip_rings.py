@@ -30,8 +30,8 @@ leaves (1 - 1/window) of a profile that is smooth over the window, so
 A deterministic ripple locked to the table angle (a brush's contact resistance, a ring's
 eccentricity) is no noise and the running mean would remove it: it is tested on the signal
 (``TurnSampleView.signal_V``) by regression on the harmonics of the table angle, each window's
-mean, linear trend in time (gyro bias and drift) and the table's settling after the dial
-change (exp(-t/tau), tau 0.3-3 s) projected out of the signal and the harmonics alike (Frisch-Waugh-Lovell),
+mean and linear trend in time (gyro bias and drift) projected out of the signal and the
+harmonics alike (Frisch-Waugh-Lovell),
 
     s = sum_{k=2..K+1} (a_k cos k theta + b_k sin k theta) + e,   F = (SS_reg / 2K) / (SS_res / dof)
 
@@ -54,9 +54,6 @@ from scipy import stats
 from imurig.sensors.effects.base import ChainContext, Effect, Param
 from imurig.sensors.effects.views import TurnSampleView
 
-
-#: time constants (s) of the table's settling after a dial change, projected out of the ripple test
-SETTLING_TAUS_S = (0.3, 1.0, 3.0)
 
 @dataclass
 class SlipRingNoise(Effect):
@@ -210,11 +207,7 @@ class SlipRingNoise(Effect):
         t = np.arange(s.size, dtype=float) if view.time_s is None else np.asarray(view.time_s, float)
         for w in np.unique(win):                   # per window: mean and trend off the signal and H
             i = win == w
-            # mean, trend, and the table's settling after the dial change (a first-order speed loop
-            # settles as exp(-t/tau): tau of 0.3 to 3 s) off the signal and the harmonics
-            t0 = t[i] - t[i].min()
-            T = np.column_stack([np.ones(int(i.sum())), t0 - t0.mean()]
-                                + [np.exp(-t0 / tau) for tau in SETTLING_TAUS_S])
+            T = np.column_stack([np.ones(int(i.sum())), t[i] - t[i].mean()])
             A = np.column_stack([s[i], H[i], H1[i]])
             A -= T @ np.linalg.lstsq(T, A, rcond=None)[0]
             s[i], H[i], H1[i] = A[:, 0], A[:, 1:1 + H.shape[1]], A[:, 1 + H.shape[1]:]
@@ -222,8 +215,8 @@ class SlipRingNoise(Effect):
         s -= Q1 @ (Q1.T @ s)
         H -= Q1 @ (Q1.T @ H)
         n, p = H.shape
-        n_nuis = (2 + len(SETTLING_TAUS_S)) * np.unique(win).size + 2
-        if n <= p + n_nuis:
+        n_nuis = 2 * np.unique(win).size + 2
+        if n <= p + 2 * np.unique(win).size + 2:
             return {}
         coef, *_ = np.linalg.lstsq(H, s, rcond=None)
         r = s - H @ coef
