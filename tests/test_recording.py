@@ -92,7 +92,7 @@ def test_csv_example_parses(tmp_path):
 
 @pytest.mark.parametrize("edit, msg", [
     (lambda s: s.replace("0.01,0,0,0,0.001", "0.01,0,0,0,nan"), "NaN"),
-    (lambda s: s.replace("acc_y_V", "acc_y_deg"), "acc_y' is in rad but V is needed"),
+    (lambda s: s.replace("acc_y_V", "acc_y_deg"), r"come in different units \['V', 'rad'\]"),
     (lambda s: s.replace(",acc_z_V", ",acc_q_V"), "lacks channel"),
     (lambda s: s.replace("acc_x_V", "acc_x_furlongs"), "known unit suffix"),
     (lambda s: s.replace("0.04,1", "0.03,1"), "increase strictly"),

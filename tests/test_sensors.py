@@ -135,13 +135,15 @@ def test_antialias_filter_matches_butterworth_response():
         assert a == pytest.approx(gain, rel=2e-3)
 
 
-def test_downsample_ratio_must_be_whole():
-    from imurig.kernel.errors import RecordingError
-
-    t = np.arange(100) / FS
-    rec = Recording(time_s=t, channels={"a": np.zeros(100)}, units={"a": "V"}, meta={})
-    with pytest.raises(RecordingError, match="whole number"):
-        lowpass_downsample(rec, rate_hz=300.0)
+def test_downsample_to_a_rate_without_a_whole_ratio_keeps_every_kth_sample():
+    """fs / rate not whole: every k-th sample, k = floor(fs / rate), so the rate reached is the
+    nearest at or above the one asked for (any logger rate goes in)."""
+    n = 2000
+    t = np.arange(n) / FS
+    rec = Recording(time_s=t, channels={"a": np.zeros(n)}, units={"a": "V"}, meta={})
+    out = lowpass_downsample(rec, rate_hz=300.0, cutoff_hz=100.0)
+    k = int(np.floor(FS / 300.0))
+    np.testing.assert_array_equal(out.time_s, t[::k])
 
 
 # ------------------------------------------------------------------ noise-band folding
