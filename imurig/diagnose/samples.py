@@ -9,7 +9,7 @@ import numpy as np
 
 from imurig.calibration.preprocess import lowpass_downsample
 from imurig.kernel.recording import Recording
-from imurig.sensors.effects import RawChannelView, for_view
+from imurig.sensors.effects import RawChannelView, run_tests
 from imurig.sensors.effects.adc_quantisation import step_of
 
 
@@ -55,10 +55,5 @@ def raw_channel_tests(rec: Recording, ch: str, alpha: float = 0.01) -> dict:
     view = RawChannelView(channel=ch, samples=rec.channels[ch], time_s=rec.time_s, quantum_V=q,
                           range_V=adc_range(rec), alpha=alpha)
     out = {"adc_step_V": q}
-    for cls in for_view(RawChannelView.kind):
-        res = dict(cls().test(view))
-        finding = res.pop("finding", None)
-        out.update(res)
-        if finding is not None:
-            out[cls.finding_key] = finding
+    out.update(run_tests(RawChannelView.kind, view))
     return out

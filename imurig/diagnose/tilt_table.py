@@ -34,7 +34,7 @@ from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dyn
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
-from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view
+from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view, run_tests
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -229,12 +229,5 @@ def _scatter(rec100: Recording, ch: str, mid: np.ndarray, quantum_V: float = 0.0
     view = ScatterView(channel=ch, samples=rec100.channels[ch], positions=pos,
                        sample_rate_hz=rec100.sample_rate_hz, hour_of_day=_hours(rec100, mid),
                        sensitivity_V_per_SI=float(sens[j]) if sens is not None else None, quantum_V=quantum_V)
-    out = {}
-    for cls in for_view(ScatterView.kind):
-        res = dict(cls().test(view))
-        finding = res.pop("finding", None)
-        out.update(res)
-        if finding is not None:
-            out[cls.finding_key] = finding
-    return out
+    return run_tests(ScatterView.kind, view)
 

@@ -52,6 +52,19 @@ def for_view(kind: str) -> list[type[Effect]]:
     return [cls for cls in LIBRARY if kind in cls.views]
 
 
+def run_tests(kind: str, view) -> dict:
+    """Every library effect's own ``test`` on ``view`` (of ``kind``): their statistics merged, and
+    a test that fires reports its finding under the effect's ``finding_key``."""
+    out: dict = {}
+    for cls in for_view(kind):
+        res = dict(cls().test(view))
+        finding = res.pop("finding", None)
+        out.update(res)
+        if finding is not None:
+            out[getattr(cls, "finding_key", "finding")] = finding
+    return out
+
+
 @contextmanager
 def registered(*classes: type[Effect]):
     """Add effect classes defined outside this package (a lab's own, an example) to ``LIBRARY`` for
