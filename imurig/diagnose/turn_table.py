@@ -199,14 +199,17 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     h = w // 2
     ang, res, sig, tim, win = [], [], [], [], []
     for a, b, rate in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"]):
+        p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]   # the angle: all the window's rounds
+        if p.size < 2:      # the table at rest (dial 0): no angle to lock to
+            continue
+        if p.size >= 4:     # the first round holds the table's settling after the dial change: whole
+            p = p[1:]       # rounds kept (they keep the Earth's once-per-round rate out of the ripple)
+            a = p[0]
         i0, i1 = np.searchsorted(t, [a, b])
         if i1 - i0 < 200:
             continue
         tt = t[i0:i1]
         r = x[i0:i1] - ndimage.uniform_filter1d(x[i0:i1], w, mode="nearest")
-        p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]   # the angle: all the window's rounds
-        if p.size < 2:      # the table at rest (dial 0): no angle to lock to
-            continue
         k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
         frac = (tt - p[k]) / (p[k + 1] - p[k])
         ang.append(2 * np.pi * (frac if rate >= 0 else 1 - frac))
