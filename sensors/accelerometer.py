@@ -40,6 +40,7 @@ from imurig.sensors.effects.lever_arm import LeverArm
 from imurig.sensors.effects.lever_arm import lever_arm_specific_force  # noqa: F401  (its home: the effect)
 from imurig.sensors.effects.scale_nonlinearity import ScaleNonlinearity
 from imurig.sensors.effects.temperature_drift import TemperatureDrift
+from imurig.sensors.effects.temperature_hysteresis import K1_NOMINAL_A_PER_M_S2
 from imurig.sensors.effects.current_noise import CurrentNoise
 
 AXES = ("x", "y", "z")
@@ -54,7 +55,7 @@ class QFlexTriad:
     """Three QA700 accelerometers with their load resistors (parameters in SI)."""
 
     bias_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    k1_A_per_m_s2: np.ndarray = field(default_factory=lambda: np.full(3, 1.33e-3 / G_STANDARD))
+    k1_A_per_m_s2: np.ndarray = field(default_factory=lambda: np.full(3, K1_NOMINAL_A_PER_M_S2))
     misalignment_rad: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     k2_per_m_s2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     bias_tempco_m_s2_per_K: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -133,7 +134,7 @@ class QFlexTriad:
     # ------------------------------------------------------------- physics
     def nominal_sensitivity_V_per_m_s2(self) -> np.ndarray:
         """What the lab would use to turn volts into indicated m/s^2: nominal K1 * R_L."""
-        return np.full(3, 1.33e-3 / G_STANDARD) * self.load_resistor_ohm
+        return np.full(3, K1_NOMINAL_A_PER_M_S2) * self.load_resistor_ohm
 
     def ideal_voltage(self, f_C: np.ndarray, temperature_K: np.ndarray | float | None = None,
                       hysteresis: np.ndarray | float = 0.0) -> np.ndarray:

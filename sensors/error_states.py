@@ -21,6 +21,7 @@ import numpy as np
 
 from imurig.sensors.effects import (AxisMisalignment, Bias, GyroNoise, HardIron, ScaleFactor, ScaleNonlinearity,
                                     SoftIron, TemperatureDrift, TemperatureHysteresis)
+from imurig.sensors.effects.temperature_hysteresis import K1_NOMINAL_A_PER_M_S2
 
 XYZ = ("x", "y", "z")
 #: (i, j): input j sensed by axis i, the six off-diagonal misalignments in the filter's order
@@ -58,7 +59,7 @@ def _scale(key: str, nominal: Callable[[Mapping], np.ndarray]) -> Callable[[Mapp
 
 
 _PAIR_SUFFIX = tuple(f"{XYZ[i]}{XYZ[j]}" for i, j in MIS_PAIRS)
-_ACC_NOMINAL = lambda t: 1.33e-3 / 9.80665 * np.asarray(t["load_resistor_ohm"], float)  # noqa: E731
+_ACC_NOMINAL = lambda t: K1_NOMINAL_A_PER_M_S2 * np.asarray(t["load_resistor_ohm"], float)  # noqa: E731
 _GYRO_NOMINAL = lambda t: np.full(3, float(t["nominal_scale_V_per_rad_s"]))  # noqa: E731
 
 ACC_BIAS = StateBlock("acc", Bias.name, "b", XYZ, "m/s^2", _key("bias_m_s2"))
