@@ -203,11 +203,14 @@ def run_file(csv: Path, timeout_s: float, mem_gb: float) -> dict:
 
 
 def independent_study(out_dir: Path, seeds, n_null: int, timeout_s: float, mem_gb: float, log=print,
-                      rigs=("tilt_table", "turn_table")) -> dict:
-    """Write the independent set into ``out_dir`` and score every file."""
+                      rigs=("tilt_table", "turn_table"), effects=None) -> dict:
+    """Write the independent set into ``out_dir`` and score every file (only the files whose name
+    holds one of the words ``effects``, e.g. ('saturation', 'null'), when given)."""
     lab = independent_lab()
     records = []
     for csv in lab.write_set(out_dir, seeds=seeds, n_null=n_null, rigs=rigs):
+        if effects and not any(w in csv.name for w in effects):
+            continue
         truth = json.loads(csv.with_suffix(".json").read_text())
         res = run_file(csv, timeout_s, mem_gb)
         s = score_record(truth, res)
@@ -320,6 +323,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mem-gb", type=float, default=4.0, help="address-space cap per file")
     ap.add_argument("--dir", default=None, help="where the independent files go (default: a temporary folder)")
     ap.add_argument("--out", default=None, help="write the full results (JSON)")
+    ap.add_argument("--effects", default="", help="words picking independent files, e.g. 'saturation,null' "
+                                                  "(default: all)")
+    ap.add_argument("--rigs", default="tilt_table,turn_table", help="rigs of the independent set")
     a = ap.parse_args(argv)
     if a.worker:
         worker(a.worker[0], a.worker[1], float(a.worker[2]))
@@ -327,7 +333,9 @@ def main(argv=None) -> int:
     t0, c0 = time.perf_counter(), time.process_time()
     with tempfile.TemporaryDirectory() as tmp:
         print("independent lab:")
-        indep = independent_study(Path(a.dir or tmp), range(a.seeds), a.nulls or a.seeds, a.timeout, a.mem_gb)
+        indep = independent_study(Path(a.dir or tmp), range(a.seeds), a.nulls or a.seeds, a.timeout, a.mem_gb,
+                                  rigs=tuple(a.rigs.split(",")),
+                                  effects=[w for w in a.effects.split(",") if w] or None)
     own = None
     if a.suite_cases != "none":
         print("project's concealed suite:")
