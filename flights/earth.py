@@ -129,6 +129,17 @@ def C_EN(lat_rad, lon_rad):
     return np.stack([row0, row1, row2], axis=-2)
 
 
+def nav_frame_turn(lat0_rad, lon0_rad, lat1_rad, lon1_rad, dt_s: float):
+    """Rotation vector ζ_N (..., 3) rad of the NED frame over a step of ``dt_s`` relative to inertial
+    space, in the axes of the first frame: exp([ζ_N×]) = C_N0N1 = C_EN(φ0, λ0)ᵀ R_z(Ω dt)ᵀ C_EN(φ1, λ1),
+    R_z(Ω dt) taking E coordinates of an inertially fixed vector from t0 to t1. Exact for any path
+    between the two positions; to first order ζ_N = dt (ω_IE_N + ω_EN_N)."""
+    c, s = np.cos(OMEGA_E_RAD_S * dt_s), np.sin(OMEGA_E_RAD_S * dt_s)
+    R_z_T = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    C = np.swapaxes(C_EN(lat0_rad, lon0_rad), -1, -2) @ R_z_T @ C_EN(lat1_rad, lon1_rad)
+    return rotvec_from_q(q_from_C(C))
+
+
 def ned_from_geodetic(lat_rad, lon_rad, h_m, lat0_rad, lon0_rad, h0_m):
     """NED offsets, m (..., 3), of points from a reference point, on the reference's NED axes."""
     d_E = ecef_from_geodetic(lat_rad, lon_rad, h_m) - ecef_from_geodetic(lat0_rad, lon0_rad, h0_m)

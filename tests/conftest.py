@@ -23,6 +23,16 @@ def small_recording():
 
 
 @pytest.fixture(scope="session")
+def short_flight():
+    """~43 s airborne at 100 Hz: level, 3-2-1-1, double doublet, S-turns at 30 deg both sides."""
+    from imurig.flights.plan import AlphaDotSTurns, DoubleDoublet, Elevator3211, FlightPlan, Level, simulate_flight
+    plan = FlightPlan(phases=(Level(3.0), Elevator3211(free_s=4.0), DoubleDoublet(lead_s=1.0, free_s=3.0, level_s=1.0),
+                              AlphaDotSTurns(banks_first_deg=(30.0,), banks_second_deg=(30.0,), hold_s=5.0,
+                                             after_s=2.0, level_s=2.0)))
+    return simulate_flight(plan, progress_bar=False)
+
+
+@pytest.fixture(scope="session")
 def check_concealed_case():
     """``check(case, seed, size)``: the diagnosis of the case's recording names exactly the
     expected (channel, effect) pairs with the first parameter within 4 SE of the injected

@@ -11,8 +11,6 @@ from imurig.flights.aircraft import G0, CitationSim, Cmd, isa_density, modes
 from imurig.flights.imu import measure_flight
 from imurig.flights.plan import (
     AlphaDotSTurns,
-    DoubleDoublet,
-    Elevator3211,
     FlightPlan,
     GroundCircle,
     Level,
@@ -27,15 +25,6 @@ from imurig.sensors.gyro import FOGTriad
 from imurig.kernel.errors import ConfigError
 
 V0, H0 = 120.0, 1500.0
-
-
-@pytest.fixture(scope="module")
-def short_flight():
-    """~50 s airborne: level, 3-2-1-1, double doublet, S-turns at 30 deg both sides."""
-    plan = FlightPlan(phases=(Level(3.0), Elevator3211(free_s=4.0), DoubleDoublet(lead_s=1.0, free_s=3.0, level_s=1.0),
-                              AlphaDotSTurns(banks_first_deg=(30.0,), banks_second_deg=(30.0,), hold_s=5.0,
-                                             after_s=2.0, level_s=2.0)))
-    return simulate_flight(plan, progress_bar=False)
 
 
 def _inertia_about_cg(sim):
