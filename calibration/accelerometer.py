@@ -6,7 +6,7 @@ the accelerometer's channels, inputs (ax, ay, az in m/s^2) and the seed's models
 from __future__ import annotations
 
 
-from imurig.calibration.terms import TermLibrary, seed_accelerometer_terms
+from imurig.calibration.terms import TermLibrary, paper_eq2_terms, seed_accelerometer_terms
 from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.calibration.triad import indicated as _indicated
 from imurig.kernel.recording import Recording
@@ -19,6 +19,7 @@ MODELS = {
     "linear": lambda a: TermLibrary.from_names(["1", "ax", "ay", "az"]),                           # Table 4.4
     "cross": lambda a: TermLibrary.from_names(["1", "ax", "ay", "az", "ax*ay", "ax*az", "ay*az"]),  # Table 4.5
     "seed_final": seed_accelerometer_terms,                                                         # Table 4.6
+    "paper_eq2": paper_eq2_terms,                                          # EUCASS paper eq. 2 (to a^4, 12 terms)
     "physical": lambda a: TermLibrary.from_names(["1", "ax", "ay", "az", f"a{a}^2"]),
     "own_axis": lambda a: TermLibrary.from_names(["1", f"a{a}", f"a{a}^2"]),  # a twin without misalignment
 }
@@ -32,8 +33,8 @@ SPEC = TriadSpec(kind="accelerometer", axes=AXES, channels=ACC, inputs=INPUTS,
 class AccelerometerCalibration(TriadCalibration):
     """Inverse-model calibration of the accelerometer triad.
 
-    model: 'linear' (Table 4.4), 'cross' (Table 4.5), 'seed_final' (Table 4.6), 'physical'
-    (linear + own square), 'stepwise', 'backward', or {axis: TermLibrary}.
+    model: 'linear' (Table 4.4), 'cross' (Table 4.5), 'seed_final' (Table 4.6), 'paper_eq2' (the
+    EUCASS paper's eq. 2, own axis to the 4th power), 'physical' (linear + own square), 'stepwise', 'backward', or {axis: TermLibrary}.
     """
 
     SPEC = SPEC

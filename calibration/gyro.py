@@ -24,7 +24,7 @@ from typing import Self
 
 import numpy as np
 
-from imurig.calibration.terms import TermLibrary, polynomial
+from imurig.calibration.terms import TermLibrary, paper_eq3_terms, polynomial
 from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
@@ -40,6 +40,7 @@ MODELS = {
     "physical": lambda a: TermLibrary.from_names(["1", *INPUTS, f"w{a}^2"]),
     # seed eq. 4.39-4.41: bias, scale, second order, cross-axis (1st and 2nd order), cross-coupling
     "seed_final": lambda a: polynomial(INPUTS, 2),
+    "paper_eq3": paper_eq3_terms,          # EUCASS paper eq. 3: own axis to the cube, cross-axis, cross products
 }
 
 SPEC = TriadSpec(kind="gyro", axes=AXES, channels=GYRO, inputs=INPUTS,
@@ -52,7 +53,7 @@ AXIS_OF_MOUNT = {f"{a}_{d}": ("pqr".index(a), 1.0 if d == "up" else -1.0) for a 
 
 class GyroCalibration(TriadCalibration):
     """Inverse-model calibration of the gyro triad (models: 'linear', 'physical',
-    'seed_final' (eq. 4.39-4.41), 'stepwise', 'backward').
+    'seed_final' (eq. 4.39-4.41), 'paper_eq3' (the EUCASS paper's eq. 3), 'stepwise', 'backward').
 
     Settings as :class:`~imurig.calibration.triad.TriadCalibration` (``statistic`` defaults to the
     window mean), plus the turn table's reference: ``timer`` ('adc', 'gps_mark', 'hp6700') times the

@@ -64,8 +64,9 @@ def _tilt_table_args(p):
     p.add_argument("--rate", type=float, default=d.sample_rate_hz, help="ADC sample rate, Hz")
     p.add_argument("--start-time", default="2005-06-14T18:00:00+02:00",
                    help="local start time (ISO 8601); the pump runs in working hours 07:30-17:30")
-    p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "stepwise", "backward"],
-                   help="main calibration model")
+    p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "paper_eq2", "stepwise",
+                                                               "backward"],
+                   help="main calibration model (paper_eq2: the EUCASS paper's eq. 2, own axis to a^4)")
     p.add_argument("--mux-khz", type=float, default=20.0, help="ADC multiplexing frequency, kHz")
     p.add_argument("--grounding", default="NRSE", choices=["GRSE", "NRSE", "DIFF"], help="ADC wiring")
     p.add_argument("--no-pump", action="store_true", help="switch the basement pump off entirely")
@@ -93,7 +94,9 @@ def _turn_table_args(p):
                    help="which IMU axis points up the table axis: p_up, q_up, r_up, p_down, ...")
     p.add_argument("--min-window", type=float, default=d.min_window_s, help="least seconds of whole rounds per step")
     p.add_argument("--timer", default="hp6700", choices=["hp6700", "gps_mark", "adc"])
-    p.add_argument("--model", default="physical", choices=["physical", "linear", "seed_final", "stepwise", "backward"])
+    p.add_argument("--model", default="physical",
+                   choices=["physical", "linear", "seed_final", "paper_eq3", "stepwise", "backward"],
+                   help="gyro calibration model (paper_eq3: the EUCASS paper's eq. 3, own axis to the cube)")
     p.add_argument("--mains-hz", type=float, default=50.0, help="mains frequency of the synchronous motor")
     p.add_argument("--no-slip-rings", action="store_true", help="no slip-ring noise")
     p.add_argument("--no-studies", action="store_true", help="skip the timer, arm and SIMONA studies")

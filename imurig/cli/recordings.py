@@ -28,7 +28,8 @@ def add_recording_parsers(sub) -> None:
                      help="default: the recording's '# rig:' line, else inferred from its set-points "
                           "(none: six-face, a box on its six faces and rotated about each axis)")
     cal.add_argument("--model", default=None,
-                     choices=["auto", "physical", "linear", "cross", "seed_final", "stepwise", "backward"],
+                     choices=["auto", "physical", "linear", "cross", "seed_final", "paper_eq2", "paper_eq3",
+                              "stepwise", "backward"],
                      help="default: the rig's (tilt and turn table: physical; six-face: auto, the linear model "
                           "plus the terms the faces identify)")
     cal.add_argument("--timer", default="auto", choices=["auto", "adc", "hp6700", "gps_mark"],

@@ -26,8 +26,8 @@ from imurig.reports.common import md_table
 
 RIGS = ("tilt-table", "turn-table", "six-face", "thermal", "magnetometer")
 #: the models each rig takes (the first is its default)
-MODELS = {"tilt-table": ("physical", "linear", "cross", "seed_final", "stepwise", "backward"),
-          "turn-table": ("physical", "linear", "seed_final", "stepwise", "backward"),
+MODELS = {"tilt-table": ("physical", "linear", "cross", "seed_final", "paper_eq2", "stepwise", "backward"),
+          "turn-table": ("physical", "linear", "seed_final", "paper_eq3", "stepwise", "backward"),
           "six-face": ("auto", "linear", "physical", "seed_final", "stepwise", "backward", "cross"),
           "thermal": ("auto",), "magnetometer": ("auto",)}
 TIMERS = ("auto", "adc", "hp6700", "gps_mark")
