@@ -84,12 +84,29 @@ class GyroCalibration(TriadCalibration):
             return super().fit(rec, reference, reference_jacobian, reference_sigma, response_cov, segment_cov)
         rw, rate = round_windows(rec, self.timer)
         ref = reference_rates(rw, rate)
+        refuse_unexcited_axes(rw, ref)
         cov = None
         if self.gls and self.model not in ("stepwise", "backward") and "gyro_noise_model" in rec.meta:
             cov = segment_covariance(rw, rate, rec.meta["gyro_noise_model"], timer_difference_sigma(rec, self.timer))
         super().fit(rw, ref, response_cov=cov)
         self.windows_, self.table_rate_, self.reference_ = rw, rate, ref
         return self
+
+
+def refuse_unexcited_axes(rw: Recording, ref: np.ndarray) -> None:
+    """A triad model needs every gyro on the table axis in some step: its own-axis input is otherwise
+    the Earth's rate alone, and its scale factor (and every term in that input) has no information.
+    Refuses such a recording with the mountings it has and those it lacks."""
+    span = np.max(np.abs(ref), axis=0)
+    idle = [AXES[j] for j in range(3) if span[j] <= 1e-6 * span.max()]
+    if idle:
+        seen = sorted({str(m) for m in np.asarray(rw.segments.get("mount", []))})
+        raise RecordingError(
+            f"the table turned only about the {', '.join(sorted(set(AXES) - set(idle)))} gyro's axis"
+            f"{' (mountings: ' + ', '.join(seen) + ')' if seen else ''}: the {' and '.join(idle)} gyros' scale "
+            f"factors and every model term in {', '.join('w' + a for a in idle)} cannot be fitted. Record steps with "
+            f"{' and '.join(a + '_up' for a in idle)} as well (each gyro in turn on the table axis); `imurig "
+            f"diagnose` reads this recording as it is")
 
 
 def pulse_edges(rec: Recording, channel: str = "pulse", threshold: float | None = None) -> np.ndarray:

@@ -312,3 +312,26 @@ def test_cli_calibrates_thermal_and_magnetometer_recordings(tmp_path):
         assert main(["calibrate", str(tmp_path / f"{name}.h5"), "--out", str(tmp_path / name)]) == 0
         s = json.loads((tmp_path / name / "summary.json").read_text())
         assert s["parameters"] and all(abs(p["z"]) < 4 for p in s["parameters"] if p["z"] is not None)
+
+
+def test_minimal_lab_csvs_through_calibrate(tmp_path, capsys):
+    """The other lab's minimal CSVs (time, set-points, volts, `# rig:` and `# site:` only): the tilt table
+    calibrates; a turn table that turned about one gyro's axis only is refused with what is missing,
+    naming the file, writing nothing (the p and q scale factors have no information in it)."""
+    import independent_lab as lab
+
+    tilt = lab.write_recording(tmp_path / "tilt.csv", "tilt_table", None, 3)
+    assert main(["calibrate", str(tilt), "--out", str(tmp_path / "cal_tilt")]) == 0
+    summary = json.loads((tmp_path / "cal_tilt" / "summary.json").read_text())
+    est = {q["name"]: q for q in summary["parameters"]}
+    tri = json.loads(tilt.with_suffix(".json").read_text())["triad"]
+    for j, a in enumerate("xyz"):      # against the other lab's truth, within 4 standard errors
+        K, b = tri["K_V_per_m_s2"][j], tri["bias_V"][j] / tri["K_V_per_m_s2"][j]
+        for name, truth in ((f"sensitivity_{a}", K), (f"bias_{a}", b)):
+            assert abs(est[name]["estimate"] - truth) < 4 * est[name]["std_error"], (name, est[name], truth)
+    turn = lab.write_recording(tmp_path / "turn.csv", "turn_table", None, 4)
+    capsys.readouterr()
+    assert main(["calibrate", str(turn), "--out", str(tmp_path / "cal_turn")]) == 2
+    err = capsys.readouterr().err
+    assert str(turn) in err and "only about the r gyro's axis" in err and "p_up and q_up" in err
+    assert "Traceback" not in err and not (tmp_path / "cal_turn").exists()

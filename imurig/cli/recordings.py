@@ -104,7 +104,9 @@ def _run_calibrate(a):
     model = cr.check_model(rig, a.model)
     try:
         _calibrate_rig(a, rec, rig, model, cr)
-    except ImurigError:
+    except ImurigError as e:
+        if a.recording not in str(e) and e.args:
+            e.args = (f"{a.recording}: {e.args[0]}",) + e.args[1:]     # say which file, keep the error's kind
         raise
     except (ValueError, np.linalg.LinAlgError) as e:  # a fit the data cannot carry: a message, not a traceback
         raise ImurigError(f"{a.recording}: the {rig} calibration (model {model}) cannot be fitted to these data: "

@@ -176,9 +176,9 @@ def unexplained(d: dict) -> list[dict]:
         res = e.get("residuals") or {}
         r = np.asarray(res.get("after", []), float)
         white = (e.get("unexplained") or {}).get("white")
+        if r.size >= 4 and (not np.all(np.isfinite(r)) or np.ptp(r[:-1]) == 0 or np.ptp(r[1:]) == 0):
+            continue   # no spread left (a model as large as the data, an axis not excited): nothing unexplained
         if r.size >= 4 and white is None:
-            if not np.all(np.isfinite(r)) or np.ptp(r[:-1]) == 0 or np.ptp(r[1:]) == 0:
-                continue   # no spread left (a model as large as the data): nothing to call unexplained
             lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1])
             white = bool(abs(lag1) < 2.5 / np.sqrt(r.size))
         if white is not False:
