@@ -93,12 +93,17 @@ class GyroCalibration(TriadCalibration):
         return self
 
 
+def unexcited_axes(ref: np.ndarray) -> list[str]:
+    """The gyro axes never on the table axis: their reference (n_seg, 3) is 0 in every step."""
+    span = np.max(np.abs(ref), axis=0)
+    return [AXES[j] for j in range(3) if span[j] <= 1e-6 * span.max()]
+
+
 def refuse_unexcited_axes(rw: Recording, ref: np.ndarray) -> None:
     """A triad model needs every gyro on the table axis in some step: its own-axis input is otherwise
     the Earth's rate alone, and its scale factor (and every term in that input) has no information.
     Refuses such a recording with the mountings it has and those it lacks."""
-    span = np.max(np.abs(ref), axis=0)
-    idle = [AXES[j] for j in range(3) if span[j] <= 1e-6 * span.max()]
+    idle = unexcited_axes(ref)
     if idle:
         seen = sorted({str(m) for m in np.asarray(rw.segments.get("mount", []))})
         raise RecordingError(
@@ -106,7 +111,7 @@ def refuse_unexcited_axes(rw: Recording, ref: np.ndarray) -> None:
             f"{' (mountings: ' + ', '.join(seen) + ')' if seen else ''}: the {' and '.join(idle)} gyros' scale "
             f"factors and every model term in {', '.join('w' + a for a in idle)} cannot be fitted. Record steps with "
             f"{' and '.join(a + '_up' for a in idle)} as well (each gyro in turn on the table axis); `imurig "
-            f"diagnose` reads this recording as it is")
+            f"diagnose` reads this recording as it is, and `imurig calibrate` (model physical) calibrates the turned gyro")
 
 
 def pulse_edges(rec: Recording, channel: str = "pulse", threshold: float | None = None) -> np.ndarray:

@@ -315,9 +315,8 @@ def test_cli_calibrates_thermal_and_magnetometer_recordings(tmp_path):
 
 
 def test_minimal_lab_csvs_through_calibrate(tmp_path, capsys):
-    """The other lab's minimal CSVs (time, set-points, volts, `# rig:` and `# site:` only): the tilt table
-    calibrates; a turn table that turned about one gyro's axis only is refused with what is missing,
-    naming the file, writing nothing (the p and q scale factors have no information in it)."""
+    """The other lab's minimal CSVs (time, set-points, volts, `# rig:` and `# site:` only) calibrate to
+    that lab's truth: the tilt table's triad, and the one gyro a table turned about one axis only."""
     import independent_lab as lab
 
     tilt = lab.write_recording(tmp_path / "tilt.csv", "tilt_table", None, 3)
@@ -329,9 +328,20 @@ def test_minimal_lab_csvs_through_calibrate(tmp_path, capsys):
         K, b = tri["K_V_per_m_s2"][j], tri["bias_V"][j] / tri["K_V_per_m_s2"][j]
         for name, truth in ((f"sensitivity_{a}", K), (f"bias_{a}", b)):
             assert abs(est[name]["estimate"] - truth) < 4 * est[name]["std_error"], (name, est[name], truth)
+    # a table that turned about r only: the r gyro calibrated against the other lab's truth; the p and q
+    # gyros' cross-axis sensitivity (the lab has none) within 4 SE of 0
     turn = lab.write_recording(tmp_path / "turn.csv", "turn_table", None, 4)
+    assert main(["calibrate", str(turn), "--out", str(tmp_path / "cal_turn")]) == 0
+    est = {q["name"]: q for q in json.loads((tmp_path / "cal_turn" / "summary.json").read_text())["parameters"]}
+    gy = json.loads(turn.with_suffix(".json").read_text())["gyros"]
+    S_r = gy["S_V_per_dps"][2] * 180 / math.pi
+    for name, truth in (("sensitivity_r", S_r), ("bias_r", gy["bias_V"][2] / S_r), ("misalignment_pr", 0.0),
+                        ("misalignment_qr", 0.0)):
+        assert abs(est[name]["estimate"] - truth) < 4 * est[name]["std_error"], (name, est[name], truth)
+    assert "sensitivity_p" not in est
+    # a triad model asked of it is refused with what is missing, naming the file, writing nothing
     capsys.readouterr()
-    assert main(["calibrate", str(turn), "--out", str(tmp_path / "cal_turn")]) == 2
+    assert main(["calibrate", str(turn), "--model", "seed_final", "--out", str(tmp_path / "cal_turn2")]) == 2
     err = capsys.readouterr().err
     assert str(turn) in err and "only about the r gyro's axis" in err and "p_up and q_up" in err
-    assert "Traceback" not in err and not (tmp_path / "cal_turn").exists()
+    assert "Traceback" not in err and not (tmp_path / "cal_turn2").exists()

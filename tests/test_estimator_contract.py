@@ -21,12 +21,15 @@ import pkgutil
 from dataclasses import dataclass
 from typing import Any, Callable
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 import imurig
 from imurig.calibration.accelerometer import AccelerometerCalibration
 from imurig.calibration.gyro import GyroCalibration
+from imurig.calibration.turned_axis import TurnedAxisCalibration
 from imurig.calibration.magnetometer import MagnetometerCalibration
 from imurig.calibration.simona import SimonaCalibration, read_simona
 from imurig.calibration.thermal import ThermalCalibration
@@ -163,6 +166,18 @@ def no_args(est, data):
 
 
 # ------------------------------------------------------------------------------------ campaigns (small)
+def one_axis_turn_data(seed):
+    """The other lab's turn table (about r only), as the minimal lab CSV reads (module doc of
+    ``tests/independent_lab``)."""
+    import tempfile
+
+    import independent_lab as lab
+    from imurig.kernel.files import load
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = load(lab.write_recording(Path(tmp) / "turn.csv", "turn_table", None, 10 + seed))
+    return (rec,), {}
+
+
 @pytest.fixture(scope="session")
 def small_turn_recording():
     return TurnTableCampaign(protocol=TurnTableProtocol(dial_rates_dps=(20, 100), min_window_s=3.0), seed=3).simulate()
@@ -219,6 +234,7 @@ CASES = [
     Case("AccelerometerCalibration-stepwise", AccelerometerCalibration, {"model": "stepwise"}, acc_data),
     Case("GyroCalibration", GyroCalibration, {"model": "linear", "statistic": "mean"}, gyro_data),
     Case("GyroCalibration-turn-table", GyroCalibration, {"timer": "hp6700"}, "small_turn_recording"),
+    Case("TurnedAxisCalibration", TurnedAxisCalibration, {"timer": "channel"}, one_axis_turn_data),
     Case("ThermalCalibration", ThermalCalibration, {"acc_order": 2, "hysteresis": True}, thermal_table,
          thermal_apply),
     Case("MagnetometerCalibration-ellipsoid", MagnetometerCalibration, {"method": "ellipsoid"}, ellipsoid_data),

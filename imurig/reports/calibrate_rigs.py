@@ -14,10 +14,11 @@ import numpy as np
 import imurig
 from imurig.calibration.accelerometer import SPEC as ACC_SPEC
 from imurig.calibration.gyro import SPEC as GYRO_SPEC
-from imurig.calibration.gyro import GyroCalibration
+from imurig.calibration.gyro import GyroCalibration, reference_rates, round_windows, unexcited_axes
 from imurig.calibration.six_face import FACES, detect, face_table, fit_accelerometer, site_gravity
 from imurig.calibration.six_face_gyro import fit_gyro, inverse_model, refuse_nonlinearity
 from imurig.calibration.triad import nominal_sensitivity
+from imurig.calibration.turned_axis import TurnedAxisCalibration
 from imurig.campaigns.turn_table import gyro_parameters
 from imurig.kernel.errors import ConfigError, RecordingError
 from imurig.kernel.outputs import OutputFolder, clean_json
@@ -105,10 +106,28 @@ def _write(out: OutputFolder, rig: str, rec: Recording, calibrations: dict, para
 def calibrate_turn_table(rec: Recording, out: OutputFolder, model: str, timer: str) -> dict:
     """Gyros on the turn table: whole rounds between pulses, GLS with the recording's noise model."""
     tm = choose_timer(rec, timer)
+    if model == MODELS["turn-table"][0]:
+        rw, rate = round_windows(rec, tm)
+        if unexcited_axes(reference_rates(rw, rate)):
+            return calibrate_turned_axis(rec, out, tm)
     cal = GyroCalibration(model=model, timer=tm).fit(rec)
     params = gyro_parameters(cal, rec) if "mount" in rec.segments or not rec.truth else cal.physical_parameters()
     notes = [f"timer: {tm}; {cal.windows_.n_segments} steps of whole rounds; model {model}"]
     return _write(out, "turn-table", rec, {"calibration.json": cal.to_dict()}, params, notes)
+
+
+def calibrate_turned_axis(rec: Recording, out: OutputFolder, timer: str) -> dict:
+    """A table that turned about one gyro's axis only: that gyro, and the others' biases and cross-axis
+    sensitivities (:mod:`imurig.calibration.turned_axis`)."""
+    cal = TurnedAxisCalibration(timer=timer).fit(rec)
+    others = " and ".join(a for a in "pqr" if a != cal.axis_)
+    notes = [f"timer: {timer}; {cal.windows_.n_segments} steps of whole rounds",
+             f"the table turned about the {cal.axis_} gyro's axis only: the {cal.axis_} gyro is calibrated (sensitivity, "
+             f"bias{', nonlinearity' if len(cal.coef_[cal.axis_]) > 2 else ''}); for the {others} gyros only their "
+             f"biases and their cross-axis sensitivity to {cal.axis_}, through their nominal sensitivities; their "
+             f"scale factors need steps with them on the table axis ({others.replace(' and ', '_up, ')}_up)",
+             f"standard errors from the scatter of the {cal.windows_.n_segments} step means ({cal.dof_} residual dof)"]
+    return _write(out, "turn-table", rec, {"calibration.json": cal.to_dict()}, cal.parameters_, notes)
 
 
 def calibrate_six_face(rec: Recording, out: OutputFolder, model: str, rotation_deg: float) -> dict:
