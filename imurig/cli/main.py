@@ -11,6 +11,7 @@
     imurig concealed list|write|all       the concealed-effect suite as recordings, to diagnose
     imurig convert IN OUT                 HDF5 <-> lab CSV
     imurig info REC                       what a recording holds
+    imurig reproduce [ITEM|all]           the seed's published items beside imurig's, with verdicts
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from imurig.cli.concealed import add_concealed_parser
 from imurig.cli.flight import add_flight_parser
 from imurig.cli.montecarlo import add_montecarlo_parser
 from imurig.cli.recordings import add_recording_parsers
+from imurig.cli.reproduce import add_reproduce_parser
 from imurig.cli.scoring import add_scoring_parsers
 from imurig.kernel.errors import ImurigError
 
@@ -39,6 +41,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     add_concealed_parser(sub)
     add_recording_parsers(sub)
     add_scoring_parsers(sub)
+    add_reproduce_parser(sub)
     return p
 
 
