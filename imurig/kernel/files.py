@@ -16,10 +16,15 @@ def load(path, rig: str | None = None, site=None, pulse_channel: str | None = No
     ``rig``, ``site`` and ``pulse_channel`` stand in for what a lab file lacks (see
     :func:`imurig.kernel.labcsv.read_csv`); a project file carries them already."""
     p = Path(path)
-    if p.suffix.lower() in (".h5", ".hdf5"):
-        return load_h5(p)
-    if p.suffix.lower() == ".csv":
-        return read_csv(p, rig=rig, site=site, pulse_channel=pulse_channel)
-    if p.suffix.lower() == ".mat":
-        return read_mat(p, rig=rig, site=site, pulse_channel=pulse_channel)
-    raise RecordingError(f"unknown recording type '{p.suffix}' for {p}; use .h5, .csv or .mat")
+    readers = {".h5": load_h5, ".hdf5": load_h5,
+               ".csv": lambda q: read_csv(q, rig=rig, site=site, pulse_channel=pulse_channel),
+               ".mat": lambda q: read_mat(q, rig=rig, site=site, pulse_channel=pulse_channel)}
+    reader = readers.get(p.suffix.lower())
+    if reader is None:
+        raise RecordingError(f"unknown recording type '{p.suffix}' for {p}; use .h5, .csv or .mat")
+    try:
+        return reader(p)
+    except RecordingError as e:
+        if str(p) not in str(e) and e.args:                  # every refusal names the file
+            e.args = (f"{p}: {e.args[0]}",) + e.args[1:]
+        raise

@@ -114,7 +114,24 @@ def columns_to_channels(cols: dict, meta: dict, where: str):
                 raise RecordingError(f"{where}: channel '{name}' appears twice with different units")
             channels[name] = to_si(np.asarray(x, float), spec)
             units[name] = spec.si
+            check_angle_range(h, name, channels[name], spec.si, where)
     return channels, units, events, notes
+
+
+#: set-point angles: a column whose values leave one turn is in another unit than its name says
+ANGLE_NAMES = ("theta", "phi", "psi")
+
+
+def check_angle_range(column: str, name: str, x_si: np.ndarray, unit_si: str, where: str) -> None:
+    """Refuse a set-point angle column whose values contradict its unit (|angle| beyond one turn,
+    e.g. degrees in a column named ``theta_rad``)."""
+    if unit_si != "rad" or name not in ANGLE_NAMES:
+        return
+    fin = np.abs(x_si[np.isfinite(x_si)])
+    if fin.size and fin.max() > 2 * np.pi + 1e-9:
+        raise RecordingError(f"{where}: column '{column}' reaches {np.degrees(fin.max()) if column.endswith('_deg') else fin.max():.6g} "
+                             f"{'deg' if column.endswith('_deg') else 'rad'}, beyond one turn: "
+                             f"{'are the values degrees? name the column ' + name + '_deg' if column.endswith('_rad') else 'check the set-point column'}")
 
 
 def infer_structure(rec: Recording, where: str, order: list[str], rig: str | None = None, site=None,

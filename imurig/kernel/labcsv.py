@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import io
 import json
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -91,10 +93,18 @@ def read_csv(path, rig: str | None = None, site=None, pulse_channel: str | None 
     meta_flat, header, n_head = _read_head(path)
     check_memory(count_rows(path) - n_head, len(header), str(path), memory_limit_bytes)
     try:
-        data = np.loadtxt(path, delimiter=",", skiprows=n_head, ndmin=2, dtype=float)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)          # "input contained no data": refused below
+            data = np.loadtxt(path, delimiter=",", skiprows=n_head, ndmin=2, dtype=float)
     except ValueError as exc:
+        m = re.search(r"number of columns changed from (\d+) to (\d+) at row (\d+)", str(exc))
+        if m:
+            raise RecordingError(f"{path}: data row {int(m[3]) + 1} has {m[2]} values, the rows before it "
+                                 f"{m[1]}; every row needs one value per header name (a cut-off last line?)") from None
         raise RecordingError(f"{path}: a value is not a number ({exc}); use '.' as decimal point and "
                              "'nan' for missing values") from None
+    if data.size == 0:
+        raise RecordingError(f"{path}: the header has no data rows below it")
     if data.shape[1] != len(header):
         raise RecordingError(f"{path}: {data.shape[1]} values per row but {len(header)} header names")
     cols = {h: data[:, i] for i, h in enumerate(header)}
@@ -128,6 +138,9 @@ def build_recording(cols: dict, header: list[str], meta: dict, where: str, sourc
     if isinstance(setpoints, str):
         setpoints = [s.strip() for s in setpoints.split(",") if s.strip()]
         meta["setpoints"] = setpoints
+    if not isinstance(setpoints, list) or not all(isinstance(sp, str) for sp in setpoints):
+        raise RecordingError(f"{where}: '# setpoints:' must list column names, e.g. "
+                             f"'# setpoints: [\"theta\", \"phi\"]', not {setpoints!r}")
     for sp in setpoints:
         if sp not in channels:
             raise RecordingError(f"{where}: metadata names set-point '{sp}' but there is no column '{sp}_<unit>'")
@@ -136,13 +149,28 @@ def build_recording(cols: dict, header: list[str], meta: dict, where: str, sourc
     return rec.validate()
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _read_head(path: Path):
     meta_flat: dict = {}
     header = None
     n_head = 0
-    with open(path, "r", encoding="utf-8") as fh:
-        for line in fh:
+    with open(path, "rb") as fh:
+        for raw in fh:
             n_head += 1
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise RecordingError(f"{path}: line {n_head} is not UTF-8 text (byte {raw[e.start]:#04x} at "
+                                     f"column {e.start + 1}); save the file as UTF-8 (or plain ASCII)") from None
+            if n_head == 1:
+                line = line.lstrip("\ufeff")            # a byte-order mark some editors write
             s = line.strip()
             if not s:
                 continue
@@ -156,6 +184,9 @@ def _read_head(path: Path):
                 continue
             header = [h.strip() for h in s.split(",")]
             break
+    if header is not None and all(_is_number(h) for h in header):
+        raise RecordingError(f"{path}: the first line after the '#' metadata holds numbers ({s[:40]}...), not "
+                             "column names; add a header row such as 'time_s,theta_deg,phi_deg,acc_x_V,...'")
     if header is None:
         raise RecordingError(f"{path}: no header row found after the '#' metadata block")
     if len(set(header)) != len(header):
@@ -203,6 +234,9 @@ def _segments_from_columns(rec: Recording, seg_id, run, setpoints):
     seg = {"start_s": t[starts], "stop_s": t[stops - 1] + dt}
     units = {"start_s": "s", "stop_s": "s"}
     if run is not None:
+        if not np.all(np.isfinite(run[starts])):
+            raise RecordingError("the 'run' column has NaN/inf values at the start of a segment; give every row "
+                                 "of a segment its run number (0, 1, ...) or leave the column out")
         seg["run"] = run[starts].astype(int)
         units["run"] = "1"
     for s in setpoints:

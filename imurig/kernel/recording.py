@@ -182,19 +182,72 @@ def _write_group(grp, arrays: Mapping[str, np.ndarray], units: Mapping[str, str]
             ds.attrs["quantum"] = q
 
 
-def _read_group(grp):
+def _read_group(grp, path, where: str, text: bool = False):
+    """{name: array}, {name: unit}, {name: quantum} of an HDF5 group of 1-D numeric datasets (text
+    allowed with ``text``, for segment labels)."""
+    import h5py  # heavy: loaded when a file is read
+
     arrays, units, quantum = {}, {}, {}
-    for name, ds in grp.items():
+    if not isinstance(grp, h5py.Group):
+        raise RecordingError(f"{path}: '/{where}' must be a group of datasets, found a {type(grp).__name__}; "
+                             "write the file with imurig (imurig convert) or fix its layout")
+    for name in grp:
+        ds = grp.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise RecordingError(f"{path}: '/{where}/{name}' must be a dataset, found "
+                                 f"{'a dangling or external link' if ds is None else type(ds).__name__}")
         x = ds[()]
-        if ds.dtype.kind == "O":
-            x = np.array([v.decode() if isinstance(v, bytes) else v for v in x], dtype=str)
+        if np.ndim(x) != 1:
+            raise RecordingError(f"{path}: '/{where}/{name}' must be a 1-D array, it has shape {np.shape(x)}")
+        if ds.dtype.kind in "OS" and not text:
+            raise RecordingError(f"{path}: '/{where}/{name}' holds text; it must hold numbers")
+        if ds.dtype.kind in "OS":
+            x = np.array([v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v) for v in x], dtype=str)
+        elif ds.dtype.kind not in "biuf":
+            raise RecordingError(f"{path}: '/{where}/{name}' holds {ds.dtype} values; numbers (or text for "
+                                 "segment labels) are needed")
         if "quantum" in ds.attrs:
-            q = float(ds.attrs["quantum"])
+            q = _float_attr(ds.attrs["quantum"], path, f"/{where}/{name} quantum")
+            if x.dtype.kind not in "biuf":
+                raise RecordingError(f"{path}: '/{where}/{name}' has a quantum but holds text")
             x = x.astype(np.float64) * q
             quantum[name] = q
         arrays[name] = x
-        units[name] = str(ds.attrs.get("unit", ""))
+        u = ds.attrs.get("unit", "")
+        units[name] = u.decode("utf-8", "replace") if isinstance(u, bytes) else str(u)
     return arrays, units, quantum
+
+
+def _float_attr(v, path, what: str) -> float:
+    try:
+        q = float(np.asarray(v).item())
+    except (TypeError, ValueError) as e:
+        raise RecordingError(f"{path}: {what} must be a number, found {v!r}") from e
+    if not np.isfinite(q) or q <= 0:
+        raise RecordingError(f"{path}: {what} must be a positive number, found {q!r}")
+    return q
+
+
+def _json_attr(attrs, key: str, path, required: bool):
+    """A JSON attribute (text) decoded, or None when absent and not required."""
+    if key not in attrs:
+        if required:
+            raise RecordingError(f"{path}: the root attribute '{key}' (JSON text) is missing; write the file "
+                                 "with imurig (imurig convert)")
+        return None
+    v = attrs[key]
+    if isinstance(v, bytes):
+        v = v.decode("utf-8", "replace")
+    if not isinstance(v, str):
+        raise RecordingError(f"{path}: the root attribute '{key}' must be JSON text, found {type(v).__name__}")
+    try:
+        d = json.loads(v)
+    except json.JSONDecodeError as e:
+        raise RecordingError(f"{path}: the root attribute '{key}' is not valid JSON ({e.msg} at character "
+                             f"{e.pos})") from e
+    if not isinstance(d, dict):
+        raise RecordingError(f"{path}: the root attribute '{key}' must be a JSON object, found {type(d).__name__}")
+    return d
 
 
 def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
@@ -227,23 +280,50 @@ def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
 
 
 def load_h5(path) -> Recording:
-    """Load a recording written by :func:`save_h5` (bit-exact)."""
+    """Load a recording written by :func:`save_h5` (bit-exact). Anything else, or a damaged file, is
+    refused with a :class:`RecordingError` that names the file, what is wrong and how to fix it."""
     import h5py  # heavy: loaded when a file is read, not when the CLI starts
 
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path} does not exist")
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("format") != FORMAT_NAME:
-            raise RecordingError(f"{path} is not an imurig recording (no format attribute '{FORMAT_NAME}')")
-        meta = json.loads(f.attrs["meta"])
-        truth = json.loads(f.attrs["truth"]) if "truth" in f.attrs else None
-        channels, units, quantum = _read_group(f["channels"])
-        segments, seg_units, _ = _read_group(f["segments"])
-        tsig, tunits, _ = _read_group(f["truth_signals"])
-        events = _read_group(f["events"])[0] if "events" in f else {}
-        time_s = f["time_s"][()]
-    return Recording(time_s=time_s, channels=channels, units=units, segments=segments,
-                     segment_units=seg_units, meta=meta, truth=truth, truth_signals=tsig,
-                     truth_units=tunits, channel_quantum=quantum, events=events)
-
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise RecordingError(f"{path} is not a readable HDF5 file ({e}); give an imurig .h5 recording or a "
+                             "lab .csv/.mat file") from e
+    try:
+        with f:
+            fmt = f.attrs.get("format")
+            if (fmt.decode("utf-8", "replace") if isinstance(fmt, bytes) else fmt) != FORMAT_NAME:
+                raise RecordingError(f"{path} is not an imurig recording (no format attribute '{FORMAT_NAME}')")
+            meta = _json_attr(f.attrs, "meta", path, required=True)
+            truth = _json_attr(f.attrs, "truth", path, required=False)
+            for key in ("time_s", "channels", "segments"):
+                if f.get(key) is None:
+                    raise RecordingError(f"{path}: '/{key}' is missing (or a dangling link); write the file with "
+                                         "imurig (imurig convert)")
+            channels, units, quantum = _read_group(f["channels"], path, "channels")
+            segments, seg_units, _ = _read_group(f["segments"], path, "segments", text=True)
+            tsig, tunits, _ = _read_group(f["truth_signals"], path, "truth_signals") if "truth_signals" in f \
+                else ({}, {}, {})
+            events = _read_group(f["events"], path, "events")[0] if "events" in f else {}
+            ts = f["time_s"]
+            if not isinstance(ts, h5py.Dataset) or ts.ndim != 1 or ts.dtype.kind not in "iuf":
+                raise RecordingError(f"{path}: '/time_s' must be a 1-D numeric dataset")
+            time_s = ts[()]
+    except RecordingError:
+        raise
+    except (OSError, KeyError, TypeError, ValueError, RuntimeError) as e:   # a damaged file: h5py's own errors
+        raise RecordingError(f"{path}: the HDF5 file is damaged or not laid out as imurig writes it "
+                             f"({type(e).__name__}: {e}); write it again with imurig") from e
+    for k, v in segments.items():
+        if v.dtype.kind == "f" and not np.all(np.isfinite(v)):
+            raise RecordingError(f"{path}: segment column '{k}' has NaN/inf values")
+    rec = Recording(time_s=time_s, channels=channels, units=units, segments=segments,
+                    segment_units=seg_units, meta=meta, truth=truth, truth_signals=tsig,
+                    truth_units=tunits, channel_quantum=quantum, events=events)
+    try:
+        return rec.validate()
+    except RecordingError as e:
+        raise RecordingError(f"{path}: {e}") from e
