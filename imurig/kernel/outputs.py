@@ -4,15 +4,21 @@
   floats by None so that a summary.json is strict JSON;
 - :func:`atomic_write`: one file, written to a temporary name and renamed when complete;
 - :class:`OutputFolder`: a report folder, written to a hidden temporary folder and renamed
-  onto its path on success.
+  onto its path on success (swapped in one step when it replaces an old one).
+
+Temporary names carry the writer's process id (``.<name>.tmp-<pid>-*``): the next run removes
+those of processes that died (:func:`clean_stale`). Files and folders follow the user's umask.
 
 An existing output is refused (OutputExistsError) unless ``overwrite`` is given.
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import json
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -52,6 +58,57 @@ def clean_json(obj):
     return obj
 
 
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux renameat2 RENAME_EXCHANGE); False where the system lacks it."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    at_fdcwd, rename_exchange = -100, 2
+    return fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def clean_stale(path: Path) -> list[Path]:
+    """Remove the temporary siblings ``.<name>.tmp-<pid>-*`` of ``path`` whose writing process has died
+    (a killed run), and put back ``.<name>.old`` when a kill came between the two renames of a
+    replacement and ``path`` is missing. Returns what was removed or restored."""
+    path = Path(path)
+    done = []
+    if not path.parent.is_dir():
+        return done
+    for q in path.parent.glob(f".{path.name}.tmp-*"):
+        try:
+            pid = int(q.name[len(path.name) + 6:].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            shutil.rmtree(q, ignore_errors=True) if q.is_dir() else q.unlink(missing_ok=True)
+            done.append(q)
+    old = path.with_name("." + path.name + ".old")
+    if old.exists() and not path.exists():
+        os.replace(old, path)
+        done.append(old)
+    return done
+
+
 def atomic_write(path: Path, writer, overwrite: bool) -> Path:
     """Run ``writer(tmp_path)`` then rename onto ``path``; never leaves a half-written file.
 
@@ -61,10 +118,12 @@ def atomic_write(path: Path, writer, overwrite: bool) -> Path:
     if path.exists() and not overwrite:
         raise OutputExistsError(f"{path} exists; pass overwrite=True (CLI: --overwrite) to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
+    clean_stale(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-{os.getpid()}-", suffix=".part", dir=path.parent)
     os.close(fd)
     try:
         writer(Path(tmp))
+        os.chmod(tmp, 0o666 & ~_umask())            # the user's umask, not mkstemp's 0600
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -83,7 +142,11 @@ class OutputFolder:
         if self.path.exists() and not overwrite:
             raise OutputExistsError(f"{self.path} exists; choose another --out or pass --overwrite to replace it")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix="." + self.path.name + ".", dir=self.path.parent))
+        self.cleaned = clean_stale(self.path)       # what killed runs left behind
+        if self.cleaned:
+            print(f"imurig: cleaned up after a killed run: {', '.join(q.name for q in self.cleaned)}", file=sys.stderr)
+        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.tmp-{os.getpid()}-", dir=self.path.parent))
+        os.chmod(self.tmp, 0o777 & ~_umask())       # the user's umask, not mkdtemp's 0700
 
     def file(self, name: str) -> Path:
         return self.tmp / name
@@ -99,9 +162,15 @@ class OutputFolder:
         return p
 
     def commit(self) -> Path:
+        """Put the new folder in place: in one step where the system can swap two paths (a kill at any
+        moment leaves the old output or the new one); else old aside, new in, old removed (a kill
+        between the renames is repaired by the next run's :func:`clean_stale`)."""
         if self.path.exists():
             if not self.overwrite:
                 raise OutputExistsError(f"{self.path} appeared while writing; pass --overwrite")
+            if _exchange(self.tmp, self.path):
+                shutil.rmtree(self.tmp)                 # now the old output
+                return self.path
             old = self.path.with_name("." + self.path.name + ".old")
             if old.exists():
                 shutil.rmtree(old)
