@@ -321,14 +321,40 @@ class TriadCalibration(Estimator):
 
     @classmethod
     def from_dict(cls, d: dict) -> "TriadCalibration":
+        """The calibration a :meth:`to_dict` wrote, every part checked (a ValueError says which)."""
         kind = cls.SPEC.json_kind
-        if d.get("kind") != kind:
+        if not isinstance(d, dict) or d.get("kind") != kind:
+            got = d.get("kind") if isinstance(d, dict) else type(d).__name__
             raise ValueError(f"not an imurig {cls.SPEC.kind} calibration (kind must be '{kind}', got "
-                             f"{d.get('kind')!r}); use the calibration.json of a report folder")
-        cal = cls(model=d.get("model", "loaded"), statistic=d.get("statistic", "median"))
+                             f"{got!r}); use the calibration.json of a report folder")
+        axes = d.get("axes")
+        if not isinstance(axes, dict) or sorted(axes) != sorted(cls.SPEC.axes):
+            raise ValueError(f"'axes' must map each of {list(cls.SPEC.axes)} to its terms and coefficients")
+        models = {}
+        for a in cls.SPEC.axes:
+            v = axes[a]
+            terms, coef = (v.get("terms"), v.get("coef")) if isinstance(v, dict) else (None, None)
+            if not isinstance(terms, list) or not isinstance(coef, list) or len(terms) != len(coef) or not terms:
+                raise ValueError(f"axis {a}: 'terms' and 'coef' must be lists of the same, non-zero length")
+            try:
+                lib = TermLibrary.from_names(terms)
+                c = np.asarray(coef, float)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"axis {a}: {e}") from None
+            unknown = sorted(set(lib.inputs) - set(cls.SPEC.inputs))
+            if unknown or not np.all(np.isfinite(c)):
+                raise ValueError(f"axis {a}: " + (f"unknown inputs {unknown} (known: {list(cls.SPEC.inputs)})"
+                                                  if unknown else "coefficients must be finite numbers"))
+            models[a] = (list(terms), c)
+        cal = cls(model=str(d.get("model", "loaded")), statistic=str(d.get("statistic", "median")))
         s = d.get("nominal_sensitivity")
-        cal.sensitivity_ = None if s is None else np.asarray(s, float)
-        cal.models_ = {a: (list(v["terms"]), np.asarray(v["coef"], float)) for a, v in d["axes"].items()}
+        try:
+            cal.sensitivity_ = None if s is None else np.broadcast_to(np.asarray(s, float), (3,)).copy()
+        except (TypeError, ValueError):
+            raise ValueError(f"'nominal_sensitivity' must be three numbers, got {s!r}") from None
+        if cal.sensitivity_ is not None and not np.all(np.isfinite(cal.sensitivity_) & (cal.sensitivity_ != 0)):
+            raise ValueError("'nominal_sensitivity' must be finite and non-zero")
+        cal.models_ = models
         return cal
 
     def apply(self, rec: Recording) -> Recording:

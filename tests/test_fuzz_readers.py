@@ -258,3 +258,24 @@ def test_lab_csv_reader_never_crashes(tmp_path_factory, how, n, x, seed):
 @given(how=st.sampled_from(CSV_HOW), n=st.integers(600, 1200), x=st.floats(0.0, 1.0), seed=st.integers(0, 2**16))
 def test_lab_csv_reader_never_crashes_10000(tmp_path_factory, how, n, x, seed):
     _one_csv_case(tmp_path_factory, how, n, x, seed)
+
+
+# ---------------------------------------------------------------------------------------------- scoring files
+def test_scoring_readers_refuse_damaged_files(tmp_path):
+    from imurig.scoring.files import read_estimates
+    from imurig.scoring.score import TruthSet
+    from imurig.scoring.interface import EstimatesError
+
+    cases = {"bin.json": b"\x89PNG\r\n\x1a\n\x00\xff", "num.json": b"5", "list.json": b"[1, 2]",
+             "bad.json": b'[{"name": "b", "value": "x", "std_error": 1, "unit": "V"}]', "bin.csv": b"\xff\xfe\x00a"}
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(EstimatesError) as e:
+            read_estimates(tmp_path / name)
+        assert name in str(e.value)
+    for d in ([], {"format": "imurig-truth"}, {"format": "x"}):
+        with pytest.raises(EstimatesError):
+            TruthSet.from_dict(d)
+    (tmp_path / "truth.json").write_bytes(b"\xff\x00")
+    with pytest.raises(EstimatesError, match="truth.json"):
+        TruthSet.load(tmp_path / "truth.json")

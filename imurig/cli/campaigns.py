@@ -3,17 +3,31 @@ simulate a calibration campaign, calibrate it and write its report folder."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
+from imurig.kernel.errors import ConfigError
 from imurig.kernel.outputs import OutputFolder
+from imurig.kernel.site import parse_time
 
 
 def _floats(text: str) -> tuple[float, ...]:
     try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
+        out = tuple(float(v) for v in text.split(",") if v.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not out or not all(math.isfinite(v) for v in out):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got {text!r}")
+    return out
+
+
+def _iso_time(text: str) -> str:
+    try:
+        parse_time(text)
+    except ConfigError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
 
 
 def _words(text: str) -> tuple[str, ...]:
@@ -62,7 +76,7 @@ def _tilt_table_args(p):
     p.add_argument("--runs", type=_words, default=d.runs, metavar="MOUNT,...", help="mountings: z_down, z_up")
     p.add_argument("--dwell", type=float, default=d.dwell_s, help="seconds acquired per position")
     p.add_argument("--rate", type=float, default=d.sample_rate_hz, help="ADC sample rate, Hz")
-    p.add_argument("--start-time", default="2005-06-14T18:00:00+02:00",
+    p.add_argument("--start-time", default="2005-06-14T18:00:00+02:00", type=_iso_time,
                    help="local start time (ISO 8601); the pump runs in working hours 07:30-17:30")
     p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "paper_eq2", "stepwise",
                                                                "backward"],
@@ -127,7 +141,7 @@ def _magnetometer_args(p):
     p.add_argument("--out", default="imurig-out/magnetometer")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--seed", type=int, default=2005)
-    p.add_argument("--start-time", default="2005-06-21T10:00:00+02:00", help="date and time (for IGRF)")
+    p.add_argument("--start-time", default="2005-06-21T10:00:00+02:00", type=_iso_time, help="date and time (for IGRF)")
     p.add_argument("--hard-iron-nT", type=float, default=6000.0, help="largest hard-iron bias per axis")
     p.add_argument("--noise-nT", type=float, default=5.0)
     p.add_argument("--no-rrd", action="store_true")

@@ -163,16 +163,22 @@ def _run_apply(a):
     # scipy.signal (the calibration's preprocessing): loaded when the command runs, not for --help
     from imurig.calibration.accelerometer import AccelerometerCalibration
     from imurig.calibration.gyro import GyroCalibration
+    from imurig.calibration.turned_axis import KIND as TURNED_KIND
 
     try:
         d = json.loads(Path(a.calibration).read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise ImurigError(f"cannot read calibration {a.calibration}: {e}") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ImurigError(f"cannot read calibration {a.calibration}: {e}; give the calibration.json of a report "
+                          "folder") from None
     kinds = {c.SPEC.json_kind: c for c in (AccelerometerCalibration, GyroCalibration)}
+    kind = d.get("kind") if isinstance(d, dict) else None
+    if kind == TURNED_KIND:
+        raise ImurigError(f"{a.calibration}: a one-axis turn-table calibration (the gyro the table turned) is not "
+                          "applied by `imurig apply` yet; use TurnedAxisCalibration.apply from Python")
     try:
-        cal = kinds.get(d.get("kind"), AccelerometerCalibration).from_dict(d)
+        cal = kinds.get(kind, AccelerometerCalibration).from_dict(d)
     except (ValueError, KeyError) as e:
-        raise ImurigError(str(e)) from None
+        raise ImurigError(f"{a.calibration}: {e}") from None
     rec = cal.apply(load(a.recording).validate())
     dst = Path(a.out)
     writer = write_csv if dst.suffix.lower() == ".csv" else save_h5

@@ -10,6 +10,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from imurig.kernel.errors import ConfigError
+
 EARTH_RATE_RAD_S = 7.2921150e-5  # WGS-84, rad/s
 
 
@@ -57,5 +59,8 @@ def decimal_year(when: _dt.datetime) -> float:
 
 def parse_time(text: str) -> _dt.datetime:
     """ISO-8601 text to an aware datetime (UTC if no zone given)."""
-    t = _dt.datetime.fromisoformat(text)
+    try:
+        t = _dt.datetime.fromisoformat(str(text))
+    except ValueError:
+        raise ConfigError(f"{text!r} is not an ISO 8601 time; write e.g. 2005-06-14T18:00:00+02:00") from None
     return t if t.tzinfo else t.replace(tzinfo=_dt.timezone.utc)

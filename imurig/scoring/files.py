@@ -46,7 +46,12 @@ def read_estimates_csv(path) -> list[ParameterEstimate]:
     p = Path(path)
     if not p.exists():
         raise EstimatesError(f"estimates file {p} does not exist")
-    lines = [(i + 1, line) for i, line in enumerate(p.read_text(encoding="utf-8-sig").splitlines())
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise EstimatesError(f"{p} is not UTF-8 text (byte {e.object[e.start]:#04x} at {e.start}); write the "
+                             "estimates as a UTF-8 CSV 'name,value,std_error,unit'") from None
+    lines = [(i + 1, line) for i, line in enumerate(text.splitlines())
              if line.strip() and not line.lstrip().startswith("#")]
     if not lines:
         raise EstimatesError(f"{p} is empty; write a header 'name,value,std_error,unit' and one row per parameter")
@@ -78,8 +83,8 @@ def read_estimates_json(path) -> list[ParameterEstimate]:
         d = json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise EstimatesError(f"estimates file {p} does not exist") from None
-    except json.JSONDecodeError as e:
-        raise EstimatesError(f"{p} is not valid JSON: {e}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise EstimatesError(f"{p} is not valid JSON text: {e}") from None
     if isinstance(d, dict) and "parameters" in d:
         d = d["parameters"]
     if isinstance(d, list):
@@ -90,8 +95,16 @@ def read_estimates_json(path) -> list[ParameterEstimate]:
         for k, v in d.items():
             if not isinstance(v, dict) or v.get("unit") in (None, ""):
                 raise EstimatesError(f"{p}: parameter {k!r} must be an object with value, std_error and unit")
-    out = normalise_estimates(_nan_from_null(d))
-    return out
+    if not isinstance(d, (list, dict)) or (isinstance(d, list) and not all(isinstance(r, dict) for r in d)):
+        raise EstimatesError(f"{p}: the estimates must be a list of objects {{name, value, std_error, unit}} or an "
+                             f"object name -> {{value, std_error, unit}}, not {type(d).__name__}")
+    try:
+        return normalise_estimates(_nan_from_null(d))
+    except (TypeError, ValueError, KeyError, AttributeError) as e:
+        if isinstance(e, EstimatesError):
+            raise EstimatesError(f"{p}: {e}") from None
+        raise EstimatesError(f"{p}: {type(e).__name__}: {e}; each estimate needs name, value, std_error and "
+                             "unit") from None
 
 
 def _nan_from_null(d):

@@ -60,12 +60,19 @@ class TruthSet:
 
     @classmethod
     def from_dict(cls, d: dict) -> TruthSet:
-        if d.get("format") != TRUTH_FORMAT:
+        if not isinstance(d, dict) or d.get("format") != TRUTH_FORMAT:
+            got = d.get("format") if isinstance(d, dict) else type(d).__name__
             raise EstimatesError(f"not an imurig truth file (format must be '{TRUTH_FORMAT}', got "
-                                 f"{d.get('format')!r}); pass the truth.json written by 'imurig export'")
-        return cls(campaign=d["campaign"], seed=int(d["seed"]), parameters=d["parameters"],
-                   residuals=d.get("residuals"), bench=d.get("bench"), z_bound=float(d.get("z_bound", Z_BOUND)),
-                   notes=d.get("notes", ""))
+                                 f"{got!r}); pass the truth.json written by 'imurig export'")
+        try:
+            ts = cls(campaign=str(d["campaign"]), seed=int(d["seed"]), parameters=d["parameters"],
+                     residuals=d.get("residuals"), bench=d.get("bench"), z_bound=float(d.get("z_bound", Z_BOUND)),
+                     notes=d.get("notes", ""))
+            ts.units    # every parameter has a unit: checked here, not in the scoring
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise EstimatesError(f"the truth file is damaged ({type(e).__name__}: {e}); write it again with "
+                                 "'imurig export'") from None
+        return ts
 
     @classmethod
     def load(cls, path) -> TruthSet:
@@ -76,8 +83,8 @@ class TruthSet:
             return cls.from_dict(json.loads(p.read_text()))
         except FileNotFoundError:
             raise EstimatesError(f"truth file {p} does not exist") from None
-        except json.JSONDecodeError as e:
-            raise EstimatesError(f"truth file {p} is not valid JSON: {e}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise EstimatesError(f"truth file {p} is not valid JSON text: {e}") from None
 
 
 def check_estimates(truth: TruthSet, estimates: list[ParameterEstimate], source: str = "estimates",
