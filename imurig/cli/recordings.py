@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from imurig.cli.campaigns import print_summary
-from imurig.kernel.errors import ImurigError
+from imurig.kernel.errors import ImurigError, OutputExistsError
 from imurig.kernel.files import load
 from imurig.kernel.infer import inference_report
 from imurig.kernel.labcsv import write_csv
@@ -199,8 +199,15 @@ def _run_diagnose(a):
     else:
         rec = _load(a).validate()
     # the twin: the recording's own meta["diagnose_twin"] (if any), overridden by the flags given
-    d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
-            earth_rate=False if a.twin_without_earth_rate else None)
+    try:
+        d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
+                earth_rate=False if a.twin_without_earth_rate else None)
+    except ImurigError as e:
+        if a.recording not in str(e) and e.args and not isinstance(e, OutputExistsError):
+            e.args = (f"{a.recording}: {e.args[0]}",) + e.args[1:]     # say which file, keep the error's kind
+        raise
+    except (ValueError, np.linalg.LinAlgError) as e:  # a comparison the data cannot carry: a message, not a traceback
+        raise ImurigError(f"{a.recording}: the diagnosis cannot compare these data with a twin: {e}") from None
     for r in _findings_rows(d):
         print(f"- {r[1]} ({r[0]}): {r[2]}\n    {r[3]}")
     print(f"report: {Path(a.out) / 'report.md'}; machine-readable: {Path(a.out) / 'diagnosis.json'}")
@@ -208,7 +215,7 @@ def _run_diagnose(a):
 
 
 def _is_appendix_b(path) -> bool:
-    with open(path, encoding="utf-8") as fh:
+    with open(path, encoding="utf-8", errors="replace") as fh:
         for line in fh:
             if not line.startswith("#"):
                 return line.strip().startswith("rate_dial_dps,") and "measured_round_s" in line

@@ -1,0 +1,58 @@
+"""Misuse on the command line ends in one clear message and exit 2: no traceback, nothing written."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from imurig.cli.main import main
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["campaign", "tilt-table", "--theta", "nan,30,60"], "finite numbers"),
+    (["campaign", "tilt-table", "--start-time", "notadate"], "ISO 8601"),
+    (["campaign", "magnetometer", "--start-time", "2005-13-45"], "ISO 8601"),
+])
+def test_bad_options_are_refused_by_the_parser(argv, says, tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv + ["--out", str(tmp_path / "o")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err and not (tmp_path / "o").exists()
+
+
+def _one_position_csv(tmp_path):
+    import independent_lab as lab
+
+    src = lab.write_recording(tmp_path / "full.csv", "tilt_table", None, 3)
+    lines = src.read_text().splitlines()
+    keep = lines[:3] + [ln for ln in lines[3:] if all(float(v) == 0 for v in ln.split(",")[1:3])][:500]
+    dst = tmp_path / "one.csv"
+    dst.write_text("\n".join(keep) + "\n")
+    return dst
+
+
+@pytest.mark.parametrize("command", ["calibrate", "diagnose"])
+def test_a_single_position_is_refused_with_what_to_add(command, tmp_path, capsys):
+    one = _one_position_csv(tmp_path)
+    assert main([command, str(one), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert str(one) in err and "Add positions" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("content, says", [
+    ("[]", "not an imurig accelerometer calibration"),
+    ('{"kind": "imurig.accelerometer_inverse_model", "axes": {"x": {"terms": ["1", "ax"], "coef": [1]}}}', "axes"),
+    ('{"kind": "imurig.accelerometer_inverse_model", "axes": {"x": {"terms": ["1", "aw"], "coef": [1, 2]}, '
+     '"y": {"terms": ["1"], "coef": [1]}, "z": {"terms": ["1"], "coef": [1]}}}', "unknown inputs"),
+    ("\x00\x01", "cannot read calibration"),
+])
+def test_apply_checks_the_calibration_file(content, says, tmp_path, capsys):
+    cal = tmp_path / "cal.json"
+    cal.write_text(content)
+    rec = tmp_path / "r.csv"
+    rec.write_text("# rig: tilt_table\n# site: delft\ntime_s,acc_x_V\n0,0\n0.01,0\n")
+    assert main(["apply", str(cal), str(rec), "--out", str(tmp_path / "out.h5")]) == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err and not (tmp_path / "out.h5").exists()
