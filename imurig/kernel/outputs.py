@@ -153,7 +153,8 @@ class OutputFolder:
 
     def write_json(self, name: str, obj) -> Path:
         p = self.file(name)
-        p.write_text(json.dumps(json.loads(to_json(obj)), indent=2, allow_nan=False) + "\n")
+        # strict JSON: a value that could not be computed (NaN, inf) is written as null
+        p.write_text(json.dumps(clean_json(json.loads(to_json(obj))), indent=2, allow_nan=False) + "\n")
         return p
 
     def write_text(self, name: str, text: str) -> Path:
