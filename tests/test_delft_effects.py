@@ -284,3 +284,31 @@ def test_the_chain_is_unchanged_by_the_new_effects_at_their_defaults():
     d = replace(lab, effects=(AirConditioningVibration(enabled=True, cycle_period_s=10.0),)).measure(rig, seed)
     for k in a.channels:
         assert np.array_equal(a.channels[k], d.channels[k]) == (not k.startswith("acc_")), k
+
+
+def test_the_tilt_table_turns_by_the_backlash():
+    """A tiny MuJoCo run (no setting resolution): at every position the true angles are the set-points
+    plus the table's zero errors plus the clearance's shift of the wheels' last moves over both runs,
+    to the servo's settling; the set-point channels are unchanged and the truth records it."""
+    from imurig.kernel.site import Site
+    from imurig.rigs.tilt_table import TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol
+
+    proto = TiltTableProtocol(theta_deg=(0, 40, 90), phi_deg=(0, 150, 270), runs=("z_down", "z_up"), dwell_s=0.5,
+                              settle_s=2.0, slew_rate_deg_s=30, sample_rate_hz=50.0)
+    errors = TiltTableErrors(setting_resolution_rad=0.0)
+    bl = TableBacklash(beta_theta_rad=4 * ARCMIN, beta_phi_rad=6 * ARCMIN)
+    rec = TiltTable(errors=errors, survey=TableSurvey(), site=Site(), backlash=bl).simulate(
+        proto, "2005-06-14T18:00:00+02:00", np.random.default_rng(0))
+    seg = rec.segments
+    st, sp = bl.signs(seg["theta"], seg["phi"])                      # the runs in order
+    # theta winds back once, at the remount: the second run's theta = 0 row is reached turning back
+    np.testing.assert_array_equal(st, [1] * 9 + [-1] * 3 + [1] * 6)
+    assert np.sum(np.diff(sp) != 0) == 10                             # phi winds back at every new row
+    for i, s in enumerate(rec.segment_slices()):
+        m = str(seg["mount"][i])
+        th = seg["theta"][i] + errors.theta_zero_rad - st[i] * 2 * ARCMIN
+        ph = seg["phi"][i] + errors.phi_zero_rad[m] - sp[i] * 3 * ARCMIN
+        np.testing.assert_allclose(rec.truth_signals["theta_true"][s], th, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(rec.truth_signals["phi_true"][s], ph, rtol=0, atol=1e-9)
+        assert np.all(rec.channels["theta"][s] == seg["theta"][i])
+    assert bl.fitted(rec.truth) == {"beta_theta_rad": 4 * ARCMIN, "beta_phi_rad": 6 * ARCMIN}

@@ -13,8 +13,11 @@ its backlash is one constant zero offset (the inclinometer survey's theta zero a
 that reverses shifts every position reached the other way by beta. The tilt-table protocol visits
 every phi for each theta and winds phi back for the next theta, so phi reverses once per theta.
 
-Stage "rig": the tilt table applies :meth:`TableBacklash.inject` to its commanded angles (the rig
-writes the settings under truth["rig"]["table_backlash"]). Off by default (beta = 0).
+Stage "rig": the tilt table (:class:`imurig.rigs.tilt_table.TiltTable`, ``backlash``) adds
+:meth:`TableBacklash.offsets` of its set-point sequence (all runs in order, so a remount's wind-back
+counts) to the servo command, and writes the settings under truth["rig"]["table_backlash"]; the
+truth signals theta_true and phi_true hold the shift, the set-point channels do not. Off by default
+(beta = 0: the rig is untouched).
 
 Diagnosis (not offered through a view: the position view holds no set-points): to first order in
 beta the specific force at position k changes by
