@@ -14,6 +14,8 @@ Imperfections (truth, injected): theta zero (levelling) error ~1 arcmin, a level
 about x below the inclinometer's accuracy, the phi-plane error 80-105 arcmin that depends
 on the mounting, and a finite angle setting resolution. The lab knows the first three
 only through its inclinometer survey (:class:`TableSurvey`), which the reference uses.
+Optionally (``TiltTable.backlash``, off by default) the adjusting wheels' gear clearance shifts
+each position reached by turning a wheel back (seed 4.3.1, effect ``table_backlash``).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
 from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCMIN, DEG
+from imurig.sensors.effects.table_backlash import TableBacklash
 from imurig.rigs.tilt_kinematics import (MOUNTS, TableSurvey, reference_specific_force,  # noqa: F401 (re-exported)
                                          reference_with_jacobian, rot_x, rot_y, rot_z, rotate_to_body,
                                          setting_error_covariance, specific_force_C)
@@ -150,11 +153,24 @@ class TiltTable:
     survey: TableSurvey | None = None
     site: Site = field(default_factory=Site)
     azimuth_deg: float = 0.0  # heading of the base x axis, from east towards north
+    #: the adjusting wheels' gear clearance (effect ``table_backlash``; none by default)
+    backlash: TableBacklash = field(default_factory=TableBacklash)
 
-    def _run_commands(self, base_model, runs, R_WB, cmd_nom, windows, n_pos, rng):
+    def _backlash_offsets(self, set_theta, set_phi, runs) -> dict | None:
+        """Per mounting, the (m, 2) rad shift of the true from the read (theta, phi) by the gear
+        clearance, from the wheels' moves over all runs in order (None without clearance)."""
+        b = self.backlash
+        if b.beta_theta_rad == 0.0 and b.beta_phi_rad == 0.0:
+            return None
+        m = set_theta.size
+        off = b.offsets(np.tile(set_theta, len(runs)), np.tile(set_phi, len(runs)))
+        return {r: off[i * m:(i + 1) * m] for i, r in enumerate(runs)}
+
+    def _run_commands(self, base_model, runs, R_WB, cmd_nom, windows, n_pos, rng, backlash=None):
         """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad with the
-        table's zero errors and each position's setting error (uniform within +-res/2, held from
-        slew end to next slew), and its initial joint position."""
+        table's zero errors, each position's setting error (uniform within +-res/2, held from
+        slew end to next slew) and the gear clearance's shift (``backlash``: per mounting, (m, 2)
+        rad, or None), and its initial joint position."""
         bid_base = base_model.body("base").id
         bid_mount = base_model.body("imu_mount").id
         nstep = cmd_nom.shape[0]
@@ -170,6 +186,8 @@ class TiltTable:
             setting_err[r] = err
             off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
             c = cmd_nom + off + err[pos_idx]
+            if backlash is not None:
+                c = c + backlash[r][pos_idx]
             ctrl.append(c)
             qpos0.append(c[0])
         return models, ctrl, qpos0, setting_err
@@ -220,8 +238,9 @@ class TiltTable:
         set_phi = np.tile(np.asarray(protocol.phi_deg, float) * DEG, nt)
         cmd_nom, windows = _command_profile(protocol, set_theta, set_phi, dt)
         nstep = cmd_nom.shape[0]
+        backlash = self._backlash_offsets(set_theta, set_phi, runs)
         models, ctrl, qpos0, setting_err = self._run_commands(base_model, runs, R_WB, cmd_nom, windows,
-                                                               set_theta.size, rng)
+                                                               set_theta.size, rng, backlash)
         sd = rollout_servo(models, np.array(qpos0), np.array(ctrl), desc="tilt table (MuJoCo)")
         sl = sensor_slices(base_model)
 
@@ -264,6 +283,8 @@ class TiltTable:
         truth = {"rig": {"tilt_table": self.errors.to_dict(),
                          "setting_error_rad": {r: setting_err[r].tolist() for r in runs},
                          "magnetic_field_W_T": B_W.tolist()}}
+        if backlash is not None:
+            truth["rig"][self.backlash.name] = self.backlash.settings()
         return Recording(time_s=time_s, channels={"theta": theta_set, "phi": phi_set},
                          units={"theta": "rad", "phi": "rad"}, segments=segments,
                          segment_units=seg_units, meta=meta, truth=truth,

@@ -156,8 +156,8 @@ class ImuLab:
     def _specific_force(self, ctx: ChainContext, seed) -> np.ndarray:
         """Specific-force stage: the disturbances' f (n, 3) m/s^2 at the IMU, shared by the sensors."""
         f = np.zeros((ctx.time_s.size, 3))
-        for eff in self.stage_effects("specific_force"):
-            f = eff.inject(f, ctx, child_rng(seed, eff.stream))
+        for eff in self.stage_effects("specific_force"):  # a deterministic effect has no stream and draws nothing
+            f = eff.inject(f, ctx, child_rng(seed, eff.stream) if eff.stream else None)
         return f
 
     def _temperatures(self, rig: Recording) -> SensorTemperatures:
