@@ -73,7 +73,8 @@ def _tilt_table_args(p):
     p.add_argument("--seed", type=int, default=2005, help="master random seed (same seed, same data)")
     p.add_argument("--theta", type=_floats, default=d.theta_deg, metavar="DEG,...", help="tilt angles")
     p.add_argument("--phi", type=_floats, default=d.phi_deg, metavar="DEG,...", help="rotation angles")
-    p.add_argument("--runs", type=_words, default=d.runs, metavar="MOUNT,...", help="mountings: z_down, z_up")
+    p.add_argument("--mounts", "--runs", dest="runs", type=_words, default=d.runs, metavar="MOUNT,...",
+                   help="mountings of the IMU on the table: z_down, z_up (--runs: the older name)")
     p.add_argument("--dwell", type=float, default=d.dwell_s, help="seconds acquired per position")
     p.add_argument("--rate", type=float, default=d.sample_rate_hz, help="ADC sample rate, Hz")
     p.add_argument("--start-time", default="2005-06-14T18:00:00+02:00", type=_iso_time,

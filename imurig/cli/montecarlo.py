@@ -31,7 +31,8 @@ def add_montecarlo_parser(sub) -> None:
                     "lab time (seed Table 4.7).")
     p.add_argument("campaign", help="campaign to study: tilt-table, turn-table or flight (or any campaign "
                                     "registered with imurig.montecarlo.register)")
-    p.add_argument("--runs", type=int, default=200, help="number of runs N (per schedule with --compare-schedules)")
+    p.add_argument("--n-runs", "--runs", dest="runs", type=int, default=200,
+                   help="number of Monte-Carlo runs N (per schedule with --compare-schedules; --runs: the older name)")
     p.add_argument("--seed", type=int, default=2005, help="master seed: run i uses the stream 'montecarlo/run' of (seed, i)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="address of an existing dask scheduler (e.g. tcp://10.0.0.5:8786); default: a local cluster")
