@@ -5,13 +5,18 @@
     imurig campaign thermal               thermal chamber: bias/scale vs temperature, hysteresis
     imurig campaign magnetometer          IGRF field, two-step ellipse/ellipsoid, compass swing, heading
     imurig simona                         the SIMONA table (appendix B) beside its virtual twin
-    imurig calibrate REC --rig tilt-table calibrate your own recording (CSV or HDF5)
+    imurig montecarlo tilt-table|...      Monte-Carlo accuracy study (Cramer-Rao bounds, coverage)
+    imurig flight                         Citation flight with GPS/INS filter, uncalibrated vs calibrated
+    imurig calibrate REC                  calibrate your own recording (CSV, MATLAB or HDF5)
     imurig apply CAL.json REC --out OUT   apply a calibration to a new recording
     imurig diagnose REC                   where recording and twin differ; names the physics left out
     imurig concealed list|write|all       the concealed-effect suite as recordings, to diagnose
+    imurig export CAMPAIGN --out DIR      a campaign's recording for your own estimator (truth apart)
+    imurig score --truth T --estimates E  your estimator's results against the truth
+    imurig scoreboard                     your calibrator beside imurig's on every campaign
+    imurig reproduce [ITEM|all]           the seed's published items beside imurig's, with verdicts
     imurig convert IN OUT                 HDF5 <-> lab CSV
     imurig info REC                       what a recording holds
-    imurig reproduce [ITEM|all]           the seed's published items beside imurig's, with verdicts
 """
 from __future__ import annotations
 
