@@ -56,3 +56,32 @@ def test_apply_checks_the_calibration_file(content, says, tmp_path, capsys):
     assert main(["apply", str(cal), str(rec), "--out", str(tmp_path / "out.h5")]) == 2
     err = capsys.readouterr().err
     assert says in err and "Traceback" not in err and not (tmp_path / "out.h5").exists()
+
+
+def test_every_option_has_help_and_no_empty_default():
+    """Help text on every option of every command, no '(default: None)', and every command listed in
+    the top-level help."""
+    import argparse
+
+    from imurig.cli.main import build_parser
+
+    bad = set()
+
+    def walk(p, path):
+        for act in p._actions:
+            if isinstance(act, argparse._SubParsersAction):
+                for name, sp in act.choices.items():
+                    walk(sp, path + [name])
+            elif not isinstance(act, argparse._HelpAction) and not (act.help or "").strip():
+                bad.add((" ".join(path), "/".join(act.option_strings) or act.dest))
+        if "(default: None)" in p.format_help():
+            bad.add((" ".join(path), "(default: None)"))
+
+    for camp in ("tilt-table", "turn-table", "thermal", "magnetometer"):
+        walk(build_parser(["campaign", camp]), ["imurig"])
+    top = build_parser([])
+    walk(top, ["imurig"])
+    assert not bad, sorted(bad)
+    sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
+    text = top.format_help().split("positional arguments")[0]
+    assert [c for c in sub.choices if f"imurig {c}" not in text] == []

@@ -56,7 +56,7 @@ def _add_simona(sub):
     sim = sub.add_parser("simona", help="the SIMONA gyro table (appendix B): real data beside the virtual twin",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     sim.add_argument("--csv", default=None, help="a table in the appendix-B format (default: the shipped one)")
-    sim.add_argument("--gyro", default="p", choices=["p", "q", "r"])
+    sim.add_argument("--gyro", default="p", choices=["p", "q", "r"], help="the SIMONA gyro to show")
     sim.add_argument("--seed", type=int, default=2005)
     sim.add_argument("--out", default="imurig-out/simona")
     sim.add_argument("--overwrite", action="store_true")
@@ -104,11 +104,13 @@ def _turn_table_args(p):
     p.add_argument("--seed", type=int, default=2005, help="master random seed")
     p.add_argument("--rates", type=_floats, default=d.dial_rates_dps, metavar="DPS,...",
                    help="dial rates (the table turns at 5/6 of them on 50 Hz mains)")
-    p.add_argument("--directions", type=_floats, default=d.directions, metavar="1,-1")
+    p.add_argument("--directions", type=_floats, default=d.directions, metavar="1,-1",
+                   help="turning directions: 1 (counter-clockwise seen from above), -1, or both")
     p.add_argument("--mounts", type=_words, default=d.mounts, metavar="AXIS_up,...",
                    help="which IMU axis points up the table axis: p_up, q_up, r_up, p_down, ...")
     p.add_argument("--min-window", type=float, default=d.min_window_s, help="least seconds of whole rounds per step")
-    p.add_argument("--timer", default="hp6700", choices=["hp6700", "gps_mark", "adc"])
+    p.add_argument("--timer", default="hp6700", choices=["hp6700", "gps_mark", "adc"],
+                   help="what times the whole rounds: the HP 6700 counter, the GPS mark input or the ADC")
     p.add_argument("--model", default="physical",
                    choices=["physical", "linear", "seed_final", "paper_eq3", "stepwise", "backward"],
                    help="gyro calibration model (paper_eq3: the EUCASS paper's eq. 3, own axis to the cube)")
@@ -131,7 +133,7 @@ def _thermal_args(p):
     p.add_argument("--low", type=float, default=d.low_C, help="lowest set-point, C")
     p.add_argument("--high", type=float, default=d.high_C, help="highest set-point, C")
     p.add_argument("--step", type=float, default=d.step_C, help="set-point step, C")
-    p.add_argument("--cycles", type=int, default=d.cycles)
+    p.add_argument("--cycles", type=int, default=d.cycles, help="temperature cycles of the chamber profile")
     p.add_argument("--soak", type=float, default=d.soak_s, help="soak time per set-point, s")
     p.add_argument("--no-rrd", action="store_true")
     p.add_argument("--no-recording", action="store_true")
@@ -144,7 +146,7 @@ def _magnetometer_args(p):
     p.add_argument("--seed", type=int, default=2005)
     p.add_argument("--start-time", default="2005-06-21T10:00:00+02:00", type=_iso_time, help="date and time (for IGRF)")
     p.add_argument("--hard-iron-nT", type=float, default=6000.0, help="largest hard-iron bias per axis")
-    p.add_argument("--noise-nT", type=float, default=5.0)
+    p.add_argument("--noise-nT", type=float, default=5.0, help="fluxgate noise, nT rms per sample")
     p.add_argument("--no-rrd", action="store_true")
     p.add_argument("--no-recording", action="store_true")
     p.set_defaults(func=_run_magnetometer)

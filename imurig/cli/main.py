@@ -33,6 +33,37 @@ from imurig.cli.scoring import add_scoring_parsers
 from imurig.kernel.errors import ImurigError
 
 
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Defaults shown where they say something: not None or False, not twice."""
+
+    def _get_help_string(self, action):
+        h = action.help or ""
+        if action.default in (None, False, argparse.SUPPRESS) or "default" in h.lower():
+            return h
+        return super()._get_help_string(action)
+
+
+#: help of the options every command shares, where a command gives none
+COMMON_HELP = {
+    "--out": "output folder or file; an existing one is refused unless --overwrite",
+    "--overwrite": "replace an existing output (without it nothing is ever overwritten)",
+    "--seed": "random seed: the same seed gives identical data",
+    "--no-rrd": "skip the rerun (.rrd) file",
+    "--no-recording": "skip saving recording.h5",
+}
+
+
+def _finish(p: argparse.ArgumentParser) -> None:
+    """Every parser under ``p``: the shared formatter and the shared options' help."""
+    p.formatter_class = HelpFormatter
+    for act in p._actions:
+        if isinstance(act, argparse._SubParsersAction):
+            for sp in act.choices.values():
+                _finish(sp)
+        elif not act.help:
+            act.help = next((COMMON_HELP[o] for o in act.option_strings if o in COMMON_HELP), act.help)
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The ``imurig`` parser for the arguments ``argv`` (default: the command line); a
     campaign's own arguments are added only when ``argv`` asks for that campaign."""
@@ -47,6 +78,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     add_recording_parsers(sub)
     add_scoring_parsers(sub)
     add_reproduce_parser(sub)
+    _finish(p)
     return p
 
 

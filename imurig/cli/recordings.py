@@ -67,13 +67,13 @@ def add_recording_parsers(sub) -> None:
     dg.set_defaults(func=_run_diagnose)
 
     conv = sub.add_parser("convert", help="convert between HDF5 and the lab CSV format")
-    conv.add_argument("input")
-    conv.add_argument("output")
+    conv.add_argument("input", help="a recording (.h5, .csv or .mat)")
+    conv.add_argument("output", help="the converted file: .csv (lab format) or .h5")
     conv.add_argument("--overwrite", action="store_true")
     conv.set_defaults(func=_run_convert)
 
     info = sub.add_parser("info", help="summarise a recording")
-    info.add_argument("recording")
+    info.add_argument("recording", help="a recording (.h5, .csv or .mat)")
     _lab_options(info)
     info.set_defaults(func=_run_info)
 

@@ -21,7 +21,7 @@ def add_scoring_parsers(sub) -> None:
                         description="Export a named campaign for an estimator in any language: DIR holds the lab CSV, "
                                     "a MATLAB .mat, segments.csv and the parameters template; the truth goes to a "
                                     "separate file for 'imurig score'.")
-    ex.add_argument("campaign", choices=names)
+    ex.add_argument("campaign", choices=names, help="the campaign whose recording (and truth, kept apart) to write")
     ex.add_argument("--seed", type=int, default=None, help="seed (default: the campaign's fixed seed)")
     ex.add_argument("--out", required=True, help="export folder (give this to your code)")
     ex.add_argument("--truth-out", default=None, help="truth file (default: OUT.truth.json beside the folder)")
