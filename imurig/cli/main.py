@@ -33,8 +33,8 @@ from imurig.cli.scoring import add_scoring_parsers
 from imurig.kernel.errors import ImurigError
 
 
-class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Defaults shown where they say something: not None or False, not twice."""
+class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Descriptions as written; defaults shown where they say something: not None or False, not twice."""
 
     def _get_help_string(self, action):
         h = action.help or ""
