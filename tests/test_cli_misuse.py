@@ -85,3 +85,9 @@ def test_every_option_has_help_and_no_empty_default():
     sub = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
     text = top.format_help().split("positional arguments")[0]
     assert [c for c in sub.choices if f"imurig {c}" not in text] == []
+
+
+def test_a_flight_too_short_to_score_is_refused(tmp_path, capsys):
+    assert main(["flight", "--duration", "60", "--seed", "7", "--out", str(tmp_path / "f")]) == 2
+    err = capsys.readouterr().err
+    assert "settling" in err and "at least 65 s" in err and not (tmp_path / "f").exists()

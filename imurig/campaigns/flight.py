@@ -36,6 +36,7 @@ from imurig.campaigns.flight_calibration import (
     thermal_calibration,
     thermal_terms,
 )
+from imurig.campaigns.flight_filter import SETTLE_S
 from imurig.campaigns.flight_filter import (
     ALIGN_WINDOW_S,
     align,
@@ -101,8 +102,10 @@ class FlightOptions:
             raise ConfigError(f"GPS rate {self.gps_rate_hz:g} Hz above the IMU rate {self.imu_rate_hz:g} Hz")
         if not (0 < self.nav_rate_hz <= self.imu_rate_hz):
             raise ConfigError("nav rate must be positive and at most the IMU rate")
-        if self.duration_s is not None and self.duration_s <= 10:
-            raise ConfigError("duration must be longer than 10 s")
+        if self.duration_s is not None and self.duration_s < SETTLE_S + 5.0:
+            raise ConfigError(f"--duration {self.duration_s:g} s leaves no errors to score: the filter's first "
+                              f"{SETTLE_S:g} s (its settling after alignment) are left out of the statistics; "
+                              f"give at least {SETTLE_S + 5:g} s")
         return self
 
 

@@ -101,7 +101,11 @@ def _rms(x):
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-def summarise(err: dict, res: ekf.FilterResult, settle_s: float = 60.0) -> dict:
+#: the filter's settling after alignment, left out of the error statistics (s)
+SETTLE_S = 60.0
+
+
+def summarise(err: dict, res: ekf.FilterResult, settle_s: float = SETTLE_S) -> dict:
     m = res.time_s >= res.time_s[0] + settle_s
     out = {"roll_rms_deg": _rms(err["roll_rad"][m]) / DEG, "pitch_rms_deg": _rms(err["pitch_rad"][m]) / DEG,
            "heading_rms_deg": _rms(err["heading_rad"][m]) / DEG,
