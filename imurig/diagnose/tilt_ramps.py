@@ -1,0 +1,276 @@
+"""A set-point delay of the tilt table, from a recording whose logger writes the ramps (no protocol).
+
+Another lab's logger writes the set-points (theta, phi) it sends to the table, ramped between
+positions, but nothing of the table itself (slew law, servo, survey, where the IMU sits). The
+trajectory is then the logged set-points themselves; a table (or logger) that follows them late
+by tau gives, at every sample n (time tag t_n, calibrated specific force f_meas in the case frame C),
+
+    f_meas(t_n) = f_ref(sp(t_n - tau)) + o(t_n) + alpha x r + w x (w x r) + e_n,
+
+- f_ref(theta, phi) the specific force at rest (:func:`imurig.rigs.tilt_kinematics.specific_force_C`,
+  the mounting of the run, the site's gravity), sp(t - tau) the logged set-points linearly
+  interpolated at the shifted time (exact for any tau, any sample rate, using the time tags);
+- o(t) the static calibration's residual per position (the table's setting error, a drift the
+  static twin lacks), known from the plateau before and the plateau after each move and
+  interpolated across it in proportion to the move's progress;
+- w, alpha (rad/s, rad/s^2) the table's angular rate and acceleration in C from the same shifted
+  set-points, r (m, 3 nuisance parameters) the triad's unknown lever arm from the axes'
+  intersection (tangential and centripetal accelerations of the moves);
+- e the noise: per axis white plus AR(1) on the 0.1-s block means of each move window.
+
+tau is profiled exactly (the shifted interpolation, not a first-order expansion; to first order
+r(t) = -tau df_ref/dt). The statistic is the likelihood ratio of tau = 0 against the profiled tau
+in the whitened space, F = (SS_0 - SS_1) / (SS_1 / (m - p - 1)) ~ F(1, m - p - 1) under no delay;
+SE(tau) = sigma / |P d(model)/d tau| (P: the projection off the lever-arm columns).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.optimize
+import scipy.stats
+
+from imurig.calibration.accelerometer import ACC
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import Site
+from imurig.rigs.tilt_kinematics import MOUNTS, rot_y, rot_z
+
+#: seconds of plateau kept either side of a move (the largest delay looked for)
+MARGIN_S = 0.3
+#: the block over which samples are averaged (s): the regressors are smooth on this scale
+BLOCK_S = 0.1
+#: the physics of the finding
+PHYSICS = ("the table follows the logged set-points tau late (servo lag, a logger that tags the set-point "
+           "before the table moves): every channel reads f_ref(sp(t - tau)), to first order -tau df_ref/dt in "
+           "the ramps")
+
+
+def ramped(sp: np.ndarray) -> bool:
+    """Whether logged set-points (n, 2) ramp: some change lasts three or more consecutive samples
+    (a stepped log changes once per move, and the table's own trajectory is then unknown)."""
+    moving = np.any(np.diff(sp, axis=0) != 0, axis=1).astype(np.int8)
+    return bool(np.any(np.convolve(moving, np.ones(3, np.int8), mode="valid") == 3))
+
+
+def _moves(sp: np.ndarray) -> np.ndarray:
+    """(k, 2) first and last sample index of each move (set-points changing, gaps < 3 samples merged)."""
+    ch = np.flatnonzero(np.any(np.diff(sp, axis=0) != 0, axis=1))
+    if ch.size == 0:
+        return np.zeros((0, 2), int)
+    brk = np.flatnonzero(np.diff(ch) > 3)
+    starts = np.concatenate(([ch[0]], ch[brk + 1]))
+    stops = np.concatenate((ch[brk], [ch[-1]])) + 1
+    return np.column_stack([starts, stops])
+
+
+def _attitude(theta, phi, mount: np.ndarray) -> np.ndarray:
+    """A (n, 3, 3): lab vectors in C, A = R_MC^T Rz(phi)^T Ry(theta)^T (f_C = A (0, 0, g))."""
+    A = np.swapaxes(rot_z(phi), -1, -2) @ np.swapaxes(rot_y(theta), -1, -2)
+    for m in np.unique(mount):
+        sel = mount == m
+        A[sel] = MOUNTS[str(m)].T @ A[sel]
+    return A
+
+
+def _kinematics(t, sp, mount, h: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """(w_C, alpha_C) (n, 3): the angular rate of C, [w]x = A dA^T/dt, and its derivative."""
+    dsp = np.gradient(sp, t, axis=0)
+    A = _attitude(sp[:, 0], sp[:, 1], mount)
+    dA = sum((_attitude(sp[:, 0] + h * (j == 0), sp[:, 1] + h * (j == 1), mount)
+              - _attitude(sp[:, 0] - h * (j == 0), sp[:, 1] - h * (j == 1), mount)) / (2 * h) * dsp[:, j, None, None]
+             for j in range(2))
+    W = A @ np.swapaxes(dA, -1, -2)
+    w = np.column_stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]])
+    return w, np.gradient(w, t, axis=0)
+
+
+class _Windows:
+    """The move windows of a recording: samples, blocks, offsets o(t) and the block-mean operator."""
+
+    def __init__(self, rec: Recording, f_meas: np.ndarray, mount: np.ndarray, g: float):
+        t, sp = rec.time_s, np.column_stack([rec.channels["theta"], rec.channels["phi"]])
+        self.t_all, self.sp_all, self.g = t, sp, g
+        mv = _moves(sp)
+        n, fs = t.size, rec.sample_rate_hz
+        M, L = int(np.ceil(MARGIN_S * fs)), max(1, int(round(BLOCK_S * fs)))
+        r_static = f_meas - self.f_ref(sp, mount)
+        # plateau offsets: the mean static residual between moves, away from them by the margin
+        edges = np.concatenate(([0], mv.ravel(), [n]))
+        off = []
+        for a, b in zip(edges[0::2], edges[1::2]):
+            lo, hi = a + (M if a > 0 else 0), b - (M if b < n else 0)
+            off.append(r_static[lo:hi].mean(axis=0) if hi - lo >= L else None)
+        sel, o, idx, win_first, nb = [], [], [], [], 0
+        for k, (s0, s1) in enumerate(mv):
+            oa, ob = off[k], off[k + 1]
+            if oa is None and ob is None:
+                continue
+            oa, ob = (ob if oa is None else oa), (oa if ob is None else ob)
+            lo, hi = max(0, s0 - M), min(n, s1 + M + 1)
+            lo = max(lo, (mv[k - 1, 1] + s0) // 2 if k > 0 else 0)
+            hi = min(hi, (s1 + mv[k + 1, 0]) // 2 if k + 1 < len(mv) else n)
+            m = (hi - lo) // L
+            if m < 3:
+                continue
+            ii = np.arange(lo, lo + m * L)
+            p = np.clip((t[ii] - t[s0]) / max(t[s1] - t[s0], 1e-12), 0.0, 1.0)[:, None]
+            sel.append(ii)
+            o.append(oa + (ob - oa) * p)
+            idx.append(nb + np.arange(m * L) // L)
+            win_first.append(nb)
+            nb += m
+        self.n_moves = int(len(mv))
+        self.ii = np.concatenate(sel) if sel else np.zeros(0, int)
+        self.offset = np.concatenate(o) if o else np.zeros((0, 3))
+        self.idx = np.concatenate(idx) if idx else np.zeros(0, int)
+        self.nb, self.L = nb, L
+        self.first = np.zeros(nb, bool)
+        self.first[win_first] = True
+        self.mount = mount[self.ii]
+        self.y_meas = f_meas[self.ii] - self.offset
+
+    def f_ref(self, sp: np.ndarray, mount: np.ndarray) -> np.ndarray:
+        """f_ref (n, 3) m/s^2 of set-points sp (n, 2) rad on mountings ``mount`` (n,)."""
+        return np.einsum("nij,j->ni", _attitude(sp[:, 0], sp[:, 1], mount), np.array([0.0, 0.0, self.g]))
+
+    def block(self, x: np.ndarray) -> np.ndarray:
+        """Block means (nb, k) of per-window-sample values x (m, k)."""
+        return np.stack([np.bincount(self.idx, x[:, k], minlength=self.nb) for k in range(x.shape[1])], 1) / self.L
+
+    def model(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
+        """(y (3 nb,), X (3 nb, 3)): block residual f_meas - o - f_ref(sp(t - tau)) stacked per axis,
+        and the lever-arm columns alpha x e_k + w x (w x e_k) on the same blocks."""
+        t = self.t_all[self.ii]
+        sp = np.column_stack([np.interp(t - tau, self.t_all, self.sp_all[:, j]) for j in range(2)])
+        y = self.block(self.y_meas - self.f_ref(sp, self.mount))
+        w, al = _kinematics(t, sp, self.mount)
+        X = [self.block(np.cross(al, e) + np.cross(w, np.cross(w, e))) for e in np.eye(3)]
+        return y.T.reshape(-1), np.column_stack([c.T.reshape(-1) for c in X])
+
+
+def _whitener(rho: np.ndarray, sig: np.ndarray, first: np.ndarray, nb: int):
+    """x (3 nb, k) -> per axis AR(1) innovations / sigma, restarted at every window's first block."""
+    def whiten(x):
+        x = np.asarray(x, float).reshape(3 * nb, -1)
+        out = np.empty_like(x)
+        for a in range(3):
+            xa = x[a * nb:(a + 1) * nb]
+            prev = np.vstack([np.zeros((1, xa.shape[1])), xa[:-1]])
+            prev[first] = 0.0
+            wa = xa - rho[a] * prev
+            wa[first] *= np.sqrt(1 - rho[a] ** 2)
+            out[a * nb:(a + 1) * nb] = wa / sig[a]
+        return out
+    return whiten
+
+
+def _ssr(win: _Windows, tau: float, whiten) -> tuple[float, np.ndarray, np.ndarray]:
+    """(SS, residual (3 nb,) unwhitened, lever-arm coefficients) at ``tau``."""
+    y, X = win.model(tau)
+    yw, Xw = whiten(y)[:, 0], whiten(X)
+    c = np.linalg.lstsq(Xw, yw, rcond=None)[0]
+    rw = yw - Xw @ c
+    return float(rw @ rw), y - X @ c, c
+
+
+def _profile(win: _Windows, whiten, lo: float, hi: float, step: float) -> float:
+    """tau in [lo, hi] minimising SS: a grid of ``step``, then a bounded scalar search around its best point."""
+    grid = np.arange(lo, hi + 1e-9, step)
+    ss = [_ssr(win, float(tau), whiten)[0] for tau in grid]
+    k = int(np.argmin(ss))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+    res = scipy.optimize.minimize_scalar(lambda tau: _ssr(win, tau, whiten)[0], bounds=(a, b), method="bounded",
+                                         options={"xatol": 1e-6})
+    return float(res.x)
+
+
+def _noise_model(win: _Windows, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis (rho, sigma) of the block residual r (3 nb,): AR(1) within windows."""
+    nb, rho, sig = win.nb, np.zeros(3), np.zeros(3)
+    pair = ~win.first
+    pair[0] = False
+    for a in range(3):
+        ra = r[a * nb:(a + 1) * nb]
+        rho[a] = float(np.clip(np.sum(ra[1:] * ra[:-1] * pair[1:]) / max(np.sum(ra[:-1] ** 2 * pair[1:]), 1e-300),
+                               -0.95, 0.95))
+        e = ra - rho[a] * np.concatenate(([0.0], ra[:-1])) * pair
+        sig[a] = float(np.sqrt(np.mean(e[pair] ** 2)))
+    return rho, np.maximum(sig, 1e-12)
+
+
+def _not_tested(why: str) -> dict:
+    return {"tested": False, "why": why}
+
+
+def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_s: float = MARGIN_S) -> dict:
+    """Test and estimate a set-point delay tau (s) of a tilt-table recording with ramped set-points
+    (model and statistic: module doc); ``cal`` the static calibration (volts / nominal sensitivity
+    -> f_C). Returns the findings (effect 'time_delay', channel 'acc', tau_s +- SE) and the test."""
+    if not {"theta", "phi"} <= set(rec.channels):
+        return _not_tested("the slews need per-sample theta/phi set-point channels")
+    sp = np.column_stack([rec.channels["theta"], rec.channels["phi"]])
+    if not ramped(sp):
+        return _not_tested("the set-points step between positions: without the table's protocol (slew law, "
+                           "servo) the trajectory through a move is unknown, so the slews are not compared")
+    s = np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"], float)
+    f_meas = cal.predict(rec.stack(list(ACC)) / s)
+    g = Site.from_dict(rec.meta.get("site", {})).gravity_m_s2
+    win = _Windows(rec, f_meas, _mounts(rec), g)
+    if win.nb < 30:
+        return _not_tested(f"{win.nb} blocks of {BLOCK_S:g} s in the moves: too few to test a delay")
+    nb = win.nb
+    unit = _whitener(np.zeros(3), np.ones(3), win.first, nb)
+    # first pass unweighted on a 50-ms grid, then the noise model, then the weighted fit around it
+    tau = _profile(win, unit, -max_delay_s, max_delay_s, 0.05)
+    rho, sig = _noise_model(win, _ssr(win, tau, unit)[1])
+    whiten = _whitener(rho, sig, win.first, nb)
+    tau = _profile(win, whiten, tau - 0.005, tau + 0.005, 0.005)
+    ss1, r1, c1 = _ssr(win, tau, whiten)
+    ss0, r0, _ = _ssr(win, 0.0, whiten)
+    m, p = 3 * nb, 3
+    dof = m - p - 1
+    s2 = ss1 / dof
+    F = max(ss0 - ss1, 0.0) / s2
+    pval = float(scipy.stats.f.sf(F, 1, dof))
+    # SE from the derivative of the model in tau, projected off the lever-arm columns
+    h = 1e-4
+    yp, X = win.model(tau + h)
+    ym, _ = win.model(tau - h)
+    J, Xw = whiten((yp - ym) / (2 * h))[:, 0], whiten(X)
+    Q, _ = np.linalg.qr(Xw)
+    J = J - Q @ (Q.T @ J)
+    se = float(np.sqrt(s2 / max(J @ J, 1e-300)))
+    fired = pval < alpha
+    rms0, rms1 = (float(np.sqrt(np.mean(v ** 2))) for v in (r0, r1))
+    test = {"statistic": "F = (SS_0 - SS_1) / (SS_1 / (m - p - 1)), profiled tau, whitened", "F": float(F),
+            "dof": [1, int(dof)], "p_value": pval, "alpha": alpha, "threshold": float(scipy.stats.f.isf(alpha, 1, dof)),
+            "tau_s": tau, "tau_se_s": se}
+    finding = {"effect": "time_delay", "channel": "acc", "physics": PHYSICS, "statistic": float(F),
+               "threshold": test["threshold"], "p_value": pval,
+               "parameters": [{"name": "tau_s", "estimate": tau, "std_error": se}],
+               "rms_before": rms0, "rms_after": rms1, "indistinguishable_from": None}
+    tb = win.block(win.t_all[win.ii][:, None])[:, 0]
+    return {"tested": True, "twin": "the logged set-points as the table's trajectory (ramps), shifted by tau; the "
+                                    "static calibration's residual per position interpolated across each move; "
+                                    "lever arm as nuisance",
+            "findings": [finding] if fired else [], "test": test, "moves": win.n_moves, "blocks": nb,
+            "averaging_s": BLOCK_S,
+            "noise_model": {"ar1": rho.tolist(), "innovation_sigma_m_s2": sig.tolist()},
+            "lever_arm_m": {"estimate": c1.tolist(), "note": "nuisance (tangential and centripetal accelerations)"},
+            "residuals": {"unit": "m/s^2", "time_s": tb.tolist(), "before": r0.reshape(3, nb).T.tolist(),
+                          "after": r1.reshape(3, nb).T.tolist() if fired else r0.reshape(3, nb).T.tolist(),
+                          "convention": "block means of f_meas - o - f_ref(sp(t - tau)) - lever arm: before tau = 0, "
+                                        "after the fitted tau (when accepted)"}}
+
+
+def _mounts(rec: Recording) -> np.ndarray:
+    """The mounting of every sample (n,): the run of the latest segment started (the first before any)."""
+    runs = list(rec.meta.get("runs", ["z_up"]))
+    seg = rec.segments
+    if "mount" in seg:
+        lab = np.asarray(seg["mount"]).astype(str)
+    else:
+        lab = np.array([runs[int(i)] for i in seg.get("run", np.zeros(rec.n_segments, int))])
+    if lab.size == 0:
+        return np.full(rec.n, runs[0])
+    k = np.clip(np.searchsorted(np.asarray(seg["start_s"], float), rec.time_s, side="right") - 1, 0, lab.size - 1)
+    return lab[k]
