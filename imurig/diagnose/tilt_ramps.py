@@ -32,7 +32,7 @@ import scipy.stats
 from imurig.calibration.accelerometer import ACC
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
-from imurig.rigs.tilt_kinematics import MOUNTS, rot_y, rot_z
+from imurig.rigs.tilt_kinematics import MOUNTS, rot_x, rot_y, rot_z
 
 #: seconds of plateau kept either side of a move (the largest delay looked for)
 MARGIN_S = 0.3
@@ -51,33 +51,42 @@ def ramped(sp: np.ndarray) -> bool:
     return bool(np.any(np.convolve(moving, np.ones(3, np.int8), mode="valid") == 3))
 
 
-def _moves(sp: np.ndarray) -> np.ndarray:
-    """(k, 2) first and last sample index of each move (set-points changing, gaps < 3 samples merged)."""
-    ch = np.flatnonzero(np.any(np.diff(sp, axis=0) != 0, axis=1))
-    if ch.size == 0:
-        return np.zeros((0, 2), int)
-    brk = np.flatnonzero(np.diff(ch) > 3)
-    starts = np.concatenate(([ch[0]], ch[brk + 1]))
-    stops = np.concatenate((ch[brk], [ch[-1]])) + 1
-    return np.column_stack([starts, stops])
+def _moves(sp: np.ndarray, blocks) -> np.ndarray:
+    """(k, 2) first and last sample index of each ramped move inside a contiguous block (set-points
+    changing on >= 3 samples; gaps < 3 samples merged); a step between runs is no move."""
+    out = []
+    for b in blocks:
+        ch = b.start + np.flatnonzero(np.any(np.diff(sp[b], axis=0) != 0, axis=1))
+        if ch.size == 0:
+            continue
+        brk = np.flatnonzero(np.diff(ch) > 3)
+        starts = np.concatenate(([ch[0]], ch[brk + 1]))
+        stops = np.concatenate((ch[brk], [ch[-1]])) + 1
+        out += [(a, c) for a, c in zip(starts, stops) if c - a >= 3]
+    return np.array(out, int).reshape(-1, 2)
 
 
-def _attitude(theta, phi, mount: np.ndarray) -> np.ndarray:
-    """A (n, 3, 3): lab vectors in C, A = R_MC^T Rz(phi)^T Ry(theta)^T (f_C = A (0, 0, g))."""
-    A = np.swapaxes(rot_z(phi), -1, -2) @ np.swapaxes(rot_y(theta), -1, -2)
+def _attitude(theta, phi, mount: np.ndarray, survey: dict | None = None) -> np.ndarray:
+    """A (n, 3, 3): lab vectors in C, A = R_MC^T Rz(phi + phi0)^T Ry(theta + theta0)^T Rx(level_x)^T
+    (f_C = A (0, 0, g)); the table errors of the ``survey`` where the file gives one, else zero."""
+    sv = survey or {}
+    phi0 = sv.get("phi_zero_rad") or {}
+    A = np.empty((np.size(theta), 3, 3))
     for m in np.unique(mount):
         sel = mount == m
-        A[sel] = MOUNTS[str(m)].T @ A[sel]
+        A[sel] = (MOUNTS[str(m)].T @ np.swapaxes(rot_z(phi[sel] + phi0.get(str(m), 0.0)), -1, -2)
+                  @ np.swapaxes(rot_y(theta[sel] + sv.get("theta_zero_rad", 0.0)), -1, -2)
+                  @ rot_x(np.float64(sv.get("level_x_rad", 0.0))).T)
     return A
 
 
-def _kinematics(t, sp, mount, h: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+def _kinematics(t, sp, mount, survey: dict | None, h: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     """(w_C, alpha_C) (n, 3): the angular rate of C, [w]x = A dA^T/dt, and its derivative."""
     dsp = np.gradient(sp, t, axis=0)
-    A = _attitude(sp[:, 0], sp[:, 1], mount)
-    dA = sum((_attitude(sp[:, 0] + h * (j == 0), sp[:, 1] + h * (j == 1), mount)
-              - _attitude(sp[:, 0] - h * (j == 0), sp[:, 1] - h * (j == 1), mount)) / (2 * h) * dsp[:, j, None, None]
-             for j in range(2))
+    A = _attitude(sp[:, 0], sp[:, 1], mount, survey)
+    dA = sum((_attitude(sp[:, 0] + h * (j == 0), sp[:, 1] + h * (j == 1), mount, survey)
+              - _attitude(sp[:, 0] - h * (j == 0), sp[:, 1] - h * (j == 1), mount, survey)) / (2 * h)
+             * dsp[:, j, None, None] for j in range(2))
     W = A @ np.swapaxes(dA, -1, -2)
     w = np.column_stack([W[:, 2, 1], W[:, 0, 2], W[:, 1, 0]])
     return w, np.gradient(w, t, axis=0)
@@ -89,25 +98,30 @@ class _Windows:
     def __init__(self, rec: Recording, f_meas: np.ndarray, mount: np.ndarray, g: float):
         t, sp = rec.time_s, np.column_stack([rec.channels["theta"], rec.channels["phi"]])
         self.t_all, self.sp_all, self.g = t, sp, g
-        mv = _moves(sp)
+        self.survey = rec.meta.get("table_survey") or {}
+        blocks = rec.blocks()
+        mv = _moves(sp, blocks)
         n, fs = t.size, rec.sample_rate_hz
         M, L = int(np.ceil(MARGIN_S * fs)), max(1, int(round(BLOCK_S * fs)))
         r_static = f_meas - self.f_ref(sp, mount)
-        # plateau offsets: the mean static residual between moves, away from them by the margin
-        edges = np.concatenate(([0], mv.ravel(), [n]))
-        off = []
-        for a, b in zip(edges[0::2], edges[1::2]):
-            lo, hi = a + (M if a > 0 else 0), b - (M if b < n else 0)
-            off.append(r_static[lo:hi].mean(axis=0) if hi - lo >= L else None)
+        # each move's neighbours within its contiguous block: the plateau before and after it
+        blk = np.array([next(i for i, b in enumerate(blocks) if b.start <= s0 < b.stop) for s0 in mv[:, 0]], int)
+        prev_end = [mv[k - 1, 1] if k > 0 and blk[k - 1] == blk[k] else blocks[blk[k]].start for k in range(len(mv))]
+        next_start = [mv[k + 1, 0] if k + 1 < len(mv) and blk[k + 1] == blk[k] else blocks[blk[k]].stop
+                      for k in range(len(mv))]
+
+        def plateau(lo, hi):
+            """The mean static residual on [lo, hi) (None when shorter than a block)."""
+            return r_static[lo:hi].mean(axis=0) if hi - lo >= L else None
         sel, o, idx, win_first, nb = [], [], [], [], 0
         for k, (s0, s1) in enumerate(mv):
-            oa, ob = off[k], off[k + 1]
+            a0, b1 = prev_end[k], next_start[k]
+            oa = plateau(a0 + (M if k > 0 and a0 == mv[k - 1, 1] else 0), s0 - M)
+            ob = plateau(s1 + M, b1 - (M if b1 < blocks[blk[k]].stop else 0))
             if oa is None and ob is None:
                 continue
             oa, ob = (ob if oa is None else oa), (oa if ob is None else ob)
-            lo, hi = max(0, s0 - M), min(n, s1 + M + 1)
-            lo = max(lo, (mv[k - 1, 1] + s0) // 2 if k > 0 else 0)
-            hi = min(hi, (s1 + mv[k + 1, 0]) // 2 if k + 1 < len(mv) else n)
+            lo, hi = max(s0 - M, (a0 + s0) // 2), min(s1 + M + 1, (s1 + b1) // 2)
             m = (hi - lo) // L
             if m < 3:
                 continue
@@ -127,10 +141,11 @@ class _Windows:
         self.first[win_first] = True
         self.mount = mount[self.ii]
         self.y_meas = f_meas[self.ii] - self.offset
+        self._lever = {}
 
     def f_ref(self, sp: np.ndarray, mount: np.ndarray) -> np.ndarray:
         """f_ref (n, 3) m/s^2 of set-points sp (n, 2) rad on mountings ``mount`` (n,)."""
-        return np.einsum("nij,j->ni", _attitude(sp[:, 0], sp[:, 1], mount), np.array([0.0, 0.0, self.g]))
+        return _attitude(sp[:, 0], sp[:, 1], mount, self.survey)[:, :, 2] * self.g
 
     def block(self, x: np.ndarray) -> np.ndarray:
         """Block means (nb, k) of per-window-sample values x (m, k)."""
@@ -142,9 +157,19 @@ class _Windows:
         t = self.t_all[self.ii]
         sp = np.column_stack([np.interp(t - tau, self.t_all, self.sp_all[:, j]) for j in range(2)])
         y = self.block(self.y_meas - self.f_ref(sp, self.mount))
-        w, al = _kinematics(t, sp, self.mount)
-        X = [self.block(np.cross(al, e) + np.cross(w, np.cross(w, e))) for e in np.eye(3)]
-        return y.T.reshape(-1), np.column_stack([c.T.reshape(-1) for c in X])
+        return y.T.reshape(-1), self.lever_columns(tau)
+
+    def lever_columns(self, tau: float) -> np.ndarray:
+        """(3 nb, 3) alpha x e_k + w x (w x e_k) from the set-points shifted by tau rounded to 10 ms
+        (a nuisance: its change within 5 ms of tau is far below its own uncertainty), cached."""
+        key = round(tau / 0.01)
+        if key not in self._lever:
+            t = self.t_all[self.ii]
+            sp = np.column_stack([np.interp(t - 0.01 * key, self.t_all, self.sp_all[:, j]) for j in range(2)])
+            w, al = _kinematics(t, sp, self.mount, self.survey)
+            X = [self.block(np.cross(al, e) + np.cross(w, np.cross(w, e))) for e in np.eye(3)]
+            self._lever[key] = np.column_stack([c.T.reshape(-1) for c in X])
+        return self._lever[key]
 
 
 def _whitener(rho: np.ndarray, sig: np.ndarray, first: np.ndarray, nb: int):
