@@ -44,7 +44,7 @@ def test_no_delay_gives_no_finding(tmp_path, seed):
     assert d["tested"] and d["findings"] == []
     # the profiled tau is noise: within 3 SE of zero, and the statistic below its threshold
     assert abs(d["test"]["tau_s"]) < 3 * d["test"]["tau_se_s"]
-    assert d["test"]["F"] < d["test"]["threshold"]
+    assert abs(d["test"]["t"]) < d["test"]["threshold"]
 
 
 def test_stepped_set_points_are_not_ramps():

@@ -26,6 +26,7 @@ SE(tau) = sigma / |P d(model)/d tau| (P: the projection off the lever-arm column
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 import scipy.optimize
 import scipy.stats
 
@@ -34,10 +35,14 @@ from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
 from imurig.rigs.tilt_kinematics import MOUNTS, rot_x, rot_y, rot_z
 
-#: seconds of plateau kept either side of a move (the largest delay looked for)
-MARGIN_S = 0.3
+#: seconds of plateau kept either side of a move (they pin the move's offsets)
+MARGIN_S = 0.5
+#: the largest delay looked for (s)
+MAX_DELAY_S = 0.3
 #: the block over which samples are averaged (s): the regressors are smooth on this scale
 BLOCK_S = 0.1
+#: nuisance columns of the moves' model: lever arm (3), static calibration errors (3 x 4)
+N_NUISANCE = 15
 #: the physics of the finding
 PHYSICS = ("the table follows the logged set-points tau late (servo lag, a logger that tags the set-point "
            "before the table moves): every channel reads f_ref(sp(t - tau)), to first order -tau df_ref/dt in "
@@ -113,7 +118,7 @@ class _Windows:
         def plateau(lo, hi):
             """The mean static residual on [lo, hi) (None when shorter than a block)."""
             return r_static[lo:hi].mean(axis=0) if hi - lo >= L else None
-        sel, o, idx, win_first, nb = [], [], [], [], 0
+        sel, o, lin, idx, prog, win_first, nb = [], [], [], [], [], [], 0
         for k, (s0, s1) in enumerate(mv):
             a0, b1 = prev_end[k], next_start[k]
             oa = plateau(a0 + (M if k > 0 and a0 == mv[k - 1, 1] else 0), s0 - M)
@@ -129,7 +134,10 @@ class _Windows:
             p = np.clip((t[ii] - t[s0]) / max(t[s1] - t[s0], 1e-12), 0.0, 1.0)[:, None]
             sel.append(ii)
             o.append(oa + (ob - oa) * p)
+            fa, fb = (self.f_ref(sp[[i]], mount[[i]]) for i in (s0, s1))
+            lin.append(np.hstack([fa + (fb - fa) * p, fa ** 2 + (fb ** 2 - fa ** 2) * p]))
             idx.append(nb + np.arange(m * L) // L)
+            prog.append(p[:, 0])
             win_first.append(nb)
             nb += m
         self.n_moves = int(len(mv))
@@ -141,7 +149,10 @@ class _Windows:
         self.first[win_first] = True
         self.mount = mount[self.ii]
         self.y_meas = f_meas[self.ii] - self.offset
+        self.f_lin = np.concatenate(lin) if lin else np.zeros((0, 6))
         self._lever = {}
+        self.progress = self.block(np.concatenate(prog)[:, None])[:, 0] if prog else np.zeros(0)
+        self.window = np.cumsum(self.first) - 1
 
     def f_ref(self, sp: np.ndarray, mount: np.ndarray) -> np.ndarray:
         """f_ref (n, 3) m/s^2 of set-points sp (n, 2) rad on mountings ``mount`` (n,)."""
@@ -152,12 +163,23 @@ class _Windows:
         return np.stack([np.bincount(self.idx, x[:, k], minlength=self.nb) for k in range(x.shape[1])], 1) / self.L
 
     def model(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
-        """(y (3 nb,), X (3 nb, 3)): block residual f_meas - o - f_ref(sp(t - tau)) stacked per axis,
-        and the lever-arm columns alpha x e_k + w x (w x e_k) on the same blocks."""
+        """(y (3 nb,), X (3 nb, 15)): block residual f_meas - o - f_ref(sp(t - tau)) stacked per axis;
+        the lever-arm columns (:meth:`lever_columns`) and the static calibration's errors through the
+        move: on axis j, f_ref,k - o_k (k = x, y, z) and f_ref,j^2 - o_j^2, with o the straight line
+        between the plateaus' values (an error of gain, axes or square the plateau offsets o(t) do
+        not carry into the move)."""
         t = self.t_all[self.ii]
         sp = np.column_stack([np.interp(t - tau, self.t_all, self.sp_all[:, j]) for j in range(2)])
-        y = self.block(self.y_meas - self.f_ref(sp, self.mount))
-        return y.T.reshape(-1), self.lever_columns(tau)
+        F = self.f_ref(sp, self.mount)
+        y = self.block(self.y_meas - F)
+        chord = self.block(np.hstack([F, F ** 2]) - self.f_lin)
+        cols = []
+        for a in range(3):
+            for k in (0, 1, 2, 3 + a):
+                z = np.zeros((self.nb, 3))
+                z[:, a] = chord[:, k]
+                cols.append(z.T.reshape(-1))
+        return y.T.reshape(-1), np.column_stack([self.lever_columns(tau), *cols])
 
     def lever_columns(self, tau: float) -> np.ndarray:
         """(3 nb, 3) alpha x e_k + w x (w x e_k) from the set-points shifted by tau rounded to 10 ms
@@ -188,13 +210,45 @@ def _whitener(rho: np.ndarray, sig: np.ndarray, first: np.ndarray, nb: int):
     return whiten
 
 
-def _ssr(win: _Windows, tau: float, whiten) -> tuple[float, np.ndarray, np.ndarray]:
-    """(SS, residual (3 nb,) unwhitened, lever-arm coefficients) at ``tau``."""
+def _space(win: _Windows, rho: np.ndarray, sig: np.ndarray):
+    """A (3 nb, k) -> whitened (:func:`_whitener`) and projected off each window's offsets: per window
+    and axis the columns 1 and p (the move's progress), i.e. the level of the plateau before and of the
+    plateau after, estimated with everything else (whitening acts within a window, so the whitened
+    offset columns stay local to their window)."""
+    nb = win.nb
+    whiten = _whitener(rho, sig, win.first, nb)
+    grp = np.concatenate([win.window + a * (int(win.window.max()) + 1) for a in range(3)])
+    n_g = int(grp.max()) + 1
+    N = whiten(np.column_stack([np.ones(3 * nb), np.tile(win.progress, 3)]))
+    g11, g12, g22 = (np.bincount(grp, u * v, minlength=n_g) for u, v in ((N[:, 0], N[:, 0]), (N[:, 0], N[:, 1]),
+                                                                         (N[:, 1], N[:, 1])))
+    det = g11 * g22 - g12 ** 2
+
+    def space(x):
+        A = whiten(x)
+        out = np.empty_like(A)
+        for k in range(A.shape[1]):
+            c1, c2 = np.bincount(grp, N[:, 0] * A[:, k], minlength=n_g), np.bincount(grp, N[:, 1] * A[:, k],
+                                                                                     minlength=n_g)
+            d1, d2 = (g22 * c1 - g12 * c2) / det, (g11 * c2 - g12 * c1) / det
+            out[:, k] = A[:, k] - d1[grp] * N[:, 0] - d2[grp] * N[:, 1]
+        return out
+    return space
+
+
+def _ssr(win: _Windows, tau: float, space) -> tuple[float, np.ndarray, np.ndarray]:
+    """(SS, residual (3 nb,) in ``space``, nuisance coefficients) at ``tau``."""
     y, X = win.model(tau)
-    yw, Xw = whiten(y)[:, 0], whiten(X)
-    c = np.linalg.lstsq(Xw, yw, rcond=None)[0]
+    yw, Xw = space(y)[:, 0], space(X)
+    # least squares by QR on unit columns; a column the moves never excite (a lever arm along the only
+    # rotation axis) is dropped, its coefficient 0
+    norm = np.linalg.norm(Xw, axis=0)
+    keep = norm > 1e-9 * norm.max()
+    Q, R = np.linalg.qr(Xw[:, keep] / norm[keep])
+    c = np.zeros(Xw.shape[1])
+    c[keep] = scipy.linalg.solve_triangular(R, Q.T @ yw) / norm[keep]
     rw = yw - Xw @ c
-    return float(rw @ rw), y - X @ c, c
+    return float(rw @ rw), rw, c
 
 
 def _profile(win: _Windows, whiten, lo: float, hi: float, step: float) -> float:
@@ -206,6 +260,16 @@ def _profile(win: _Windows, whiten, lo: float, hi: float, step: float) -> float:
     res = scipy.optimize.minimize_scalar(lambda tau: _ssr(win, tau, whiten)[0], bounds=(a, b), method="bounded",
                                          options={"xatol": 1e-6})
     return float(res.x)
+
+
+def _sensitivity(win: _Windows, tau: float, space, h: float = 1e-4) -> np.ndarray:
+    """d(model)/d tau (3 nb,) whitened and projected off the nuisance columns (central difference)."""
+    yp, X = win.model(tau + h)
+    ym, _ = win.model(tau - h)
+    J, Xw = space((ym - yp) / (2 * h))[:, 0], space(X)
+    norm = np.linalg.norm(Xw, axis=0)
+    Q, _ = np.linalg.qr(Xw[:, norm > 1e-9 * norm.max()])
+    return J - Q @ (Q.T @ J)
 
 
 def _noise_model(win: _Windows, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -226,7 +290,7 @@ def _not_tested(why: str) -> dict:
     return {"tested": False, "why": why}
 
 
-def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_s: float = MARGIN_S) -> dict:
+def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_s: float = MAX_DELAY_S) -> dict:
     """Test and estimate a set-point delay tau (s) of a tilt-table recording with ramped set-points
     (model and statistic: module doc); ``cal`` the static calibration (volts / nominal sensitivity
     -> f_C). Returns the findings (effect 'time_delay', channel 'acc', tau_s +- SE) and the test."""
@@ -243,33 +307,40 @@ def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_
     if win.nb < 30:
         return _not_tested(f"{win.nb} blocks of {BLOCK_S:g} s in the moves: too few to test a delay")
     nb = win.nb
-    unit = _whitener(np.zeros(3), np.ones(3), win.first, nb)
-    # first pass unweighted on a 50-ms grid, then the noise model, then the weighted fit around it
+    unit = _space(win, np.zeros(3), np.ones(3))
+    # first pass unweighted on a 50-ms grid, then the noise model, then the weighted fit from there
     tau = _profile(win, unit, -max_delay_s, max_delay_s, 0.05)
     rho, sig = _noise_model(win, _ssr(win, tau, unit)[1])
-    whiten = _whitener(rho, sig, win.first, nb)
-    tau = _profile(win, whiten, tau - 0.005, tau + 0.005, 0.005)
-    ss1, r1, c1 = _ssr(win, tau, whiten)
-    ss0, r0, _ = _ssr(win, 0.0, whiten)
-    m, p = 3 * nb, 3
-    dof = m - p - 1
-    s2 = ss1 / dof
-    F = max(ss0 - ss1, 0.0) / s2
-    pval = float(scipy.stats.f.sf(F, 1, dof))
-    # SE from the derivative of the model in tau, projected off the lever-arm columns
-    h = 1e-4
-    yp, X = win.model(tau + h)
-    ym, _ = win.model(tau - h)
-    J, Xw = whiten((yp - ym) / (2 * h))[:, 0], whiten(X)
-    Q, _ = np.linalg.qr(Xw)
-    J = J - Q @ (Q.T @ J)
-    se = float(np.sqrt(s2 / max(J @ J, 1e-300)))
+    space = _space(win, rho, sig)
+    # Gauss-Newton steps to the minimum (the bounded search stops at a microsecond, near the SE)
+    for _ in range(4):
+        J = _sensitivity(win, tau, space)
+        step = float(J @ _ssr(win, tau, space)[1] / max(J @ J, 1e-300))
+        tau += step
+        if abs(step) < 1e-9:
+            break
+    J = _sensitivity(win, tau, space)
+    ss1, rw1, c1 = _ssr(win, tau, space)
+    ss0 = _ssr(win, 0.0, space)[0]
+    r0, r1 = _ssr(win, 0.0, unit)[1], _ssr(win, tau, unit)[1]
+    dof = 3 * nb - N_NUISANCE - 2 * 3 * (int(win.window.max()) + 1) - 1
+    F = max(ss0 - ss1, 0.0) / (ss1 / dof)
+    se_model = float(np.sqrt(ss1 / dof / max(J @ J, 1e-300)))
+    # cluster-robust (by move) SE: what the moves share (the logged set-points' rounding is one time
+    # shift per ramp, a servo's transient one shape per move) is not averaged as if independent
+    move = np.tile(np.cumsum(win.first) - 1, 3)
+    G = int(move.max()) + 1
+    score = np.bincount(move, J * rw1, minlength=G)
+    se = float(np.sqrt(G / (G - 1) * np.sum(score ** 2)) / max(J @ J, 1e-300))
+    t_stat = tau / se
+    pval = float(2 * scipy.stats.t.sf(abs(t_stat), G - 1))
     fired = pval < alpha
     rms0, rms1 = (float(np.sqrt(np.mean(v ** 2))) for v in (r0, r1))
-    test = {"statistic": "F = (SS_0 - SS_1) / (SS_1 / (m - p - 1)), profiled tau, whitened", "F": float(F),
-            "dof": [1, int(dof)], "p_value": pval, "alpha": alpha, "threshold": float(scipy.stats.f.isf(alpha, 1, dof)),
-            "tau_s": tau, "tau_se_s": se}
-    finding = {"effect": "time_delay", "channel": "acc", "physics": PHYSICS, "statistic": float(F),
+    test = {"statistic": "t = tau / SE_cluster (profiled tau, whitened, SE robust by move) against t(G - 1)",
+            "t": float(t_stat), "dof": G - 1, "p_value": pval, "alpha": alpha,
+            "threshold": float(scipy.stats.t.isf(alpha / 2, G - 1)), "tau_s": tau, "tau_se_s": se,
+            "tau_se_model_s": se_model, "F_likelihood_ratio": float(F), "moves": G}
+    finding = {"effect": "time_delay", "channel": "acc", "physics": PHYSICS, "statistic": abs(float(t_stat)),
                "threshold": test["threshold"], "p_value": pval,
                "parameters": [{"name": "tau_s", "estimate": tau, "std_error": se}],
                "rms_before": rms0, "rms_after": rms1, "indistinguishable_from": None}
@@ -280,7 +351,7 @@ def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_
             "findings": [finding] if fired else [], "test": test, "moves": win.n_moves, "blocks": nb,
             "averaging_s": BLOCK_S,
             "noise_model": {"ar1": rho.tolist(), "innovation_sigma_m_s2": sig.tolist()},
-            "lever_arm_m": {"estimate": c1.tolist(), "note": "nuisance (tangential and centripetal accelerations)"},
+            "lever_arm_m": {"estimate": c1[:3].tolist(), "note": "nuisance (tangential and centripetal accelerations)"},
             "residuals": {"unit": "m/s^2", "time_s": tb.tolist(), "before": r0.reshape(3, nb).T.tolist(),
                           "after": r1.reshape(3, nb).T.tolist() if fired else r0.reshape(3, nb).T.tolist(),
                           "convention": "block means of f_meas - o - f_ref(sp(t - tau)) - lever arm: before tau = 0, "
