@@ -5,23 +5,30 @@ positions, but nothing of the table itself (slew law, servo, survey, where the I
 trajectory is then the logged set-points themselves; a table (or logger) that follows them late
 by tau gives, at every sample n (time tag t_n, calibrated specific force f_meas in the case frame C),
 
-    f_meas(t_n) = f_ref(sp(t_n - tau)) + o(t_n) + alpha x r + w x (w x r) + e_n,
+    f_meas(t_n) = f_ref(sp(t_n - tau)) + o(t_n) + c(t_n) + alpha x r + w x (w x r) + e_n,
 
-- f_ref(theta, phi) the specific force at rest (:func:`imurig.rigs.tilt_kinematics.specific_force_C`,
-  the mounting of the run, the site's gravity), sp(t - tau) the logged set-points linearly
+- f_ref(theta, phi) the specific force at rest (the convention of
+  :func:`imurig.rigs.tilt_kinematics.specific_force_C`: the mounting of the run, the site's gravity,
+  the surveyed table errors where the file gives them), sp(t - tau) the logged set-points linearly
   interpolated at the shifted time (exact for any tau, any sample rate, using the time tags);
-- o(t) the static calibration's residual per position (the table's setting error, a drift the
-  static twin lacks), known from the plateau before and the plateau after each move and
-  interpolated across it in proportion to the move's progress;
+- o_j(t) = a_j,w + (b_j,w - a_j,w) p(t) per move window w and axis j: the levels of the plateau
+  before and after (the table's setting error, a slow drift the static twin lacks), p the move's
+  progress (0 before, 1 after, linear in time through it); 2 nuisance parameters per window and
+  axis, estimated jointly (the plateaus' own means are noisy enough to bias a microsecond SE);
+- c(t): on axis j, the static calibration's own errors carried through the move: columns f_ref,k - lerp
+  (k = x, y, z) and f_ref,j^2 - lerp (gain, axes, square; 12 nuisance parameters);
 - w, alpha (rad/s, rad/s^2) the table's angular rate and acceleration in C from the same shifted
   set-points, r (m, 3 nuisance parameters) the triad's unknown lever arm from the axes'
   intersection (tangential and centripetal accelerations of the moves);
-- e the noise: per axis white plus AR(1) on the 0.1-s block means of each move window.
+- e the noise: per axis AR(1) on the 0.1-s block means within each move window.
 
 tau is profiled exactly (the shifted interpolation, not a first-order expansion; to first order
-r(t) = -tau df_ref/dt). The statistic is the likelihood ratio of tau = 0 against the profiled tau
-in the whitened space, F = (SS_0 - SS_1) / (SS_1 / (m - p - 1)) ~ F(1, m - p - 1) under no delay;
-SE(tau) = sigma / |P d(model)/d tau| (P: the projection off the lever-arm columns).
+r(t) = -tau df_ref/dt): a grid, a bounded search, then Gauss-Newton steps in the whitened space
+with every nuisance projected out. SE(tau) is robust by move (a sandwich over the G move windows:
+what a move shares, e.g. one rounding of its logged ramp or a servo transient, is not averaged as
+if independent); the test is t = tau / SE against Student's t(G - 1), alpha per record. The
+likelihood-ratio F and the model-based SE are reported beside it. Checked on the independent
+lab's nulls (24 files, 50-200 Hz, four converters: z RMS 1.07, none fired at alpha = 0.01).
 """
 from __future__ import annotations
 
@@ -118,7 +125,7 @@ class _Windows:
         def plateau(lo, hi):
             """The mean static residual on [lo, hi) (None when shorter than a block)."""
             return r_static[lo:hi].mean(axis=0) if hi - lo >= L else None
-        sel, o, lin, idx, prog, win_first, nb = [], [], [], [], [], [], 0
+        sel, o, lin, idx, prog, moving, win_first, nb = [], [], [], [], [], [], [], 0
         for k, (s0, s1) in enumerate(mv):
             a0, b1 = prev_end[k], next_start[k]
             oa = plateau(a0 + (M if k > 0 and a0 == mv[k - 1, 1] else 0), s0 - M)
@@ -138,6 +145,7 @@ class _Windows:
             lin.append(np.hstack([fa + (fb - fa) * p, fa ** 2 + (fb ** 2 - fa ** 2) * p]))
             idx.append(nb + np.arange(m * L) // L)
             prog.append(p[:, 0])
+            moving.append((ii >= s0) & (ii <= s1))
             win_first.append(nb)
             nb += m
         self.n_moves = int(len(mv))
@@ -149,10 +157,12 @@ class _Windows:
         self.first[win_first] = True
         self.mount = mount[self.ii]
         self.y_meas = f_meas[self.ii] - self.offset
+        self.f_meas_blocks = self.block(f_meas[self.ii])
         self.f_lin = np.concatenate(lin) if lin else np.zeros((0, 6))
         self._lever = {}
         self.progress = self.block(np.concatenate(prog)[:, None])[:, 0] if prog else np.zeros(0)
         self.window = np.cumsum(self.first) - 1
+        self.moving = self.block(np.concatenate(moving)[:, None].astype(float))[:, 0] > 0 if moving else np.zeros(0, bool)
 
     def f_ref(self, sp: np.ndarray, mount: np.ndarray) -> np.ndarray:
         """f_ref (n, 3) m/s^2 of set-points sp (n, 2) rad on mountings ``mount`` (n,)."""
@@ -340,11 +350,12 @@ def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_
             "t": float(t_stat), "dof": G - 1, "p_value": pval, "alpha": alpha,
             "threshold": float(scipy.stats.t.isf(alpha / 2, G - 1)), "tau_s": tau, "tau_se_s": se,
             "tau_se_model_s": se_model, "F_likelihood_ratio": float(F), "moves": G}
-    finding = {"effect": "time_delay", "channel": "acc", "physics": PHYSICS, "statistic": abs(float(t_stat)),
-               "threshold": test["threshold"], "p_value": pval,
+    # statistic and threshold as F(1, G - 1) = t^2, the engine's findings' form
+    finding = {"effect": "time_delay", "channel": "acc", "physics": PHYSICS, "statistic": float(t_stat ** 2),
+               "threshold": test["threshold"] ** 2, "p_value": pval, "scan": None,
+               "variance_share": float(max(ss0 - ss1, 0.0) / ss0) if ss0 > 0 else 0.0,
                "parameters": [{"name": "tau_s", "estimate": tau, "std_error": se}],
                "rms_before": rms0, "rms_after": rms1, "indistinguishable_from": None}
-    tb = win.block(win.t_all[win.ii][:, None])[:, 0]
     return {"tested": True, "twin": "the logged set-points as the table's trajectory (ramps), shifted by tau; the "
                                     "static calibration's residual per position interpolated across each move; "
                                     "lever arm as nuisance",
@@ -352,10 +363,26 @@ def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_
             "averaging_s": BLOCK_S,
             "noise_model": {"ar1": rho.tolist(), "innovation_sigma_m_s2": sig.tolist()},
             "lever_arm_m": {"estimate": c1[:3].tolist(), "note": "nuisance (tangential and centripetal accelerations)"},
-            "residuals": {"unit": "m/s^2", "time_s": tb.tolist(), "before": r0.reshape(3, nb).T.tolist(),
-                          "after": r1.reshape(3, nb).T.tolist() if fired else r0.reshape(3, nb).T.tolist(),
-                          "convention": "block means of f_meas - o - f_ref(sp(t - tau)) - lever arm: before tau = 0, "
-                                        "after the fitted tau (when accepted)"}}
+            "residuals": _residuals(win, tau, r0, r1, fired)}
+
+
+def _residuals(win: _Windows, tau: float, r0: np.ndarray, r1: np.ndarray, fired: bool) -> dict:
+    """The report's residuals (nb, 3) m/s^2 on the 0.1-s blocks of the move windows (offsets, the
+    calibration's errors and the lever arm fitted out): before (tau = 0) and after the fitted tau
+    (when accepted), the set-points' df_ref/dt (the delay's revealing variable) and the effect's
+    contribution (before - after)."""
+    nb, h = win.nb, 1e-4
+    dfdt = (win.model(tau + h)[0] - win.model(tau - h)[0]) / (2 * h)
+    before, after = r0.reshape(3, nb).T, (r1 if fired else r0).reshape(3, nb).T
+    return {"unit": "m/s^2", "time_s": win.block(win.t_all[win.ii][:, None])[:, 0].tolist(),
+            "moving": win.moving.tolist(), "run": win.window.tolist(), "recording": win.f_meas_blocks.tolist(),
+            "twin": (win.f_meas_blocks - before).tolist(), "corrected_twin": (win.f_meas_blocks - after).tolist(),
+            "before": before.tolist(),
+            "after": after.tolist(), "df_twin_dt_m_s3": dfdt.reshape(3, nb).T.tolist(),
+            "effect_contribution_m_s2": {"time_delay": (before - after).tolist()},
+            "convention": "block means of f_meas - f_ref(sp(t - tau)) with the per-move offsets, the static "
+                          "calibration's errors and the lever arm fitted out: before at tau = 0, after at the fitted "
+                          "tau (when accepted); 'run' is the move window of each block"}
 
 
 def _mounts(rec: Recording) -> np.ndarray:
