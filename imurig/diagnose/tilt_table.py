@@ -31,6 +31,7 @@ from imurig.diagnose.engine import select_effects
 from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
+from imurig.diagnose.tilt_ramps import diagnose_setpoint_delay
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
@@ -129,14 +130,12 @@ def _dynamic(rec: Recording, cal, axes: dict, rng: np.random.Generator, alpha: f
              skew_in_twin: bool) -> dict:
     """The slews against the dynamic twin (:func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`),
     given what the position means found (``axes``), or why they were not tested."""
+    if "inferred" in rec.meta and not rec.meta.get("protocol"):
+        # another lab's file: its logged (ramped) set-points are the trajectory, at any sample rate
+        return diagnose_setpoint_delay(rec, cal, alpha=alpha)
     if rec.sample_rate_hz < MIN_SLEW_RATE_HZ or not {"theta", "phi"} <= set(rec.channels):
         return {"tested": False, "why": f"the slews need per-sample theta/phi set-point channels at >= "
                                         f"{MIN_SLEW_RATE_HZ:g} Hz"}
-    if "inferred" in rec.meta and not rec.meta.get("protocol"):
-        return {"tested": False, "why": "the file does not describe its table (protocol, survey, where the IMU "
-                                        "sits from the axes' intersection): the twin's geometry is the bench's, "
-                                        "and another table's own geometry would show as a lever arm or a wrong "
-                                        "gravity; the slews are compared for recordings that give the protocol"}
     if rec.n > MAX_DYNAMIC_SAMPLES:
         return {"tested": False, "why": f"{rec.n} samples: this version replays the whole record five "
                                         f"times in MuJoCo and keeps it in memory; records up to "
