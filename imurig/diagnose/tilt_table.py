@@ -35,6 +35,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view, run_tests
+from imurig.sensors.effects.saturation import limit_from_positions
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -91,7 +92,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         X0, names0 = _with_survey_nuisance(X0, list(res.names), J[:, j, :])
         ch = f"acc_{a}"
         view = PositionView(channel=ch, axis=a, readings=inputs, channel_median=medians, scan_list=tuple(scan),
-                            model_terms=frozenset(res.names))
+                            model_terms=frozenset(res.names), reference=y)
         # the mean-level effects of the library (crosstalk, temperature drift, misalignment and
         # nonlinearity where the twin lacks them, cross-coupling) offer their columns
         lib = [c for cls in for_view(PositionView.kind) for c in cls().candidates(view)]
@@ -104,6 +105,8 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         for f in entry["findings"]:
             if f["effect"] == "adc_crosstalk":
                 f.update(previous_channel=prev, scan_order_from=scan_source)
+            if f["effect"] == "saturation":
+                _saturation_limit(f, rec, ch, y, u[:, j], adc_step(rec, ch))
         if alias is not None:
             entry["indistinguishable"] = [alias]
         entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
@@ -152,7 +155,31 @@ _REVEAL = {"adc_crosstalk": ("median of the previously scanned channel '{prev}'"
            "temperature_drift": ("sensor temperature reading − mean (10 mV/K)", "V"),
            "axis_misalignment": ("indicated specific force of the other axis, {col}", "m/s²"),
            "scale_nonlinearity": ("own indicated specific force squared", "(m/s²)²"),
-           "cross_coupling": ("product of the other two axes' indicated specific forces", "(m/s²)²")}
+           "cross_coupling": ("product of the other two axes' indicated specific forces", "(m/s²)²"),
+           "saturation": ("the twin's reference beyond the clip limit, max(y − L, 0)", "m/s²")}
+
+
+def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:
+    """Complete an accepted clipping finding ``f`` (the engine's hinge at (side, L) in m/s^2): the
+    positions it clips, the limit in volts refitted from their mean readings of the logged record
+    (:func:`imurig.sensors.effects.saturation.limit_from_positions`) and the evidence: the clipped
+    readings' spread against the reference, and the within-position spread there and elsewhere (a clip
+    before the converter leaves only the converter's noise)."""
+    side, limit = (float(v) for v in f["scan"]["side, limit_m_s2"])
+    S = side * (y - limit) > 0
+    sl = rec.segment_slices()
+    x = np.asarray(rec.channels[ch], float)
+    means = np.array([x[s].mean() for s in sl])
+    sds = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
+    L, se = limit_from_positions(means[S], sds[S], quantum_V)
+    name = "upper_limit_V" if side > 0 else "lower_limit_V"
+    f["parameters"].append({"name": f"saturation:{name}", "estimate": L, "std_error": se})
+    f.update(channel=ch, clipped_positions=np.flatnonzero(S).tolist(), limit_m_s2=limit,
+             evidence={"reading_range_clipped_m_s2": float(np.ptp(reading[S])),
+                       "reference_range_clipped_m_s2": float(np.ptp(y[S])),
+                       "within_sd_clipped_V": float(np.sqrt(np.mean(sds[S] ** 2))),
+                       "within_sd_other_V": float(np.sqrt(np.mean(sds[~S] ** 2))) if (~S).any() else None,
+                       "adc_step_V": quantum_V})
 
 
 def _position_residuals(y, X0, names0, lib, d, a: str, hours_elapsed, reading, prev) -> dict:

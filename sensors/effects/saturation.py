@@ -14,6 +14,22 @@ samples are flat tops. Where the step exceeds the noise (P near 1: every sample 
 a run proves nothing, and only the converter's known range can: the level must lie within 1.5 q
 of +-range_V. The finding reports the level (V), the clipped fraction of the record, the number
 of runs and the first clipped time.
+
+Diagnosis (:class:`~imurig.sensors.effects.base.PositionView`, the static positions' regression):
+a clip before the converter is not a run of equal codes (the converter's own noise dithers it),
+but the reading no longer follows the input. In the inverse model (the twin's reference
+y = X0 beta + e from the indicated readings) positions whose input passes the limit read the
+limit instead, so the twin misses y by the reference's excess over the limit:
+
+    C(L) = max(y - L, 0)        (upper limit; min(y - L, 0) for a lower one)    [m/s^2]
+
+with coefficient ~1 (the nominal scale). L is scanned over the gaps between the reference's
+distinct levels (8 values per gap), and a value is offered only where the clipped set S = {y > L}
+holds at least two distinct reference levels whose indicated readings are flat: the slope of the
+reading against the reference over S is below 1/2 (0 when clipped, 1 when not). The engine's
+max-statistic threshold, simulated over the whole library and every offered (side, L), pays
+for the scan. The limit in volts is refitted from the clipped positions' mean readings
+(:func:`limit_from_positions`).
 """
 from __future__ import annotations
 
@@ -23,7 +39,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from imurig.sensors.effects.base import ChainContext, Effect, Param
+from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param, PositionView
 from imurig.sensors.effects.views import RawChannelView
 
 
@@ -47,8 +63,11 @@ class Saturation(Effect):
     physics: ClassVar[str] = "the channel is clipped at the end of its range (flat tops at a constant level)"
     seed_section: ClassVar[str] = "2 (the DAQ's +-5 V range)"
     seed_says: ClassVar[str] = "– (the seed's signals stay inside the converter's range)"
-    params: ClassVar[tuple] = (Param("level_V", "V"), Param("fraction", "1"))
-    views: ClassVar[tuple] = (RawChannelView.kind,)
+    params: ClassVar[tuple] = (Param("level_V", "V"), Param("fraction", "1"),
+                               Param("upper_limit_V", "V", note="the refitted clip limit (positions' means)"),
+                               Param("lower_limit_V", "V", note="the refitted clip limit (positions' means)"),
+                               Param("excess", "1", note="coefficient of max(y - L, 0) in the inverse model (~1)"))
+    views: ClassVar[tuple] = (RawChannelView.kind, PositionView.kind)
     finding_key: ClassVar[str] = "finding_saturation"
 
     def lines(self, names, ctx: ChainContext | None = None) -> list[str]:
@@ -67,6 +86,26 @@ class Saturation(Effect):
         c = (truth.get("chain") or {}).get("saturation") or {}
         on = bool(c.get("enabled")) and (channel is None or channel == c.get("channel"))
         return {"level_V": float(c["range_V"]) if on else 0.0}
+
+    #: values of L scanned in each gap between distinct reference levels
+    scan_per_gap: ClassVar[int] = 8
+    #: the largest slope of the indicated reading against the reference over a clipped set (0 clipped, 1 not)
+    max_flat_slope: ClassVar[float] = 0.5
+
+    def candidates(self, view: PositionView) -> list[Candidate]:
+        """The clipping hinge C(L) = max(y - L, 0) (upper) or min(y - L, 0) (lower) of the module doc,
+        scanned over (side, L) with L in the gaps of the reference where the clipped readings are flat."""
+        ref = getattr(view, "reference", None)
+        u = (view.readings or {}).get(f"a{view.axis}")
+        if ref is None or u is None or len(ref) < 8:
+            return []
+        ref, u = np.asarray(ref, float), np.asarray(u, float)
+        scan = [(side, L) for side in (1.0, -1.0) for L in clip_grid(ref, u, side, self.scan_per_gap,
+                                                                       self.max_flat_slope)]
+        if not scan:
+            return []
+        return [Candidate(self.name, "the channel's output saturates: beyond a limit L the reading stays at L",
+                          ("excess",), lambda th, y=ref: hinge(y, *th), scan=tuple(scan), scan_name="side, limit_m_s2")]
 
     def test(self, view: RawChannelView) -> dict:
         """The flat-top test at both extremes (module doc); 'finding' when one holds."""
@@ -100,3 +139,51 @@ class Saturation(Effect):
         elif not np.isfinite(k_min) and view.range_V is None:
             out["saturation_tested"] = "no: the ADC step exceeds the noise and the converter's range is unknown"
         return out
+
+
+def hinge(y: np.ndarray, side: float, limit: float) -> np.ndarray:
+    """max(y - L, 0) for side +1 (an upper limit), min(y - L, 0) for side -1 (a lower one)."""
+    return np.maximum(side * (np.asarray(y, float) - limit), 0.0) * side
+
+
+def _levels(y: np.ndarray) -> np.ndarray:
+    """The distinct levels of ``y`` (values closer than 1e-3 of its span are one level), sorted."""
+    v = np.sort(np.asarray(y, float))
+    tol = 1e-3 * max(float(np.ptp(v)), 1e-12)
+    return v[np.concatenate([[True], np.diff(v) > tol])]
+
+
+def clip_grid(ref: np.ndarray, u: np.ndarray, side: float, per_gap: int = 8, max_slope: float = 0.5) -> list[float]:
+    """Limits L (m/s^2) to scan on one side: ``per_gap`` values inside each gap between the reference's
+    distinct levels such that the clipped set S = {side (y - L) > 0} holds >= 2 levels and the
+    reading u against y over S has a slope below ``max_slope`` (flat: the reading ignores the input)."""
+    lv = _levels(ref)[::-1] if side > 0 else _levels(ref)      # from the clipped end inwards
+    out = []
+    for k in range(2, lv.size - 2):           # S = the first k levels; keep >= 2 levels outside S
+        S = side * (ref - 0.5 * (lv[k - 1] + lv[k])) > 0
+        dy = ref[S] - ref[S].mean()
+        slope = float(dy @ (u[S] - u[S].mean()) / (dy @ dy))
+        if abs(slope) < max_slope:
+            out += [float(lv[k] + (lv[k - 1] - lv[k]) * (i + 0.5) / per_gap) for i in range(per_gap)]
+    return out
+
+
+def limit_from_positions(means_V: np.ndarray, within_sd_V: np.ndarray, quantum_V: float = 0.0) -> tuple[float, float]:
+    """The clip limit L (V) and its standard error from the mean readings of the clipped positions.
+
+    Every clipped position reads L + e_i + b: e_i the converter's noise averaged over the position
+    (independent), b the rounding bias the converter's own noise (sd s_n) leaves in a mean of codes,
+    common to all positions at one level: |b| <= q exp(-2 pi^2 s_n^2 / q^2) / pi (the first term of
+    the rounding error's Fourier series), rms over the unknown phase of L in the step q / (pi sqrt 2),
+    never above q / sqrt(12). s_n^2 = the positions' within variance less q^2 / 12 (>= 0).
+
+        L = mean(means_V),   SE^2 = var(means_V) / |S| + b_rms^2
+    """
+    m = np.asarray(means_V, float)
+    se2 = float(np.var(m, ddof=1)) / m.size if m.size > 1 else 0.0
+    q = float(quantum_V or 0.0)
+    if q > 0:
+        sn2 = max(float(np.mean(np.asarray(within_sd_V, float) ** 2)) - q * q / 12, 0.0)
+        b = min(q * np.exp(-2 * np.pi ** 2 * sn2 / q ** 2) / (np.pi * np.sqrt(2)), q / np.sqrt(12))
+        se2 += b * b
+    return float(m.mean()), float(np.sqrt(se2))
