@@ -28,6 +28,7 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.position_noise import position_noise
 from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
@@ -35,7 +36,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view, run_tests
-from imurig.sensors.effects.saturation import limit_from_positions
+from imurig.sensors.effects.saturation import limit_from_samples
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -100,8 +101,10 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         alias = _crosstalk_alias_of_drift(lib, X0, prev)
         if alias is not None:
             lib = [c for c in lib if c.name != "adc_crosstalk"]
-        d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
+        noise, noise_info = _level_noise(rec, rec100, ch, y, X0, medians(ch))
+        d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim, noise=noise)
         entry = d.to_dict()
+        entry["noise_model"] = noise_info
         for f in entry["findings"]:
             if f["effect"] == "adc_crosstalk":
                 f.update(previous_channel=prev, scan_order_from=scan_source)
@@ -159,10 +162,25 @@ _REVEAL = {"adc_crosstalk": ("median of the previously scanned channel '{prev}'"
            "saturation": ("the twin's reference beyond the clip limit, max(y − L, 0)", "m/s²")}
 
 
+def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: np.ndarray, median_V: np.ndarray):
+    """The position regression's noise where positions at one level share the ADC's rounding error
+    (:func:`imurig.diagnose.position_noise.position_noise`): (noise generator or None, its figures)."""
+    sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
+    if sens is None or median_V is None:
+        return None, {"shared_level_errors": False, "why": "no nominal sensitivity"}
+    src = rec if rec100 is not rec else rec100
+    x = np.asarray(src.channels[ch], float)
+    sl = src.segment_slices()
+    sd = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
+    n = np.array([s.stop - s.start for s in sl])
+    return position_noise(y, X0, y, median_V, adc_step(rec, ch), float(sens["xyz".index(ch[-1])]), sd, n,
+                          decimated=rec100 is not rec)
+
+
 def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:
     """Complete an accepted clipping finding ``f`` (the engine's hinge at (side, L) in m/s^2): the
-    positions it clips, the limit in volts refitted from their mean readings of the logged record
-    (:func:`imurig.sensors.effects.saturation.limit_from_positions`) and the evidence: the clipped
+    positions it clips, the limit in volts refitted from their logged samples
+    (:func:`imurig.sensors.effects.saturation.limit_from_samples`) and the evidence: the clipped
     readings' spread against the reference, and the within-position spread there and elsewhere (a clip
     before the converter leaves only the converter's noise)."""
     side, limit = (float(v) for v in f["scan"]["side, limit_m_s2"])
@@ -171,7 +189,7 @@ def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: 
     x = np.asarray(rec.channels[ch], float)
     means = np.array([x[s].mean() for s in sl])
     sds = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
-    L, se = limit_from_positions(means[S], sds[S], quantum_V)
+    L, se = limit_from_samples([x[s] for s, c in zip(sl, S) if c], quantum_V)
     name = "upper_limit_V" if side > 0 else "lower_limit_V"
     f["parameters"].append({"name": f"saturation:{name}", "estimate": L, "std_error": se})
     f.update(channel=ch, clipped_positions=np.flatnonzero(S).tolist(), limit_m_s2=limit,

@@ -29,7 +29,7 @@ holds at least two distinct reference levels whose indicated readings are flat: 
 reading against the reference over S is below 1/2 (0 when clipped, 1 when not). The engine's
 max-statistic threshold, simulated over the whole library and every offered (side, L), pays
 for the scan. The limit in volts is refitted from the clipped positions' mean readings
-(:func:`limit_from_positions`).
+(:func:`limit_from_samples`).
 """
 from __future__ import annotations
 
@@ -38,6 +38,8 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.optimize import minimize
+from scipy.stats import norm
 
 from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param, PositionView
 from imurig.sensors.effects.views import RawChannelView
@@ -168,22 +170,54 @@ def clip_grid(ref: np.ndarray, u: np.ndarray, side: float, per_gap: int = 8, max
     return out
 
 
-def limit_from_positions(means_V: np.ndarray, within_sd_V: np.ndarray, quantum_V: float = 0.0) -> tuple[float, float]:
-    """The clip limit L (V) and its standard error from the mean readings of the clipped positions.
+def _rounded_gaussian_nll(x: float, log_s: float, k: np.ndarray, n: np.ndarray) -> float:
+    """-log likelihood of code counts n at codes k (units of q) for round(x + N(0, s^2))."""
+    s = np.exp(log_s)
+    p = norm.cdf((k + 0.5 - x) / s) - norm.cdf((k - 0.5 - x) / s)
+    return -float(n @ np.log(np.maximum(p, 1e-300)))
 
-    Every clipped position reads L + e_i + b: e_i the converter's noise averaged over the position
-    (independent), b the rounding bias the converter's own noise (sd s_n) leaves in a mean of codes,
-    common to all positions at one level: |b| <= q exp(-2 pi^2 s_n^2 / q^2) / pi (the first term of
-    the rounding error's Fourier series), rms over the unknown phase of L in the step q / (pi sqrt 2),
-    never above q / sqrt(12). s_n^2 = the positions' within variance less q^2 / 12 (>= 0).
 
-        L = mean(means_V),   SE^2 = var(means_V) / |S| + b_rms^2
+def _mle_limit(codes: np.ndarray) -> tuple[float, float] | None:
+    """(x, SE) in units of q: the maximum-likelihood level of integer codes round(x + N(0, s^2)),
+    SE from the observed information (numerical Hessian in (x, log s)); None below two codes."""
+    k, n = np.unique(codes, return_counts=True)
+    if k.size < 2:
+        return None
+    m = float(n @ k) / n.sum()
+    s0 = max(float(np.sqrt(n @ (k - m) ** 2 / n.sum())), 0.05)
+    res = minimize(lambda t: _rounded_gaussian_nll(t[0], t[1], k, n), [m, np.log(s0)], method="Nelder-Mead",
+                   options={"xatol": 1e-7, "fatol": 1e-9, "maxiter": 2000})
+    t, h = res.x, 1e-3
+    H = np.empty((2, 2))
+    f = lambda a, b: _rounded_gaussian_nll(t[0] + a, t[1] + b, k, n)
+    for i, j in ((0, 0), (0, 1), (1, 1)):
+        e_i, e_j = np.eye(2)[i] * h, np.eye(2)[j] * h
+        H[i, j] = H[j, i] = (f(*(e_i + e_j)) - f(*(e_i - e_j)) - f(*(e_j - e_i)) + f(*(-e_i - e_j))) / (4 * h * h)
+    try:
+        cov = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None
+    return (float(t[0]), float(np.sqrt(cov[0, 0]))) if cov[0, 0] > 0 else None
+
+
+def limit_from_samples(x_V: list[np.ndarray], quantum_V: float = 0.0) -> tuple[float, float]:
+    """The clip limit L (V) and its standard error from the logged samples of the clipped positions.
+
+    A clip before the converter leaves L + n_adc, rounded to the step q: the samples' mean is
+    biased by the rounding where the converter's own noise s_n is not >> q (by up to
+    q exp(-2 pi^2 s_n^2 / q^2) / pi), so where q > 0 and the spread is below 2 q, L is the
+    maximum-likelihood level of the pooled codes under code = round((L + N(0, s_n^2)) / q)
+    (SE from the observed information; one code only: that code +- q / sqrt(12)). Otherwise L is
+    the mean of the positions' means. Either SE is at least the positions' means' scatter
+    sd / sqrt(|S|) (a limit that moves from position to position).
     """
-    m = np.asarray(means_V, float)
-    se2 = float(np.var(m, ddof=1)) / m.size if m.size > 1 else 0.0
+    means = np.array([np.mean(v) for v in x_V])
+    se_pos = float(np.std(means, ddof=1) / np.sqrt(means.size)) if means.size > 1 else 0.0
+    allx = np.concatenate(x_V)
     q = float(quantum_V or 0.0)
-    if q > 0:
-        sn2 = max(float(np.mean(np.asarray(within_sd_V, float) ** 2)) - q * q / 12, 0.0)
-        b = min(q * np.exp(-2 * np.pi ** 2 * sn2 / q ** 2) / (np.pi * np.sqrt(2)), q / np.sqrt(12))
-        se2 += b * b
-    return float(m.mean()), float(np.sqrt(se2))
+    if q > 0 and np.std(allx) < 2 * q:
+        codes = np.rint(allx / q).astype(np.int64)
+        fit = _mle_limit(codes)
+        L, se = (q * fit[0], q * fit[1]) if fit is not None else (q * float(codes[0]), q / np.sqrt(12))
+        return float(L), float(max(se, se_pos))
+    return float(means.mean()), se_pos
