@@ -10,7 +10,11 @@ each axis' own square) fitted to the per-position medians. Two levels are examin
      median is the column; amplitude = the settling residual c);
    - ``temperature_drift``: bias drifting with the accelerometer temperature;
    - ``axis_misalignment``, ``scale_nonlinearity``: where the twin lacks them;
-   - ``cross_coupling``: products u_j u_k of the other axes.
+   - ``cross_coupling``: products u_j u_k of the other axes;
+   - ``saturation``: a clip of the channel, the hinge max(y - L, 0) of the reference (limit in V
+     refitted from the clipped codes).
+   Where the ADC step is coarse, positions at one level share the rounding error of their medians;
+   the engine's threshold is simulated with it (:mod:`imurig.diagnose.position_noise`).
 2. **Within-position scatter** (per axis): the spread of the 100 Hz samples around each
    position's median; each scatter effect runs its own test on a ``ScatterView``:
    - ``building_vibration``: the spectrum holds a narrow peak (the pump's frequency), located
