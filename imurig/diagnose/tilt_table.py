@@ -10,7 +10,11 @@ each axis' own square) fitted to the per-position medians. Two levels are examin
      median is the column; amplitude = the settling residual c);
    - ``temperature_drift``: bias drifting with the accelerometer temperature;
    - ``axis_misalignment``, ``scale_nonlinearity``: where the twin lacks them;
-   - ``cross_coupling``: products u_j u_k of the other axes.
+   - ``cross_coupling``: products u_j u_k of the other axes;
+   - ``saturation``: a clip of the channel, the hinge max(y - L, 0) of the reference (limit in V
+     refitted from the clipped codes).
+   Where the ADC step is coarse, positions at one level share the rounding error of their medians;
+   the engine's threshold is simulated with it (:mod:`imurig.diagnose.position_noise`).
 2. **Within-position scatter** (per axis): the spread of the 100 Hz samples around each
    position's median; each scatter effect runs its own test on a ``ScatterView``:
    - ``building_vibration``: the spectrum holds a narrow peak (the pump's frequency), located
@@ -28,6 +32,7 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.position_noise import position_noise
 from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
@@ -36,6 +41,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view, run_tests
+from imurig.sensors.effects.saturation import limit_from_samples
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -92,7 +98,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         X0, names0 = _with_survey_nuisance(X0, list(res.names), J[:, j, :])
         ch = f"acc_{a}"
         view = PositionView(channel=ch, axis=a, readings=inputs, channel_median=medians, scan_list=tuple(scan),
-                            model_terms=frozenset(res.names))
+                            model_terms=frozenset(res.names), reference=y)
         # the mean-level effects of the library (crosstalk, temperature drift, misalignment and
         # nonlinearity where the twin lacks them, cross-coupling) offer their columns
         lib = [c for cls in for_view(PositionView.kind) for c in cls().candidates(view)]
@@ -100,11 +106,15 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         alias = _crosstalk_alias_of_drift(lib, X0, prev)
         if alias is not None:
             lib = [c for c in lib if c.name != "adc_crosstalk"]
-        d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim)
+        noise, noise_info = _level_noise(rec, rec100, ch, y, X0, medians(ch))
+        d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim, noise=noise)
         entry = d.to_dict()
+        entry["noise_model"] = noise_info
         for f in entry["findings"]:
             if f["effect"] == "adc_crosstalk":
                 f.update(previous_channel=prev, scan_order_from=scan_source)
+            if f["effect"] == "saturation":
+                _saturation_limit(f, rec, ch, y, u[:, j], adc_step(rec, ch))
         if alias is not None:
             entry["indistinguishable"] = [alias]
         entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
@@ -151,7 +161,46 @@ _REVEAL = {"adc_crosstalk": ("median of the previously scanned channel '{prev}'"
            "temperature_drift": ("sensor temperature reading − mean (10 mV/K)", "V"),
            "axis_misalignment": ("indicated specific force of the other axis, {col}", "m/s²"),
            "scale_nonlinearity": ("own indicated specific force squared", "(m/s²)²"),
-           "cross_coupling": ("product of the other two axes' indicated specific forces", "(m/s²)²")}
+           "cross_coupling": ("product of the other two axes' indicated specific forces", "(m/s²)²"),
+           "saturation": ("the twin's reference beyond the clip limit, max(y − L, 0)", "m/s²")}
+
+
+def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: np.ndarray, median_V: np.ndarray):
+    """The position regression's noise where positions at one level share the ADC's rounding error
+    (:func:`imurig.diagnose.position_noise.position_noise`): (noise generator or None, its figures)."""
+    sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
+    if sens is None or median_V is None:
+        return None, {"shared_level_errors": False, "why": "no nominal sensitivity"}
+    src = rec if rec100 is not rec else rec100
+    x = np.asarray(src.channels[ch], float)
+    sl = src.segment_slices()
+    sd = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
+    n = np.array([s.stop - s.start for s in sl])
+    return position_noise(y, X0, y, median_V, adc_step(rec, ch), float(sens["xyz".index(ch[-1])]), sd, n,
+                          decimated=rec100 is not rec)
+
+
+def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:
+    """Complete an accepted clipping finding ``f`` (the engine's hinge at (side, L) in m/s^2): the
+    positions it clips, the limit in volts refitted from their logged samples
+    (:func:`imurig.sensors.effects.saturation.limit_from_samples`) and the evidence: the clipped
+    readings' spread against the reference, and the within-position spread there and elsewhere (a clip
+    before the converter leaves only the converter's noise)."""
+    side, limit = (float(v) for v in f["scan"]["side, limit_m_s2"])
+    S = side * (y - limit) > 0
+    sl = rec.segment_slices()
+    x = np.asarray(rec.channels[ch], float)
+    means = np.array([x[s].mean() for s in sl])
+    sds = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
+    L, se = limit_from_samples([x[s] for s, c in zip(sl, S) if c], quantum_V)
+    name = "upper_limit_V" if side > 0 else "lower_limit_V"
+    f["parameters"].append({"name": f"saturation:{name}", "estimate": L, "std_error": se})
+    f.update(channel=ch, clipped_positions=np.flatnonzero(S).tolist(), limit_m_s2=limit,
+             evidence={"reading_range_clipped_m_s2": float(np.ptp(reading[S])),
+                       "reference_range_clipped_m_s2": float(np.ptp(y[S])),
+                       "within_sd_clipped_V": float(np.sqrt(np.mean(sds[S] ** 2))),
+                       "within_sd_other_V": float(np.sqrt(np.mean(sds[~S] ** 2))) if (~S).any() else None,
+                       "adc_step_V": quantum_V})
 
 
 def _position_residuals(y, X0, names0, lib, d, a: str, hours_elapsed, reading, prev) -> dict:

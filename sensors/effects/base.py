@@ -134,7 +134,8 @@ class PositionView:
     readings: indicated specific force per axis name ("ax", "ay", "az"), (m,) m/s^2, through the
     nominal sensitivities; channel_median(name): the per-position median of any recorded channel
     (V), or None if it is not recorded; scan_list: the ADC's scan order; temperature_K: the
-    sensor's temperature per position (K) or None; model_terms: the terms the twin already has.
+    sensor's temperature per position (K) or None; model_terms: the terms the twin already has;
+    reference: the twin's reference specific force on ``axis`` per position (m/s^2) or None.
     """
 
     channel: str
@@ -144,6 +145,8 @@ class PositionView:
     scan_list: tuple[str, ...] = ()
     temperature_K: np.ndarray | None = None
     model_terms: frozenset = frozenset()
+    #: the twin's reference on this view's axis per position (m/s^2), or None (clipping candidates need it)
+    reference: np.ndarray | None = None
     kind: ClassVar[str] = "positions"
 
 

@@ -1,0 +1,89 @@
+"""The noise of the tilt positions' statistics where the converter's step is coarse: errors shared
+by the positions that sit at one level.
+
+A position's median of the logged codes is a code (or a half-code): its error against the true
+reading x is the rounding error e(x), a sawtooth of period q (the ADC step), which the samples'
+noise does not average away. Positions whose true reading is the same (the six phi positions of
+one theta on the z axis, every theta = 0 / 180 position on x and y) therefore share one e(x):
+their residuals in the position regression are not independent, and a column that moves slowly
+over the positions (the temperature, which rises with time, and time runs theta by theta) can fit
+the few independent level errors. A white-noise threshold then gives false discoveries.
+
+The model used for the engine's simulated threshold (:func:`imurig.diagnose.engine.select_effects`,
+its ``noise``): per position i in level group G(i),
+
+    e_i = sigma_r z_i + sigma_g w_G(i),        z, w ~ N(0, 1) independent
+
+- groups: positions with the same reference level on the axis (to 1e-3 of its span) whose
+  medians fall on the same code (true readings more than a step apart do not share e(x));
+- sigma_g^2 = sum_k q^2 / (2 pi^2 k^2) exp(-4 pi^2 k^2 s_d^2 / q^2) / K^2: the part of the rounding
+  error's variance (q^2 / 12 in all, Fourier series of the sawtooth) that a Gaussian smearing of
+  sd s_d leaves common to the group (K: the nominal sensitivity, V per m/s^2). s_d is the sampling
+  sd of the position's median, sqrt(pi / 2) s / sqrt(N) (s the samples' sd, N their number) where
+  the medians are of the codes as logged; of a low-passed and decimated record, the converter's
+  own dither sqrt(s^2 - q^2 / 12) of the raw samples (the filter averages codes);
+- sigma_r^2: the pooled within-group variance of the nominal fit's residuals (whatever is
+  independent from position to position), at least s_d^2 / K^2.
+
+Where sigma_g^2 < 1 % of sigma_r^2 (a fine converter) the default white noise is kept.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+#: the shared part is ignored below this fraction of the independent variance
+MIN_SHARED_FRACTION = 0.01
+
+
+def shared_rounding_variance(q: float, s_d: float, terms: int = 50) -> float:
+    """sum_k q^2 / (2 pi^2 k^2) exp(-4 pi^2 k^2 s_d^2 / q^2) (V^2): the rounding error's variance
+    common to positions at one level, after a Gaussian smearing of sd ``s_d`` (module doc)."""
+    k = np.arange(1, terms + 1)
+    return float(np.sum(q * q / (2 * np.pi ** 2 * k ** 2) * np.exp(-4 * np.pi ** 2 * k ** 2 * s_d ** 2 / q ** 2)))
+
+
+def level_groups(ref: np.ndarray, median_V: np.ndarray, q: float) -> np.ndarray:
+    """Group label per position: same reference level (1e-3 of the span) and same median code."""
+    ref = np.asarray(ref, float)
+    lev = np.rint(ref / (1e-3 * max(float(np.ptp(ref)), 1e-12))).astype(np.int64)
+    code = np.rint(np.asarray(median_V, float) / q).astype(np.int64)
+    _, inv = np.unique(np.column_stack([lev, code]), axis=0, return_inverse=True)
+    return inv.ravel()
+
+
+def position_noise(y: np.ndarray, X0: np.ndarray, ref: np.ndarray, median_V: np.ndarray, quantum_V: float,
+                   sensitivity: float, sd_V: np.ndarray, n_samples: np.ndarray,
+                   decimated: bool = False) -> tuple[Callable | None, dict]:
+    """(noise generator for the engine or None for white noise, the model's figures) of one axis
+    (module doc). ``sd_V``, ``n_samples``: the samples' sd (V) and number per position, of the
+    record the medians were taken from (``decimated``: of the raw record, the medians' being
+    low-passed)."""
+    q = float(quantum_V or 0.0)
+    if q <= 0 or not sensitivity:
+        return None, {"shared_level_errors": False, "why": "the ADC step is unknown"}
+    sd = np.asarray(sd_V, float)
+    if decimated:
+        s_d = float(np.sqrt(max(np.mean(sd ** 2) - q * q / 12, 0.0)))
+    else:
+        s_d = float(np.sqrt(np.pi / 2 * np.mean(sd ** 2 / np.maximum(np.asarray(n_samples, float), 1))))
+    sg2 = shared_rounding_variance(q, s_d) / sensitivity ** 2
+    groups = level_groups(ref, median_V, q)
+    r = y - X0 @ np.linalg.lstsq(X0, y, rcond=None)[0]
+    G = groups.max() + 1
+    size = np.bincount(groups, minlength=G)
+    gm = np.bincount(groups, weights=r, minlength=G) / np.maximum(size, 1)
+    dof = int(np.sum(size[size > 1] - 1))
+    within = float(np.sum((r - gm[groups]) ** 2) / dof) if dof > 0 else np.inf
+    sr2 = max(within, s_d ** 2 / sensitivity ** 2 if not decimated else 0.0, 1e-300)
+    info = {"shared_level_errors": bool(np.isfinite(sr2) and sg2 >= MIN_SHARED_FRACTION * sr2 and dof > 0),
+            "groups": int(G), "sigma_shared_m_s2": float(np.sqrt(sg2)),
+            "sigma_independent_m_s2": float(np.sqrt(sr2)) if np.isfinite(sr2) else None, "adc_step_V": q}
+    if not info["shared_level_errors"]:
+        return None, info
+    scale = np.sqrt(sr2 + sg2)
+
+    def draw(rng: np.random.Generator, m: int) -> np.ndarray:
+        return (np.sqrt(sr2) * rng.standard_normal(m) + np.sqrt(sg2) * rng.standard_normal(G)[groups]) / scale
+    return draw, info
