@@ -1,8 +1,8 @@
 """A new effect in one file: the lab's air conditioning (seed 4.3.3 and chapter 6).
 
-This file is the README's worked example of adding an effect. Copied into ``sensors/effects/``
-it joins the library (``imurig.sensors.effects.LIBRARY`` finds it) and every consumer picks it
-up with no other edit:
+This file is the worked example of adding an effect (docs/architecture.md). Copied into
+``sensors/effects/`` it joins the library (``imurig.sensors.effects.LIBRARY`` finds it) and every
+consumer picks it up with no other edit:
 
 - the sensor chain injects it (``ImuLab(effects=(AirConditioning(...),))`` or a campaign's
   ``lab_effects``), at the specific-force stage, from its own random stream;

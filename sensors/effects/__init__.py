@@ -1,7 +1,7 @@
 """The effect library: one module per physical effect, each an :class:`~imurig.sensors.effects.base.Effect`.
 
 ``LIBRARY`` holds every effect class of this package, found by importing each of its modules, so
-a new effect is one new file here (README, "Adding an effect"): the sensor chain, the diagnosis,
+a new effect is one new file here (docs/architecture.md, "Adding an effect"): the sensor chain, the diagnosis,
 the bounds and the filter priors find it through ``LIBRARY``, ``by_name`` and ``for_view`` and
 nowhere else. Each class is also an attribute of this package (``from imurig.sensors.effects
 import AdcCrosstalk``).
