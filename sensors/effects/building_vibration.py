@@ -163,9 +163,19 @@ class PumpVibration(Effect):
         f_best, step = f_peak, df
         for _ in range(2):  # a coarse scan over the Welch bin, then a fine one about its best step
             grid = f_best + np.linspace(-step, step, n_scan)
-            ss = [sum(float(r @ r) for _, _, r in fit(fr)) for fr in grid]
+            ss = np.array([sum(float(r @ r) for _, _, r in fit(fr)) for fr in grid])
             f_best, step = float(grid[int(np.argmin(ss))]), 2 * step / (n_scan - 1)
+        # the profile about the fine scan's minimum, S(f) ~ S0 + a (f - f0)^2: its vertex is the estimate
+        # (between grid points) and var(f) = sigma^2 / a, sigma^2 = S0 / (N - p)
+        j = int(np.argmin(ss))
+        win = slice(max(j - 3, 0), min(j + 4, len(grid)))
+        a2, a1, _ = np.polyfit(grid[win] - grid[j], ss[win], 2) if win.stop - win.start >= 3 else (0.0, 0.0, 0.0)
+        if a2 > 0 and abs(a1 / (2 * a2)) <= step:
+            f_best = float(grid[j] - a1 / (2 * a2))
         fits = fit(f_best)
+        n_tot = sum(x.size for x in segs)
+        sigma2 = sum(float(r @ r) for _, _, r in fits) / max(n_tot - 3 * len(segs) - 1, 1)
+        se_f = float(np.sqrt(sigma2 / a2)) if a2 > 0 else float("nan")
         A = np.array([np.hypot(c[1], c[2]) for c, _, _ in fits])
         if A.size > 1:
             se = float(np.std(A, ddof=1) / np.sqrt(A.size))
@@ -176,7 +186,9 @@ class PumpVibration(Effect):
         before = np.sqrt(np.mean(np.concatenate([x - np.median(x) for x in segs]) ** 2))
         after = np.sqrt(np.mean(np.concatenate([r for _, _, r in fits]) ** 2))
         out = {"refit_frequency_hz": f_best, "amplitude_V": float(A.mean()), "amplitude_se_V": se,
-               "positions_refitted": int(A.size), "scatter_before_V": float(before), "scatter_after_V": float(after)}
+               "positions_refitted": int(A.size), "scatter_before_V": float(before), "scatter_after_V": float(after),
+               "parameters": [{"name": "frequency_hz", "estimate": f_best, "std_error": se_f},
+                              {"name": "amplitude_V", "estimate": float(A.mean()), "std_error": se}]}
         s = view.sensitivity_V_per_SI
         if s:
             out.update(amplitude_m_s2=float(A.mean() / s), amplitude_se_m_s2=se / s)

@@ -119,12 +119,22 @@ class LooseCable(Effect):
         q = float(getattr(view, "quantum_V", 0.0) or 0.0)
         robust = np.array([1.4826 * np.median(np.abs(x[s] - np.median(x[s]))) for s in sl])
         floor = max(float(np.median(robust)), q / 12.0 ** 0.5)
-        spikes = np.array([int(np.sum(np.abs(x[s] - np.median(x[s])) > self.spike_sigma * max(r, floor) + 0.5 * q))
-                           for s, r in zip(sl, robust)])
+        flags = [np.abs(x[s] - np.median(x[s])) > self.spike_sigma * max(r, floor) + 0.5 * q for s, r in zip(sl, robust)]
+        spikes = np.array([int(np.sum(f)) for f in flags])
+        # events: runs of consecutive flagged samples (one contact fault may last a few samples)
+        events = int(sum(np.count_nonzero(np.diff(np.concatenate(([0], f.astype(np.int8)))) == 1) for f in flags))
+        duration = sum(s.stop - s.start for s in sl) / float(view.sample_rate_hz)
         out = {"robust_sigma_V": float(floor), "adc_step_V": q, "spikes_total": int(spikes.sum()),
                "positions_with_spikes": int(np.sum(spikes > 0))}
         if spikes.sum() >= self.min_spikes:
+            # the events' rate over the positions' time, a Poisson count: SE = sqrt(events) / duration
+            rate = events / duration
             out["finding"] = {"effect": self.name,
                               "physics": f"a loose cable or connector spikes '{view.channel}' (seed 4.3.3)",
-                              "spikes": int(spikes.sum()), "positions": int(np.sum(spikes > 0))}
+                              "spikes": int(spikes.sum()), "positions": int(np.sum(spikes > 0)),
+                              "parameters": [{"name": "rate_hz", "estimate": rate,
+                                              "std_error": np.sqrt(max(events, 1)) / duration},
+                                             {"name": "events", "estimate": float(events), "std_error": None},
+                                             {"name": "samples_flagged", "estimate": float(spikes.sum()),
+                                              "std_error": None}]}
         return out
