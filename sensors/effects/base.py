@@ -134,7 +134,9 @@ class PositionView:
     readings: indicated specific force per axis name ("ax", "ay", "az"), (m,) m/s^2, through the
     nominal sensitivities; channel_median(name): the per-position median of any recorded channel
     (V), or None if it is not recorded; scan_list: the ADC's scan order; temperature_K: the
-    sensor's temperature per position (K) or None; model_terms: the terms the twin already has.
+    sensor's temperature per position (K) or None; model_terms: the terms the twin already has;
+    crosstalk_sources: where the scan order is unknown, the recorded channels that may leak into
+    this one (each is tested, the choice among them counted in the threshold).
     """
 
     channel: str
@@ -144,6 +146,7 @@ class PositionView:
     scan_list: tuple[str, ...] = ()
     temperature_K: np.ndarray | None = None
     model_terms: frozenset = frozenset()
+    crosstalk_sources: tuple[str, ...] = ()
     kind: ClassVar[str] = "positions"
 
 
