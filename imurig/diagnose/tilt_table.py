@@ -77,15 +77,18 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         if name not in median_cache:
             median_cache[name] = segment_statistic(rec100, [name], "median")[:, 0] if name in rec100.channels else None
         return median_cache[name]
+    # a scan order the metadata give is trusted; without one (the import's guess from the column
+    # order is not), every logged channel outside the triad is a candidate leak source
     scan, scan_source = scan_order(rec)
-    sources = () if scan_order_known(rec) else leak_sources(rec100, tuple(f"acc_{a}" for a in AXES))
+    known = scan_order_known(rec)
+    sources = () if known else leak_sources(rec100, tuple(f"acc_{a}" for a in AXES))
     clipped = {k: int(n) for k in sources if (n := at_rail(rec, k, medians(k)).sum())}
     sources = tuple(k for k in sources if k not in clipped)
-    if sources or clipped:
+    if not known:
         scan, scan_source = [], "unknown (no adc.scan_list in the metadata)"
     out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position medians", "twin_model": twin_model,
            "adc_scan_order": {"channels": scan, "from": scan_source}, "axes": {}}
-    if sources or clipped:
+    if not known:
         out["adc_scan_order"]["crosstalk_sources_tested"] = list(sources)
     if clipped:
         out["adc_scan_order"]["crosstalk_sources_clipped"] = {
@@ -129,7 +132,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
                                          reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry
-    out["indistinguishable"] = [GRAVITY_VS_SCALE] + ([TRIAD_LEAK_VS_MISALIGNMENT] if sources else [])
+    out["indistinguishable"] = [GRAVITY_VS_SCALE] + ([] if known else [TRIAD_LEAK_VS_MISALIGNMENT])
     if dynamics:
         out["dynamic"] = _dynamic(rec, cal, out["axes"], rng, alpha, n_sim, skew_in_twin)
     return out
