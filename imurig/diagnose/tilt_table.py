@@ -29,8 +29,9 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.samples import (adc_step, at_rail, leak_sources, raw_channel_tests, scan_order, scan_order_known,
-                                     working_record)
+from imurig.diagnose.crosstalk_sources import (TRIAD_LEAK_VS_MISALIGNMENT, absorbed_note, identifiable_sources,
+                                               unknown_scan_sources)
+from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, scan_order_known, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
 from imurig.kernel.errors import ConfigError
@@ -81,24 +82,18 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         return median_cache[name]
     # a scan order the metadata give is trusted; without one (the import's guess from the column
     # order is not), every logged channel outside the triad is a candidate leak source
+    ref, J, _ = tilt_table_reference(rec100)
     scan, scan_source = scan_order(rec)
     known = scan_order_known(rec)
-    sources = () if known else leak_sources(rec100, tuple(f"acc_{a}" for a in AXES))
-    clipped = {k: int(n) for k in sources if (n := at_rail(rec, k, medians(k)).sum())}
-    sources = tuple(k for k in sources if k not in clipped)
+    sources, source_report = (), {}
     if not known:
         scan, scan_source = [], "unknown (no adc.scan_list in the metadata)"
+        sources, source_report = unknown_scan_sources(rec, rec100, medians, median_cache, ref, J,
+                                                      tuple(f"acc_{a}" for a in AXES))
     out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position {STATISTIC_WORDS[stat]}",
            "twin_model": twin_model, "position_statistic": stat,
-           "adc_scan_order": {"channels": scan, "from": scan_source}, "axes": {}}
-    if not known:
-        out["adc_scan_order"]["crosstalk_sources_tested"] = list(sources)
-    if clipped:
-        out["adc_scan_order"]["crosstalk_sources_clipped"] = {
-            "positions_at_rail": clipped, "note": "not tested as leak sources: at those positions the logged value "
-                                                  "is the converter's rail, not the voltage that would leak"}
+           "adc_scan_order": {"channels": scan, "from": scan_source, **source_report}, "axes": {}}
     inputs = {n: u[:, j] for j, n in enumerate(("ax", "ay", "az"))}
-    ref, J, _ = tilt_table_reference(rec100)
     for j, a in enumerate(AXES):
         res = cal.results_[a]
         X0 = TermLibrary.from_names(res.names).design(inputs)
@@ -108,7 +103,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         # not already hold it (a per-mounting phi-zero difference is not a misalignment)
         X0, names0 = _with_survey_nuisance(X0, list(res.names), J[:, j, :])
         ch = f"acc_{a}"
-        src, absorbed = _identifiable_sources(sources, medians, X0)
+        src, absorbed = identifiable_sources(sources, medians, X0)
         view = PositionView(channel=ch, axis=a, readings=inputs, channel_median=medians, scan_list=tuple(scan),
                             model_terms=frozenset(res.names), crosstalk_sources=src)
         # the mean-level effects of the library (crosstalk, temperature drift, misalignment and
@@ -129,7 +124,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         if alias is not None:
             entry["indistinguishable"] = [alias]
         if absorbed:
-            entry.setdefault("indistinguishable", []).append(_absorbed_note(ch, absorbed))
+            entry.setdefault("indistinguishable", []).append(absorbed_note(ch, absorbed))
         entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
         entry["scatter"].update(raw_channel_tests(rec, ch, alpha))
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
@@ -165,14 +160,6 @@ GRAVITY_VS_SCALE = {
     "note": "a wrong local gravity in the twin scales every reference by g_twin / g_true: the position "
             "means cannot tell it from the scale factors, which absorb it exactly; only the slews' g-free "
             "kinematic accelerations could show it, and there it equals a lever-arm error along the phi axis"}
-
-
-#: a leak from another axis of the triad, which the position means cannot tell from a misalignment
-TRIAD_LEAK_VS_MISALIGNMENT = {
-    "effects": ["adc_crosstalk", "axis_misalignment"],
-    "note": "with the scan order unknown, crosstalk from the triad's own other axes is not tested: its column "
-            "(the other axis' per-position voltage) is an affine function of that axis' reading, i.e. the "
-            "misalignment's column m_jk; only sources outside the triad (magnetometer, ...) can be named"}
 
 
 def _dynamic(rec: Recording, cal, axes: dict, rng: np.random.Generator, alpha: float, n_sim: int,
@@ -228,43 +215,6 @@ def _position_residuals(y, X0, names0, lib, d, a: str, hours_elapsed, reading, p
         "after": st["resid_after"].tolist(), "elapsed_h": np.asarray(hours_elapsed, float).tolist(),
         "reading_m_s2": np.asarray(reading, float).tolist(), "variables": variables,
         "convention": "residual = twin's reference - recording through the calibration (position medians)"}}
-
-
-#: the least fraction of a leak source's column (centred) that must lie outside the twin's columns
-MIN_SOURCE_RETAINED = 0.01
-
-
-def _identifiable_sources(sources, medians, X0: np.ndarray) -> tuple[tuple, dict]:
-    """(testable, absorbed) leak sources of one axis. A source k's column v_k (its per-position
-    median) that keeps less than ``MIN_SOURCE_RETAINED`` of its centred norm outside the twin's
-    columns X0, ||(I - P_X0) v_k|| / ||v_k - mean|| (returned in ``absorbed``), is not tested: the
-    twin's terms (the survey's table-zero errors, the linear terms) would absorb such a leak, and
-    what is left is the source's noise and quantisation, not a signature (a magnetometer axis'
-    horizontal field along the accelerometer's own axis is a theta-zero error's column)."""
-    if not sources:
-        return (), {}
-    Q, _ = np.linalg.qr(X0)
-    keep, absorbed = [], {}
-    for k in sources:
-        v = medians(k)
-        if v is None:
-            continue
-        v = np.asarray(v, float)
-        spread = np.linalg.norm(v - v.mean())
-        left = np.linalg.norm(v - Q @ (Q.T @ v))
-        frac = float(left / spread) if spread > 0 else 0.0
-        if frac >= MIN_SOURCE_RETAINED:
-            keep.append(k)
-        else:
-            absorbed[k] = frac
-    return tuple(keep), absorbed
-
-
-def _absorbed_note(ch: str, absorbed: dict) -> dict:
-    return {"effects": ["adc_crosstalk", "survey/twin terms"], "sources": absorbed,
-            "note": f"a leak into '{ch}' from {sorted(absorbed)} is not tested: those channels' per-position medians "
-                    f"keep less than {MIN_SOURCE_RETAINED:g} of their spread outside the twin's columns (the "
-                    "fraction left is given per source), so the twin's terms would absorb such a leak"}
 
 
 def _crosstalk_alias_of_drift(lib: list, X0: np.ndarray, prev: str | None, r_max: float = 0.9) -> dict | None:
