@@ -74,18 +74,38 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
                      truth_units=dict(rec.truth_units))
 
 
+def clipped_mean(x: np.ndarray, axis: int = 0, k: float = 6.0) -> np.ndarray:
+    """The mean of the values within k * max(s_MAD, q) + q of the median along ``axis``:
+
+        m = median(x),  s_MAD = 1.4826 median|x - m|,  q = the smallest step between distinct values,
+        clipped mean = mean{x_i : |x_i - m| <= k max(s_MAD, q) + q}.
+
+    Robust to spikes like the median, but for values on an ADC's grid (q larger than or near the
+    noise) it averages the codes where the median stays on the grid (error up to q/2 that no
+    number of samples reduces)."""
+    x = np.asarray(x, float)
+    med = np.median(x, axis=axis, keepdims=True)
+    mad = 1.4826 * np.median(np.abs(x - med), axis=axis, keepdims=True)
+    d = np.diff(np.sort(x, axis=axis), axis=axis)
+    q = np.min(np.where(d > 0, d, np.inf), axis=axis, keepdims=True) if d.shape[axis] else np.zeros_like(med)
+    q = np.where(np.isfinite(q), q, 0.0)
+    keep = np.abs(x - med) <= k * np.maximum(mad, q) + q
+    return np.sum(np.where(keep, x, 0.0), axis=axis) / np.sum(keep, axis=axis)
+
+
 def segment_statistic(rec: Recording, names, statistic: str = "median", source: str = "channels") -> np.ndarray:
     """Per-segment statistic (n_seg, len(names)) of channels (or truth signals).
 
-    statistic: 'median' (seed C.1.1, robust to spikes), 'mean' or 'std'.
+    statistic: 'median' (seed C.1.1, robust to spikes), 'mean', 'clipped_mean' (:func:`clipped_mean`,
+    robust and not held to an ADC's grid) or 'std'.
     """
     if not rec.n_segments:
         raise RecordingError("the recording has no segments (set-point windows); add a 'segment' column "
                              "or name the set-point columns in the '# setpoints:' metadata")
     data = rec.channels if source == "channels" else rec.truth_signals
-    fn = {"median": np.median, "mean": np.mean, "std": np.std}.get(statistic)
+    fn = {"median": np.median, "mean": np.mean, "clipped_mean": clipped_mean, "std": np.std}.get(statistic)
     if fn is None:
-        raise ValueError(f"statistic must be median, mean or std; got {statistic!r}")
+        raise ValueError(f"statistic must be median, mean, clipped_mean or std; got {statistic!r}")
     x = np.stack([data[n] for n in names], axis=1)
     out = np.empty((rec.n_segments, len(names)))
     for i, s in enumerate(rec.segment_slices()):
@@ -104,9 +124,9 @@ def segment_statistic_variance(rec: Recording, names, statistic: str = "median",
     within a batch; for the median both scale as 1/N). Noise slower than a batch is not seen.
     """
     data = np.stack([rec.channels[n] for n in names], axis=1)
-    fn = {"median": np.median, "mean": np.mean}.get(statistic)
+    fn = {"median": np.median, "mean": np.mean, "clipped_mean": clipped_mean}.get(statistic)
     if fn is None:
-        raise ValueError(f"statistic must be median or mean; got {statistic!r}")
+        raise ValueError(f"statistic must be median, mean or clipped_mean; got {statistic!r}")
     out = np.full((rec.n_segments, len(names)), np.nan)
     for i, sl in enumerate(rec.segment_slices()):
         n = (sl.stop - sl.start) // batches

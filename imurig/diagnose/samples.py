@@ -37,6 +37,39 @@ def scan_order(rec: Recording) -> tuple[list[str], str]:
             "the channel order of the file (no adc.scan_list in the metadata)")
 
 
+def scan_order_known(rec: Recording) -> bool:
+    """Whether the metadata give the ADC's scan order (an ``adc.scan_list`` the import did not infer
+    from the file's column order: a logger's columns need not be its conversion order)."""
+    return bool((rec.meta.get("adc") or {}).get("scan_list")) and \
+        "adc_scan_list" not in (rec.meta.get("inferred") or {})
+
+
+def leak_sources(rec: Recording, own: tuple[str, ...]) -> tuple[str, ...]:
+    """The recorded voltage channels that may leak into the channels ``own`` where the scan order
+    is unknown: every V channel but ``own`` (the triad: a leak from its own axes is a column of
+    the twin's linear terms, a misalignment), the temperatures (a leak from them has the drift's
+    signature) and the set-points."""
+    setpoints = set(rec.meta.get("setpoints") or ()) | {"theta", "phi", "rate", "pulse"}
+    return tuple(c for c in rec.channels if rec.units.get(c) == "V" and c not in own and c not in setpoints
+                 and not c.startswith("temp"))
+
+
+def at_rail(rec: Recording, ch: str, medians: np.ndarray, min_bits: int = 6) -> np.ndarray:
+    """Which positions' medians of channel ``ch`` sit at the converter's rail (bool, per median):
+    the channel's lowest (highest) value is a rail when it is -2^n q (2^n q or (2^n - 1) q), n >=
+    ``min_bits``, q the channel's ADC step, i.e. a bipolar converter's end code, and a position
+    whose median is within q of it was clipped (its voltage is beyond the rail, unknown)."""
+    x, q = np.asarray(rec.channels[ch], float), adc_step(rec, ch)
+    out = np.zeros(np.shape(medians), bool)
+    if not q > 0 or x.size == 0:
+        return out
+    for v in (x.min(), x.max()):
+        n = abs(v) / q
+        if n >= 2 ** min_bits and min(abs(n - 2 ** round(np.log2(n))), abs(n + 1 - 2 ** round(np.log2(n + 1)))) < 0.01:
+            out |= np.abs(np.asarray(medians, float) - v) <= q
+    return out
+
+
 def adc_step(rec: Recording, ch: str) -> float:
     """The ADC step q (V) of channel ``ch`` of ``rec`` (0.0 when neither the metadata nor the values show one)."""
     return step_of(rec.meta, ch, rec.channels[ch], rec.channel_quantum)

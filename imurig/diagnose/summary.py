@@ -78,7 +78,11 @@ def _engine_finding(f: dict, channel: str, observable: str, entry: dict, unit: s
            "parameters": params, "fit": fit}
     if f.get("indistinguishable_from"):
         out["indistinguishable_from"] = f["indistinguishable_from"]
-    if f.get("scan_order_from"):
+    if f.get("source_channel"):
+        out["source_channel"] = f["source_channel"]
+        out["note"] = (f"leak source '{f['source_channel']}' chosen among the logged channels "
+                       f"{f.get('sources_tested')} (the scan order is unknown; the choice is counted in the threshold)")
+    elif f.get("scan_order_from"):
         out["note"] = f"previous channel '{f.get('previous_channel')}' in the scan order from {f['scan_order_from']}"
     return out
 

@@ -9,6 +9,11 @@ frequency, tau: the settling time constant of the converter's input amplifier.
 Diagnosis (static positions): the leak is linear in the previous channel's voltage, so its
 per-position median is the regression column. In the inverse model f = V / (s G) its coefficient
 is -c / (s (1 - c)) m/s^2 per volt, s the channel's true sensitivity (V per m/s^2).
+
+Where the scan order is unknown (a lab CSV without ``adc.scan_list``), the source is a scanned
+parameter: each candidate source channel k's per-position median is tried as the column, and the
+engine's max-statistic threshold takes the largest statistic over all sources, so choosing the
+source costs its multiple comparison.
 """
 from __future__ import annotations
 
@@ -61,6 +66,8 @@ class AdcCrosstalk(Effect):
         return scan[scan.index(channel) - 1]
 
     def candidates(self, view: PositionView) -> list[Candidate]:
+        if view.crosstalk_sources:
+            return self._scanned_source(view)
         prev = self.previous_channel(view.scan_list, view.channel)
         pv = view.channel_median(prev) if prev is not None else None
         if pv is None:
@@ -68,6 +75,16 @@ class AdcCrosstalk(Effect):
         return [Candidate(self.name, f"ADC multiplexer crosstalk: the previously scanned channel '{prev}' leaks "
                                      f"into '{view.channel}' (settling too short for the mux frequency)",
                           ("c",), lambda _, pv=pv: pv)]
+
+    def _scanned_source(self, view: PositionView) -> list[Candidate]:
+        """One candidate whose scanned parameter is the source channel (scan order unknown)."""
+        cols = {k: view.channel_median(k) for k in view.crosstalk_sources if k != view.channel}
+        cols = {k: np.asarray(v, float) for k, v in cols.items() if v is not None}
+        if not cols:
+            return []
+        return [Candidate(self.name, f"ADC multiplexer crosstalk: a logged channel leaks into '{view.channel}' (the "
+                                     f"scan order is unknown: the source is chosen among {len(cols)} channels)",
+                          ("c",), lambda k, cols=cols: cols[k], scan=tuple(cols), scan_name="source_channel")]
 
     def fitted(self, truth, channel: str | None = None) -> dict[str, float]:
         """-c / (s (1 - c)) on accelerometer ``channel`` ("acc_x" ...), c from the recorded converter."""

@@ -136,6 +136,8 @@ class PositionView:
     (V), or None if it is not recorded; scan_list: the ADC's scan order; temperature_K: the
     sensor's temperature per position (K) or None; model_terms: the terms the twin already has;
     reference: the twin's reference specific force on ``axis`` per position (m/s^2) or None.
+    crosstalk_sources: where the scan order is unknown, the recorded channels that may leak into
+    this one (each is tested, the choice among them counted in the threshold).
     """
 
     channel: str
@@ -147,6 +149,7 @@ class PositionView:
     model_terms: frozenset = frozenset()
     #: the twin's reference on this view's axis per position (m/s^2), or None (clipping candidates need it)
     reference: np.ndarray | None = None
+    crosstalk_sources: tuple[str, ...] = ()
     kind: ClassVar[str] = "positions"
 
 
