@@ -38,6 +38,7 @@ import scipy.optimize
 import scipy.stats
 
 from imurig.calibration.accelerometer import ACC
+from imurig.diagnose.tilt_dynamics import _ar1_whitener
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
 from imurig.rigs.tilt_kinematics import MOUNTS, rot_x, rot_y, rot_z
@@ -206,18 +207,9 @@ class _Windows:
 
 def _whitener(rho: np.ndarray, sig: np.ndarray, first: np.ndarray, nb: int):
     """x (3 nb, k) -> per axis AR(1) innovations / sigma, restarted at every window's first block."""
-    def whiten(x):
-        x = np.asarray(x, float).reshape(3 * nb, -1)
-        out = np.empty_like(x)
-        for a in range(3):
-            xa = x[a * nb:(a + 1) * nb]
-            prev = np.vstack([np.zeros((1, xa.shape[1])), xa[:-1]])
-            prev[first] = 0.0
-            wa = xa - rho[a] * prev
-            wa[first] *= np.sqrt(1 - rho[a] ** 2)
-            out[a * nb:(a + 1) * nb] = wa / sig[a]
-        return out
-    return whiten
+    ar1 = _ar1_whitener(rho, first, nb)
+    scale = np.repeat(1.0 / np.asarray(sig, float), nb)[:, None]
+    return lambda x: ar1(x) * scale
 
 
 def _space(win: _Windows, rho: np.ndarray, sig: np.ndarray):
