@@ -43,6 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.pulse_timer import edge_times, pulse_timer_test
 from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.table_rate import diagnose_table_rate
@@ -93,6 +94,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
     table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
                                 alpha=alpha, n_sim=n_sim)
+    table["timer"] = _pulse_timer(rec, alpha)
     out = {"table_rate": table,
            "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
                    + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
@@ -139,6 +141,17 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
         entry["scatter"].update(raw_channel_tests(rec, f"gyro_{a}", alpha))
         out["gyros"][a] = entry
     return out
+
+
+def _pulse_timer(rec: Recording, alpha: float) -> dict:
+    """The index pulses' timing error from the pulse voltage channel on the dial plateaus
+    (:mod:`imurig.diagnose.pulse_timer`); untested without a pulse channel or plateaus."""
+    seg = rec.segments
+    if "pulse" not in rec.channels or not {"start_s", "stop_s", "rate_dial"} <= set(seg):
+        return {"tested": False, "why": "no pulse voltage channel with dial plateaus"}
+    edges = edge_times(rec.time_s, rec.channels["pulse"], rec.meta.get("pulse_threshold_V"))
+    dt = float(np.median(np.diff(rec.time_s)))
+    return pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, alpha)
 
 
 def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> list[dict]:
