@@ -16,6 +16,7 @@ candidates (table slip), as the rows' diagnosis does (:func:`imurig.diagnose.rat
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from imurig.diagnose.rate_table import _shortfall
 
@@ -36,8 +37,11 @@ def mains_factor(k: np.ndarray, mains_hz: float = 50.0) -> dict:
 
 
 def diagnose_table_rate(dial_rad_s: np.ndarray, measured_rad_s: np.ndarray, rng: np.random.Generator,
-                        mains_hz: float = 50.0, alpha: float = 0.01, n_sim: int = 300, min_windows: int = 6) -> dict:
-    """Mains factor and slip of the table from the windows' dial and measured rates (module doc)."""
+                        mains_hz: float = 50.0, alpha: float = 0.01, n_sim: int = 300, min_windows: int = 6,
+                        window_s: np.ndarray | None = None) -> dict:
+    """Mains factor and slip of the table from the windows' dial and measured rates (module doc);
+    ``window_s``: each window's length first to last pulse (s), whose inverse square weights the
+    slip's joint refit (:func:`slip_joint_fit`)."""
     dial, meas = np.abs(np.asarray(dial_rad_s, float)), np.abs(np.asarray(measured_rad_s, float))
     ok = dial > 0
     if ok.sum() < min_windows:
@@ -61,4 +65,45 @@ def diagnose_table_rate(dial_rad_s: np.ndarray, measured_rad_s: np.ndarray, rng:
         out["shortfall"] = diag.to_dict()
         out["residuals"] = {"unit": "1", "rate_dps": r_dps.tolist(), "before": diag.before.residuals_.tolist(),
                             "after": diag.after.residuals_.tolist()}
+        w = None if window_s is None else np.asarray(window_s, float)[ok] ** 2
+        for f in out["shortfall"]["findings"]:
+            if f["effect"] == "table_slip":
+                f["joint_fit"] = slip_joint_fit(d, r_dps, w)
+                f["parameters"] = f["joint_fit"]["parameters"]
     return out
+
+
+def slip_joint_fit(d: np.ndarray, r_dps: np.ndarray, weight: np.ndarray | None = None) -> dict:
+    """The slip d = c - s1' r^-alpha refitted with the exponent free, so that the SE of the
+    coefficient s1 (of r^-alpha, as the library names it) includes the exponent's uncertainty:
+
+        d_i = c + s1 r_i^-alpha + e_i,    var(e_i) = sigma^2 / weight_i
+
+    (weight_i = the window length squared: a pulse-timed rate's error falls as 1 / length).
+    Weighted least squares in (c, s1, alpha), started from the best of an alpha grid 0.05 ... 3;
+    covariance sigma_hat^2 (J' W J)^-1 with sigma_hat^2 = weighted RSS / (n - 3)."""
+    d, r = np.asarray(d, float), np.asarray(r_dps, float)
+    w = np.ones_like(d) if weight is None else np.asarray(weight, float) / np.mean(weight)
+    sw = np.sqrt(w)
+
+    def lin(a):
+        X = np.column_stack([np.ones_like(r), r ** -a])
+        beta = np.linalg.lstsq(X * sw[:, None], d * sw, rcond=None)[0]
+        return beta, float(np.sum(w * (d - X @ beta) ** 2))
+
+    grid = np.arange(0.05, 3.001, 0.05)
+    a0 = grid[int(np.argmin([lin(a)[1] for a in grid]))]
+    b0 = lin(a0)[0]
+    res = least_squares(lambda p: sw * (d - p[0] - p[1] * r ** -p[2]), [b0[0], b0[1], a0],
+                        bounds=([-np.inf, -np.inf, 0.01], [np.inf, np.inf, 5.0]))
+    c, s1, a = res.x
+    J = res.jac
+    dof = max(d.size - 3, 1)
+    s2 = float(np.sum(res.fun ** 2)) / dof
+    cov = s2 * np.linalg.pinv(J.T @ J)
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return {"parameters": [{"name": "table_slip:s1", "estimate": float(s1), "std_error": float(se[1])},
+                           {"name": "table_slip:alpha", "estimate": float(a), "std_error": float(se[2])},
+                           {"name": "table_slip:s0", "estimate": float(-c), "std_error": float(se[0])}],
+            "residual_sigma": float(np.sqrt(s2)), "dof": dof, "weights": "window length squared" if weight is not None
+            else "equal", "note": "s1's SE includes the exponent's uncertainty (joint fit)"}

@@ -93,7 +93,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
     # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
     table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
-                                alpha=alpha, n_sim=n_sim)
+                                alpha=alpha, n_sim=n_sim, window_s=rw.segments["stop_s"] - rw.segments["start_s"])
     table["timer"] = _pulse_timer(rec, alpha)
     out = {"table_rate": table,
            "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
