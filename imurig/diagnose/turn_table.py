@@ -43,7 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.pulse_timer import edge_times, pulse_timer_test
+from imurig.diagnose.pulse_timer import SETTLE_S, edge_times, pulse_timer_test
 from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.table_rate import diagnose_table_rate
@@ -198,7 +198,8 @@ def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.
 def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float) -> dict:
     """Is the sample noise of ``ch`` periodic in the table angle (slip-ring contact noise)?
 
-    Within each whole-round window the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
+    Within each whole-round window (its rounds from ``SETTLE_S`` after the dial plateau began, so
+    that the table's settling after a ramp stays out) the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
     after index pulse t_k (mirrored for the negative direction). The fast residual r (the
     channel minus its running mean over the effect's window: white noise, slow ripple removed)
     goes with the angles into a :class:`TurnSampleView`; the slip-ring effect's own test
@@ -211,13 +212,16 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     w = SlipRingNoise.window
     h = w // 2
     ang, res, sig, tim, win = [], [], [], [], []
-    for a, b, rate in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"]):
-        p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]   # the angle: all the window's rounds
+    plateau_start = rec.segments["start_s"] if rec.segments["start_s"].size == rw.n_segments else rw.segments["start_s"]
+    for a, b, rate, a0 in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"], plateau_start):
+        # the angle: the window's rounds from SETTLE_S after the dial reached its plateau (the table's
+        # lag after the ramp is a rate transient, not a ripple)
+        p = pulses[(pulses >= max(a, a0 + SETTLE_S) - 1e-9) & (pulses <= b + 1e-9)]
         if p.size < 2:      # the table at rest (dial 0): no angle to lock to
             continue
         if p.size >= 4:     # the first round holds the table's settling after the dial change: whole
             p = p[1:]       # rounds kept (they keep the Earth's once-per-round rate out of the ripple)
-            a = p[0]
+        a = p[0]
         i0, i1 = np.searchsorted(t, [a, b])
         if i1 - i0 < 200:
             continue
