@@ -1,0 +1,67 @@
+"""The index-pulse timer test of a turn-table time series (imurig.diagnose.pulse_timer), on pulse
+channels made here: constant-rate plateaus, pulses at t0 + k T (+ a known Gaussian jitter),
+logged as high levels on a sample grid of rate fs."""
+import numpy as np
+import pytest
+
+from imurig.diagnose.pulse_timer import edge_times, pulse_timer_test
+
+PERIODS_S = (2.0137, 1.5061, 3.1013, 2.5071, 1.2049, 2.7023)   # one per plateau; T fs not a whole number
+
+
+def pulse_record(fs_hz: float, jitter_s: float, rng: np.random.Generator, hold_s: float = 30.0, ramp_s: float = 3.0,
+                 width_s: float = 0.02):
+    """(time, pulse volts, plateau starts, stops, dials) of plateaus of the periods above."""
+    starts, stops, times = [], [], []
+    now = 5.0
+    for T in PERIODS_S:
+        a, b = now, now + hold_s
+        tk = a + rng.uniform(0, T) + T * np.arange(int((b - a) / T))
+        times.append(tk[tk < b - T / 2])
+        starts.append(a)
+        stops.append(b)
+        now = b + ramp_s
+    t = np.arange(int((now + 5.0) * fs_hz)) / fs_hz
+    tk = np.concatenate(times)
+    tk = tk + jitter_s * rng.standard_normal(tk.size)
+    x = np.zeros_like(t)
+    for s in tk:
+        x[int(np.ceil(s * fs_hz)):int(np.ceil((s + width_s) * fs_hz))] = 4.8
+    x += 2e-4 * rng.standard_normal(t.size)
+    dial = 2 * np.pi / np.array(PERIODS_S)
+    return t, x, np.array(starts), np.array(stops), dial
+
+
+@pytest.mark.parametrize("fs_hz", [100.0, 1000.0])
+def test_known_jitter_is_found_with_its_sigma(fs_hz):
+    """A 3 ms jitter: found; sigma_T = sqrt(jitter^2 + dt^2/12) within 3 SE."""
+    rng = np.random.default_rng(11)
+    t, x, a, b, dial = pulse_record(fs_hz, 3e-3, rng)
+    out = pulse_timer_test(edge_times(t, x), a, b, dial, 1 / fs_hz)
+    truth = np.sqrt(3e-3**2 + (1 / fs_hz) ** 2 / 12)
+    assert out["accepted"], out
+    assert abs(out["sigma_T_s"] - truth) < 3 * out["sigma_T_se_s"], (out["sigma_T_s"], truth, out["sigma_T_se_s"])
+    assert out["finding"]["parameters"][0]["name"] == "sigma_T_s"
+
+
+@pytest.mark.parametrize("fs_hz", [50.0, 102.4, 1000.0])
+def test_no_jitter_no_finding(fs_hz):
+    """The sample grid alone: the chi-square test stays quiet (conservative for the grid's
+    uniform errors), and the scatter is the grid's own."""
+    rng = np.random.default_rng(5)
+    t, x, a, b, dial = pulse_record(fs_hz, 0.0, rng)
+    out = pulse_timer_test(edge_times(t, x), a, b, dial, 1 / fs_hz)
+    assert out["tested"] and not out["accepted"], out
+    assert out["p_value"] > 0.01
+    # the residual scatter is no larger than the grid gives, within its chi-square spread
+    assert out["scatter_rms_s"] ** 2 < out["grid_rms_s"] ** 2 * (1 + 3 * np.sqrt(2 / out["dof"]))
+
+
+def test_width_brackets_the_edge_at_half_samples():
+    """A pulse 1.5 samples wide: its falling edge halves the bracket (grid variance (dt/2)^2/12)."""
+    rng = np.random.default_rng(2)
+    fs = 50.0
+    t, x, a, b, dial = pulse_record(fs, 0.0, rng, width_s=1.5 / fs)
+    e = edge_times(t, x)
+    assert np.isclose(e["width_s"], 1.5 / fs, rtol=0.15)
+    assert np.isclose(np.mean(e["var_s2"]), (0.5 / fs) ** 2 / 12, rtol=0.2)
