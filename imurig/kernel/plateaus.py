@@ -56,15 +56,15 @@ def _hold_within(sp, starts, stops, band, min_n: int):
     within ``band`` / 2 of its median is a plateau when >= ``min_n`` samples long, and the parts
     before and after it are cut the same way. Returns (starts, stops, how many runs drifted)."""
     keep, n_slow = [], 0
-    work = list(zip(starts, stops))
+    work = [(a, b, True) for a, b in zip(starts, stops)]
     while work:
-        a, b = work.pop()
+        a, b, top = work.pop()
         if b - a < min_n:
             continue
         if np.all(np.ptp(sp[a:b], axis=0) <= band):
             keep.append((a, b))
             continue
-        n_slow += 1
+        n_slow += top
         near = np.all(np.abs(sp[a:b] - np.median(sp[a:b], axis=0)) <= 0.5 * band, axis=1)
         edges = np.flatnonzero(np.diff(np.concatenate(([0], near.astype(np.int8), [0]))))
         if edges.size == 0:
@@ -74,7 +74,7 @@ def _hold_within(sp, starts, stops, band, min_n: int):
         i0, i1 = a + edges[2 * k], a + edges[2 * k + 1]
         if i1 - i0 >= min_n:
             keep.append((i0, i1))
-        work += [(a, i0), (i1, b)]
+        work += [(a, i0, False), (i1, b, False)]
     keep.sort()
     return (np.array([k[0] for k in keep], int), np.array([k[1] for k in keep], int), n_slow)
 
