@@ -16,10 +16,15 @@ on a line, whatever the mains factor and the slip make of the rate (:func:`pulse
     t_k,meas = t0_s + T_s n_k + e_k,    var(e_k) = v_k + j^2                    [s]
 
 n_k the round count, j the detector's jitter. The statistic is Q = sum_k r_k^2 / v_k of the
-per-step weighted least-squares residuals r_k (H0: j = 0), against chi-square with the residual
-count m = sum_s (n_s - 2) as its degrees of freedom. Under H0 the grid errors are uniform (fourth
-moment 1.8 v^2, not 3 v^2) and, when T_s fs is near a whole number, the same for every pulse of a
-step (then absorbed by t0_s): both make the chi-square tail conservative. The jitter variance is
+per-step weighted least-squares residuals r_k (H0: j = 0), m = sum_s (n_s - 2) residuals. Under H0
+the grid errors are not independent Gaussians: they are uniform, and set by the phase of the pulse
+train on the grid, so that when T_s fs is near a whole number they repeat (absorbed by t0_s) and
+near a simple fraction they follow a pattern. The null distribution of Q is therefore simulated:
+per step the same number of pulses at the fitted period T_s (drawn within its SE: the pattern of
+the grid errors depends on T_s fs modulo 1, which the data fix only that far), a uniform phase on the grid, the same
+bracketing (pulse width w), Q summed over steps (:func:`_null_q`); the p-value is the share of
+simulated Q at or above the observed one (chi-square on m kept as a reference, and used where an
+edge is sloped). The jitter variance is
 the moment estimate j^2 = (RSS - tr((I - H) V)) / m over the steps' ordinary least-squares fits,
 its SE sqrt(2 sum_s tr(((I - H) (V + j^2 I))^2)) / m (Gaussian), and the reported timer error is
 the library's per-edge sigma_T = sqrt(j^2 + dt^2 / 12)
@@ -30,6 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import stats
+
+#: draws of the simulated null of Q
+N_SIM = 4000
 
 #: pulses closer than this to the start of a dial plateau are left out: the table still settles
 SETTLE_S = 2.0
@@ -67,6 +75,42 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     return {"time_s": mid, "var_s2": var, "width_s": w, "sloped": int(np.sum(~binary))}
 
 
+def _bracket(tau: np.ndarray, dt: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+    """The middle and the grid variance of true edge times ``tau`` (s) as :func:`edge_times`
+    brackets them on a grid n dt with pulses ``w`` long (the simulated null)."""
+    a1 = (np.ceil(tau / dt) - 1) * dt
+    a2 = (np.ceil((tau + w) / dt) - 1) * dt - w
+    lo, hi = np.maximum(a1, a2), np.minimum(a1, a2) + dt
+    ok = hi > lo
+    lo, hi = np.where(ok, lo, a1), np.where(ok, hi, a1 + dt)
+    return 0.5 * (lo + hi), (hi - lo) ** 2 / 12.0
+
+
+def _wls_q(n: np.ndarray, tk: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Q = sum r^2 / v of the weighted line fits t = t0 + T n, over the last axis of ``tk``, ``v``."""
+    W = 1.0 / v
+    S0, S1, S2 = W.sum(-1), (W * n).sum(-1), (W * n * n).sum(-1)
+    Y0, Y1 = (W * tk).sum(-1), (W * n * tk).sum(-1)
+    det = S0 * S2 - S1**2
+    b0, b1 = (S2 * Y0 - S1 * Y1) / det, (S0 * Y1 - S1 * Y0) / det
+    return (W * (tk - b0[..., None] - b1[..., None] * n) ** 2).sum(-1)
+
+
+def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N_SIM) -> np.ndarray:
+    """``n_sim`` draws of Q under H0 (module doc): each step's pulses at its fitted period (drawn
+    within the period's own grid SE, which decides the pattern of the grid errors) with a uniform
+    phase on the grid, bracketed as the data are."""
+    Q = np.zeros(n_sim)
+    for n, tk, v in steps:
+        T = float(np.polyfit(n, tk, 1, w=1.0 / np.sqrt(v))[0])
+        se_T = float(np.sqrt(np.mean(v) / np.sum((n - n.mean()) ** 2)))
+        T = T + se_T * rng.standard_normal(n_sim)[:, None]
+        tau = rng.uniform(0, dt, n_sim)[:, None] + T * n[None, :] + 1000.0 * dt
+        mid, var = _bracket(tau, dt, w)
+        Q += _wls_q(n[None, :], mid, var)
+    return Q
+
+
 def _step_fits(edges: dict, start_s, stop_s, dial, settle_s: float):
     """Per dial plateau with >= 3 settled pulses: (round counts n, times, grid variances)."""
     t, v = edges["time_s"], edges["var_s2"]
@@ -84,11 +128,11 @@ def _step_fits(edges: dict, start_s, stop_s, dial, settle_s: float):
     return out
 
 
-def pulse_timer_test(edges: dict, start_s, stop_s, dial, dt_s: float, alpha: float = 0.01,
-                     settle_s: float = SETTLE_S) -> dict:
+def pulse_timer_test(edges: dict, start_s, stop_s, dial, dt_s: float, rng: np.random.Generator,
+                     alpha: float = 0.01, settle_s: float = SETTLE_S) -> dict:
     """Is the index pulses' scatter about each plateau's line larger than the sample grid gives?
     (module doc). ``edges``: :func:`edge_times`; ``start_s``, ``stop_s``, ``dial``: the plateaus;
-    ``dt_s`` the sample interval (s)."""
+    ``dt_s`` the sample interval (s); ``rng`` draws the simulated null."""
     steps = _step_fits(edges, start_s, stop_s, dial, settle_s)
     m = sum(n.size - 2 for n, _, _ in steps)
     if m < 3:
@@ -106,19 +150,25 @@ def pulse_timer_test(edges: dict, start_s, stop_s, dial, dt_s: float, alpha: flo
         rss += float(r @ r)
         trV += float(np.trace(M * v[None, :]))
         parts.append((M, v))
-    p = float(stats.chi2.sf(Q, m))
+    p_chi2 = float(stats.chi2.sf(Q, m))
+    if edges["sloped"] == 0:
+        Qn = _null_q(steps, dt_s, edges["width_s"], rng)
+        p = float((1 + np.sum(Qn >= Q)) / (1 + Qn.size))
+        null = f"simulated: {Qn.size} draws of the grid's bracketing at the fitted periods, uniform phases"
+    else:
+        p, null = p_chi2, "chi-square on the residual count (sloped edges: the grid bracket does not apply)"
     j2 = (rss - trV) / m
     var_rss = sum(2.0 * float(np.sum((M * (v + max(j2, 0.0))[None, :]) * (M * (v + max(j2, 0.0))[None, :]).T))
                   for M, v in parts)
     se_j2 = float(np.sqrt(var_rss)) / m
     s2 = max(j2, 0.0) + dt_s**2 / 12.0
     sig = float(np.sqrt(s2))
-    out = {"tested": True, "statistic": Q, "dof": m, "p_value": p, "alpha": alpha, "steps": len(steps),
+    out = {"tested": True, "statistic": Q, "dof": m, "p_value": p, "p_value_chi2": p_chi2, "alpha": alpha,
+           "steps": len(steps),
            "pulses": int(sum(n.size for n, _, _ in steps)), "grid_rms_s": float(np.sqrt(trV / m)),
            "scatter_rms_s": float(np.sqrt(rss / m)), "jitter2_s2": j2, "jitter2_se_s2": se_j2,
            "sigma_T_s": sig, "sigma_T_se_s": se_j2 / (2.0 * sig), "sample_interval_s": dt_s,
-           "pulse_width_s": edges["width_s"], "sloped_edges": edges["sloped"],
-           "null": "chi-square on the residual count (conservative for the grid's uniform errors)"}
+           "pulse_width_s": edges["width_s"], "sloped_edges": edges["sloped"], "null": null}
     out["accepted"] = bool(p < alpha and j2 > 0)
     if out["accepted"]:
         out["finding"] = {"effect": "timer_quantisation",

@@ -94,7 +94,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
     table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
                                 alpha=alpha, n_sim=n_sim, window_s=rw.segments["stop_s"] - rw.segments["start_s"])
-    table["timer"] = _pulse_timer(rec, alpha)
+    table["timer"] = _pulse_timer(rec, rng.spawn(1)[0], alpha)
     out = {"table_rate": table,
            "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
                    + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
@@ -143,7 +143,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     return out
 
 
-def _pulse_timer(rec: Recording, alpha: float) -> dict:
+def _pulse_timer(rec: Recording, rng: np.random.Generator, alpha: float) -> dict:
     """The index pulses' timing error from the pulse voltage channel on the dial plateaus
     (:mod:`imurig.diagnose.pulse_timer`); untested without a pulse channel or plateaus."""
     seg = rec.segments
@@ -151,7 +151,7 @@ def _pulse_timer(rec: Recording, alpha: float) -> dict:
         return {"tested": False, "why": "no pulse voltage channel with dial plateaus"}
     edges = edge_times(rec.time_s, rec.channels["pulse"], rec.meta.get("pulse_threshold_V"))
     dt = float(np.median(np.diff(rec.time_s)))
-    return pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, alpha)
+    return pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, rng, alpha)
 
 
 def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> list[dict]:
