@@ -198,8 +198,8 @@ def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.
 def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float) -> dict:
     """Is the sample noise of ``ch`` periodic in the table angle (slip-ring contact noise)?
 
-    Within each whole-round window (its rounds from ``SETTLE_S`` after the dial plateau began, so
-    that the table's settling after a ramp stays out) the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
+    Within each whole-round window (on inferred dial plateaus, its rounds from ``SETTLE_S`` after
+    the plateau began, so that the table's settling after a ramp stays out) the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
     after index pulse t_k (mirrored for the negative direction). The fast residual r (the
     channel minus its running mean over the effect's window: white noise, slow ripple removed)
     goes with the angles into a :class:`TurnSampleView`; the slip-ring effect's own test
@@ -212,11 +212,13 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     w = SlipRingNoise.window
     h = w // 2
     ang, res, sig, tim, win = [], [], [], [], []
-    plateau_start = rec.segments["start_s"] if rec.segments["start_s"].size == rw.n_segments else rw.segments["start_s"]
+    # segments inferred as dial plateaus begin where a ramp ended, the table still settling (its lag
+    # is a rate transient, not a ripple): the rounds count from SETTLE_S later. A logged segment
+    # (acquisition started on an index pulse) is taken as it is.
+    inferred = "segments" in (rec.meta.get("inferred") or {}) and rec.segments["start_s"].size == rw.n_segments
+    plateau_start = rec.segments["start_s"] + SETTLE_S if inferred else rw.segments["start_s"]
     for a, b, rate, a0 in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"], plateau_start):
-        # the angle: the window's rounds from SETTLE_S after the dial reached its plateau (the table's
-        # lag after the ramp is a rate transient, not a ripple)
-        p = pulses[(pulses >= max(a, a0 + SETTLE_S) - 1e-9) & (pulses <= b + 1e-9)]
+        p = pulses[(pulses >= max(a, a0) - 1e-9) & (pulses <= b + 1e-9)]   # the angle: the window's rounds
         if p.size < 2:      # the table at rest (dial 0): no angle to lock to
             continue
         if p.size >= 4:     # the first round holds the table's settling after the dial change: whole
