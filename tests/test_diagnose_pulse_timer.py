@@ -65,3 +65,23 @@ def test_width_brackets_the_edge_at_half_samples():
     e = edge_times(t, x)
     assert np.isclose(e["width_s"], 1.5 / fs, rtol=0.15)
     assert np.isclose(np.mean(e["var_s2"]), (0.5 / fs) ** 2 / 12, rtol=0.2)
+
+
+def test_slip_joint_fit_se_includes_the_exponent():
+    """The slip refit with its exponent free: over 200 draws of d = -s1 r^-alpha + noise (noise
+    falling as 1 / window length, as pulse-timed rates do, its variance known), s1's z stays near
+    unit RMS, where an SE conditional on the exponent is far too small."""
+    from imurig.diagnose.table_rate import slip_joint_fit
+
+    rng = np.random.default_rng(3)
+    r = np.array([15.0, 30.0, 60.0, 120.0, 240.0] * 2)
+    window = 3 * 360.0 / r                                  # three rounds per step (s)
+    sd = 0.004 / window                                     # 4 ms of timing error per window
+    z = []
+    for _ in range(200):
+        d = -0.03 * r**-0.7 + sd * rng.standard_normal(r.size)
+        p = {q["name"]: q for q in slip_joint_fit(d, r, sd**-2, absolute=True)["parameters"]}["table_slip:s1"]
+        z.append((p["estimate"] + 0.03) / p["std_error"])
+    z = np.array(z)
+    assert np.sqrt(np.mean(z**2)) < 1.5, np.sqrt(np.mean(z**2))
+    assert abs(np.median(z)) < 0.3

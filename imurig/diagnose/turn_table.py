@@ -92,9 +92,11 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                              "the steps; add it as a '# gyro_noise_model: {...}' line in the CSV")
     cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
     # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
+    timer_test = _pulse_timer(rec, rng.spawn(1)[0], alpha)
     table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
-                                alpha=alpha, n_sim=n_sim, window_s=rw.segments["stop_s"] - rw.segments["start_s"])
-    table["timer"] = _pulse_timer(rec, rng.spawn(1)[0], alpha)
+                                alpha=alpha, n_sim=n_sim, window_s=rw.segments["stop_s"] - rw.segments["start_s"],
+                                edge_sigma_s=timer_test.get("sigma_T_s"))
+    table["timer"] = timer_test
     out = {"table_rate": table,
            "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
                    + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
