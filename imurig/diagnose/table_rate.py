@@ -119,10 +119,12 @@ def slip_joint_fit(d: np.ndarray, r_dps: np.ndarray, weight: np.ndarray | None =
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     # the profile over the exponent: where the linearisation fails (s1 and alpha trade off
     # nonlinearly), s1's spread over the exponents within Delta chi^2 = 1 of the best
-    fine = np.arange(0.02, 3.001, 0.01)
-    prof = [lin(a) for a in fine]
-    rss = np.array([q[1] for q in prof])
-    s1s = np.array([q[0][1] for q in prof])
+    A = r[None, :] ** -np.arange(0.02, 3.001, 0.01)[:, None]          # (exponents, windows)
+    S0, S1, S2 = np.sum(w), A @ w, (A * A) @ w
+    Y0, Y1 = float(np.sum(w * d)), A @ (w * d)
+    det = S0 * S2 - S1**2
+    cs, s1s = (S2 * Y0 - S1 * Y1) / det, (S0 * Y1 - S1 * Y0) / det
+    rss = np.sum(w * (d - cs[:, None] - s1s[:, None] * A) ** 2, axis=1)
     inside = rss <= min(rss.min(), float(np.sum(res.fun ** 2))) + s2
     half = 0.5 * float(np.ptp(s1s[inside])) if inside.any() else 0.0
     se[1] = max(se[1], float(np.hypot(_cond_se(r, sw, float(a), s2), half)))
