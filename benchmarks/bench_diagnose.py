@@ -98,6 +98,9 @@ def record_tests(d: dict, alpha: float) -> list[tuple[str, str, float, bool]]:
             sc = e.get("scatter", {})
             if sc.get("tested"):
                 out.append((g, "slip-ring Levene test", float(sc["threshold_p"]), "finding" in sc))
+        tt = (d.get("table_rate") or {}).get("timer") or {}
+        if tt.get("tested"):
+            out.append(("table_rate", "index-pulse timer chi-square", float(tt["alpha"]), bool(tt.get("finding"))))
     elif "gyros" in d:
         out.append(("rate", "rate factor (> 5 SE)", 0.0, bool(d.get("rate_factor"))))
         engine("rate", d["shortfall"]["diagnosis"])

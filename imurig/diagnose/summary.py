@@ -145,6 +145,8 @@ def findings(d: dict) -> list[dict]:
                             "note": "the measured/dial ratio matched to a motor's mains factor, not a regression"}})
     for f in (tr.get("shortfall") or {}).get("findings", []):
         out.append(_engine_finding(f, "table_rate", "relative rate shortfall per whole-round window", {}, "1"))
+    if (tr.get("timer") or {}).get("finding"):
+        out.append(_test_finding(tr["timer"]["finding"], "table_rate", "index-pulse times about each dial plateau's line"))
     if d.get("rate_factor"):
         rf = d["rate_factor"]
         out.append({"effect": rf["effect"], "channel": "rate", "observable": "stopwatch rate per timed row",

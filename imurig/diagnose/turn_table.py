@@ -43,6 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.pulse_timer import SETTLE_S, edge_times, pulse_timer_test
 from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.table_rate import diagnose_table_rate
@@ -91,8 +92,11 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                              "the steps; add it as a '# gyro_noise_model: {...}' line in the CSV")
     cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
     # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
+    timer_test = _pulse_timer(rec, rng.spawn(1)[0], alpha)
     table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
-                                alpha=alpha, n_sim=n_sim)
+                                alpha=alpha, n_sim=n_sim, window_s=rw.segments["stop_s"] - rw.segments["start_s"],
+                                edge_sigma_s=timer_test.get("sigma_T_s"))
+    table["timer"] = timer_test
     out = {"table_rate": table,
            "twin": "physical gyro model on whole-round means, reference from timer '" + timer + "'"
                    + (" plus the Earth's vertical rate" if earth_rate else " without the Earth's rate"),
@@ -141,6 +145,17 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     return out
 
 
+def _pulse_timer(rec: Recording, rng: np.random.Generator, alpha: float) -> dict:
+    """The index pulses' timing error from the pulse voltage channel on the dial plateaus
+    (:mod:`imurig.diagnose.pulse_timer`); untested without a pulse channel or plateaus."""
+    seg = rec.segments
+    if "pulse" not in rec.channels or not {"start_s", "stop_s", "rate_dial"} <= set(seg):
+        return {"tested": False, "why": "no pulse voltage channel with dial plateaus"}
+    edges = edge_times(rec.time_s, rec.channels["pulse"], rec.meta.get("pulse_threshold_V"))
+    dt = float(np.median(np.diff(rec.time_s)))
+    return pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, rng, alpha)
+
+
 def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> list[dict]:
     """Mark a g-sensitivity that may be the Earth's vertical rate in disguise; returns the marks.
 
@@ -185,7 +200,8 @@ def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.
 def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float) -> dict:
     """Is the sample noise of ``ch`` periodic in the table angle (slip-ring contact noise)?
 
-    Within each whole-round window the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
+    Within each whole-round window (on inferred dial plateaus, its rounds from ``SETTLE_S`` after
+    the plateau began, so that the table's settling after a ramp stays out) the table angle of sample t is 2 pi (t - t_k) / (t_k+1 - t_k)
     after index pulse t_k (mirrored for the negative direction). The fast residual r (the
     channel minus its running mean over the effect's window: white noise, slow ripple removed)
     goes with the angles into a :class:`TurnSampleView`; the slip-ring effect's own test
@@ -198,13 +214,18 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     w = SlipRingNoise.window
     h = w // 2
     ang, res, sig, tim, win = [], [], [], [], []
-    for a, b, rate in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"]):
-        p = pulses[(pulses >= a - 1e-9) & (pulses <= b + 1e-9)]   # the angle: all the window's rounds
+    # segments inferred as dial plateaus begin where a ramp ended, the table still settling (its lag
+    # is a rate transient, not a ripple): the rounds count from SETTLE_S later. A logged segment
+    # (acquisition started on an index pulse) is taken as it is.
+    inferred = "segments" in (rec.meta.get("inferred") or {}) and rec.segments["start_s"].size == rw.n_segments
+    plateau_start = rec.segments["start_s"] + SETTLE_S if inferred else rw.segments["start_s"]
+    for a, b, rate, a0 in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"], plateau_start):
+        p = pulses[(pulses >= max(a, a0) - 1e-9) & (pulses <= b + 1e-9)]   # the angle: the window's rounds
         if p.size < 2:      # the table at rest (dial 0): no angle to lock to
             continue
         if p.size >= 4:     # the first round holds the table's settling after the dial change: whole
             p = p[1:]       # rounds kept (they keep the Earth's once-per-round rate out of the ripple)
-            a = p[0]
+        a = p[0]
         i0, i1 = np.searchsorted(t, [a, b])
         if i1 - i0 < 200:
             continue

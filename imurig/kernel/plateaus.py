@@ -33,9 +33,7 @@ def plateau_segments(rec: Recording, setpoints: list[str], min_plateau_s: float 
     min_n = max(MIN_PLATEAU_SAMPLES, int(np.ceil(min_plateau_s * rec.sample_rate_hz)))
     long_ = (stops - starts) >= min_n
     starts, stops = starts[long_], stops[long_]
-    flat = np.array([np.all(np.ptp(sp[a:b], axis=0) <= 1e-3 * rng + tol) for a, b in zip(starts, stops)], bool)
-    n_slow = int(np.sum(~flat))
-    starts, stops = starts[flat], stops[flat]
+    starts, stops, n_slow = _hold_within(sp, starts, stops, 1e-3 * rng + tol, min_n)
     starts, stops = _merge(sp, t, starts, stops, tol, gap)
     if starts.size > max(1, t.size // min_n):
         raise RecordingError(f"{starts.size} plateaus in {t.size} samples: the set-points never hold still")
@@ -48,8 +46,37 @@ def plateau_segments(rec: Recording, setpoints: list[str], min_plateau_s: float 
     moving = t.size - int(np.sum(stops - starts))
     evidence = (f"{starts.size} plateau(s) of {setpoints} held within {np.array2string(tol, precision=3)} "
                 f"(SI) per sample for at least {min_n} samples; {moving} samples in ramps or moves are no "
-                f"segment" + (f"; {n_slow} slow drift(s) rejected" if n_slow else ""))
+                f"segment" + (f"; {n_slow} slow drift(s) cut to their plateau or rejected" if n_slow else ""))
     return seg, units, evidence
+
+
+def _hold_within(sp, starts, stops, band, min_n: int):
+    """The runs whose set-points spread within ``band``. A run that drifts further (slow ramps whose
+    per-sample step is within the tolerance, run into their plateaus) is cut: its longest stretch
+    within ``band`` / 2 of its median is a plateau when >= ``min_n`` samples long, and the parts
+    before and after it are cut the same way. Returns (starts, stops, how many runs drifted)."""
+    keep, n_slow = [], 0
+    work = [(a, b, True) for a, b in zip(starts, stops)]
+    while work:
+        a, b, top = work.pop()
+        if b - a < min_n:
+            continue
+        if np.all(np.ptp(sp[a:b], axis=0) <= band):
+            keep.append((a, b))
+            continue
+        n_slow += top
+        near = np.all(np.abs(sp[a:b] - np.median(sp[a:b], axis=0)) <= 0.5 * band, axis=1)
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], near.astype(np.int8), [0]))))
+        if edges.size == 0:
+            continue
+        lens = edges[1::2] - edges[::2]
+        k = int(np.argmax(lens))
+        i0, i1 = a + edges[2 * k], a + edges[2 * k + 1]
+        if i1 - i0 >= min_n:
+            keep.append((i0, i1))
+        work += [(a, i0, False), (i1, b, False)]
+    keep.sort()
+    return (np.array([k[0] for k in keep], int), np.array([k[1] for k in keep], int), n_slow)
 
 
 def _merge(sp, t, starts, stops, tol, gap):

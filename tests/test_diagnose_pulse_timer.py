@@ -1,0 +1,87 @@
+"""The index-pulse timer test of a turn-table time series (imurig.diagnose.pulse_timer), on pulse
+channels made here: constant-rate plateaus, pulses at t0 + k T (+ a known Gaussian jitter),
+logged as high levels on a sample grid of rate fs."""
+import numpy as np
+import pytest
+
+from imurig.diagnose.pulse_timer import edge_times, pulse_timer_test
+
+PERIODS_S = (2.0137, 1.5061, 3.1013, 2.5071, 1.2049, 2.7023)   # one per plateau; T fs not a whole number
+
+
+def pulse_record(fs_hz: float, jitter_s: float, rng: np.random.Generator, hold_s: float = 30.0, ramp_s: float = 3.0,
+                 width_s: float = 0.02):
+    """(time, pulse volts, plateau starts, stops, dials) of plateaus of the periods above."""
+    starts, stops, times = [], [], []
+    now = 5.0
+    for T in PERIODS_S:
+        a, b = now, now + hold_s
+        tk = a + rng.uniform(0, T) + T * np.arange(int((b - a) / T))
+        times.append(tk[tk < b - T / 2])
+        starts.append(a)
+        stops.append(b)
+        now = b + ramp_s
+    t = np.arange(int((now + 5.0) * fs_hz)) / fs_hz
+    tk = np.concatenate(times)
+    tk = tk + jitter_s * rng.standard_normal(tk.size)
+    x = np.zeros_like(t)
+    for s in tk:
+        x[int(np.ceil(s * fs_hz)):int(np.ceil((s + width_s) * fs_hz))] = 4.8
+    x += 2e-4 * rng.standard_normal(t.size)
+    dial = 2 * np.pi / np.array(PERIODS_S)
+    return t, x, np.array(starts), np.array(stops), dial
+
+
+@pytest.mark.parametrize("fs_hz", [100.0, 1000.0])
+def test_known_jitter_is_found_with_its_sigma(fs_hz):
+    """A 3 ms jitter: found (and by the chi-square reference too); sigma_T = sqrt(jitter^2 + dt^2/12) within 3 SE."""
+    rng = np.random.default_rng(11)
+    t, x, a, b, dial = pulse_record(fs_hz, 3e-3, rng)
+    out = pulse_timer_test(edge_times(t, x), a, b, dial, 1 / fs_hz, np.random.default_rng(1))
+    truth = np.sqrt(3e-3**2 + (1 / fs_hz) ** 2 / 12)
+    assert out["accepted"] and out["p_value_chi2"] < 0.01, out
+    assert abs(out["sigma_T_s"] - truth) < 3 * out["sigma_T_se_s"], (out["sigma_T_s"], truth, out["sigma_T_se_s"])
+    assert out["finding"]["parameters"][0]["name"] == "sigma_T_s"
+
+
+@pytest.mark.parametrize("fs_hz,width_samples", [(50.0, 1.0), (50.0, 1.5), (102.4, 2.048), (1000.0, 20.0)])
+def test_no_jitter_no_finding(fs_hz, width_samples):
+    """The sample grid alone (pulses a whole number of samples wide or not): the simulated null
+    keeps the test quiet, and the scatter is the grid's own."""
+    rng = np.random.default_rng(5)
+    t, x, a, b, dial = pulse_record(fs_hz, 0.0, rng, width_s=width_samples / fs_hz)
+    out = pulse_timer_test(edge_times(t, x), a, b, dial, 1 / fs_hz, np.random.default_rng(1))
+    assert out["tested"] and not out["accepted"], out
+    assert out["p_value"] > 0.01
+    # the residual scatter is no larger than the grid gives, within its chi-square spread
+    assert out["scatter_rms_s"] ** 2 < out["grid_rms_s"] ** 2 * (1 + 3 * np.sqrt(2 / out["dof"]))
+
+
+def test_width_brackets_the_edge_at_half_samples():
+    """A pulse 1.5 samples wide: its falling edge halves the bracket (grid variance (dt/2)^2/12)."""
+    rng = np.random.default_rng(2)
+    fs = 50.0
+    t, x, a, b, dial = pulse_record(fs, 0.0, rng, width_s=1.5 / fs)
+    e = edge_times(t, x)
+    assert np.isclose(e["width_s"], 1.5 / fs, rtol=0.15)
+    assert np.isclose(np.mean(e["var_s2"]), (0.5 / fs) ** 2 / 12, rtol=0.2)
+
+
+def test_slip_joint_fit_se_includes_the_exponent():
+    """The slip refit with its exponent free: over 200 draws of d = -s1 r^-alpha + noise (noise
+    falling as 1 / window length, as pulse-timed rates do, its variance known), s1's z stays near
+    unit RMS, where an SE conditional on the exponent is far too small."""
+    from imurig.diagnose.table_rate import slip_joint_fit
+
+    rng = np.random.default_rng(3)
+    r = np.array([15.0, 30.0, 60.0, 120.0, 240.0] * 2)
+    window = 3 * 360.0 / r                                  # three rounds per step (s)
+    sd = 0.004 / window                                     # 4 ms of timing error per window
+    z = []
+    for _ in range(200):
+        d = -0.03 * r**-0.7 + sd * rng.standard_normal(r.size)
+        p = {q["name"]: q for q in slip_joint_fit(d, r, sd**-2, absolute=True)["parameters"]}["table_slip:s1"]
+        z.append((p["estimate"] + 0.03) / p["std_error"])
+    z = np.array(z)
+    assert np.sqrt(np.mean(z**2)) < 1.5, np.sqrt(np.mean(z**2))
+    assert abs(np.median(z)) < 0.3
