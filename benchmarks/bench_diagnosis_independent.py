@@ -139,7 +139,15 @@ def score_record(truth: dict, res: dict) -> dict:
         and bool(expected)
     out["false_discovery"] = bool(res.get("ok")) and not expected and bool(found)
     for e in truth["effects"]:
-        sc = e["score"]
+        sc = dict(e["score"])
+        if "per_nominal_V_per_m_s2" in sc:
+            # the lab states the parameter for a reader whose nominal sensitivity is its own (1 V per g);
+            # in the reader's units it scales with (the nominal the reader used / the lab's) ** power
+            used = (res.get("nominal_sensitivity") or {}).get("acc_nominal_sensitivity_V_per_m_s2")
+            if used is not None:
+                ch = "xyz".index(str(sc.get("channel", "acc_x"))[-1])
+                s_used = float(np.broadcast_to(np.asarray(used, float), (3,))[ch])
+                sc["value"] = sc["value"] * (s_used / sc["per_nominal_V_per_m_s2"]) ** sc.get("nominal_power", 1)
         for f in found:
             if f["effect"] in ALIASES.get(e["effect"], {e["effect"]}) and sc["name"] in f["params"] and \
                     (sc.get("channel") is None or f["channel"] in (sc["channel"], *JOINT)):
@@ -163,6 +171,7 @@ def worker(csv_path: str, out_path: str, mem_gb: float) -> None:
         from imurig.diagnose.dispatch import diagnose
         rec = load(csv_path)
         res["stage"] = "diagnose"
+        res["nominal_sensitivity"] = {k: v for k, v in rec.meta.items() if k.endswith("_nominal_sensitivity_V_per_m_s2")}
         # the manifest's twin is what `imurig diagnose --twin-model` would be given (none: the default)
         d = diagnose(rec, seed=int(truth["seed"]), twin=truth.get("diagnose_twin") or None)
         res["findings"] = findings_of(d, truth["rig"])

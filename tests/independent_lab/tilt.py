@@ -126,7 +126,10 @@ def _sensor_errors(effect, tri: dict, rng: np.random.Generator, eff: list) -> tu
         inv = np.linalg.inv(np.eye(3) + M) / Dr[None, :]
         eff.append({"effect": effect, "channel": "acc", "parameters": {"M_rad": M.tolist(), "m_jk": inv.tolist()},
                     "diagnose_twin": {"twin_model": "own_axis"},
-                    "score": {"name": "m_xy", "value": float(inv[0, 1]), "channel": "acc_x"},
+                    # the inverse model's coefficient of u_y in acc_x, u = V / nominal: for a reader with
+                    # this lab's nominal (1 V per g); another nominal s scales it by s / K_NOMINAL
+                    "score": {"name": "m_xy", "value": float(inv[0, 1]), "channel": "acc_x",
+                              "per_nominal_V_per_m_s2": K_NOMINAL, "nominal_power": 1},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
     k2 = np.zeros(3)
     if effect == "scale_nonlinearity":
@@ -136,7 +139,9 @@ def _sensor_errors(effect, tri: dict, rng: np.random.Generator, eff: list) -> tu
         lib = (-k2 / Dr ** 2).tolist()
         eff.append({"effect": effect, "channel": "acc", "parameters": {"k2_per_m_s2": k2.tolist(), "k2": lib},
                     "diagnose_twin": {"twin_model": "linear"},
-                    "score": {"name": "k2", "value": lib[0], "channel": "acc_x"},
+                    # the coefficient of u_x^2, u = V / nominal: scales with (s / K_NOMINAL)^2
+                    "score": {"name": "k2", "value": lib[0], "channel": "acc_x",
+                              "per_nominal_V_per_m_s2": K_NOMINAL, "nominal_power": 2},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"]})
     kT = np.zeros(3)
     if effect == "temperature_drift":
@@ -145,8 +150,10 @@ def _sensor_errors(effect, tri: dict, rng: np.random.Generator, eff: list) -> tu
         lib = (-kT / 0.01).tolist()
         eff.append({"effect": effect, "channel": "acc", "parameters": {"bias_tempco_m_s2_per_K": kT.tolist(),
                                                                        "drift": lib},
+                    # in true m/s^2; a reader's indicated units (V / nominal s) scale it by K_x / s
                     "score": {"name": "drift", "value": float(-kT[0]), "channel": "acc_x",
-                              "unit": "m/s^2 per degC of the logged reading"},
+                              "unit": "m/s^2 per degC of the logged reading",
+                              "per_nominal_V_per_m_s2": float(tri["K_V_per_m_s2"][0]), "nominal_power": -1},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"],
                     "note": "drift (the library's inverse coefficient) is per volt of a 10 mV/K reading; this lab "
                             "logs degC, so the diagnosis' drift per unit of the reading is -kT"})
