@@ -107,18 +107,27 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
     # Fig 4.14: residuals of the final model per position, beside the seed's sigma
     pub = published_figures()
     cal = res["main"]
-    fig, axs = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    # left: on the seed's scale (+-0.015 m/s^2) beside its sigma; right: on imurig's own scale, where
+    # the structure of its (smaller) residuals shows
+    fig, grid = plt.subplots(3, 2, figsize=(11, 7), sharex=True)
     for j, a in enumerate(AXES):
         r = cal.results_[a].residuals_
-        axs[j].plot(r, ".-", ms=3, lw=0.5, label=f"imurig ({cal.model}), σ = {np.std(r, ddof=1):.2e}")
         s = pub["table_4_6"]["sigma_res"][j]
-        axs[j].axhspan(-s, s, color="orange", alpha=0.2, label=f"seed Table 4.6 ±σ_res = {s:.2e}")
-        axs[j].set_ylim(-0.015, 0.015)
-        axs[j].set_ylabel(f"{a.upper()} error, m/s²")
-        axs[j].grid(alpha=0.3)
-        axs[j].legend(loc="upper right", fontsize=7)
-    axs[-1].set_xlabel("position")
-    axs[0].set_title("Calibration residuals per position (cf. seed Fig. 4.14)")
+        for k, ax in enumerate(grid[j]):
+            ax.plot(r, ".-", ms=3, lw=0.5, label=f"imurig ({cal.model}), σ = {np.std(r, ddof=1):.2e}")
+            if k == 0:
+                ax.axhspan(-s, s, color="orange", alpha=0.2, label=f"seed Table 4.6 ±σ_res = {s:.2e}")
+                ax.set_ylim(-0.015, 0.015)
+                ax.set_ylabel(f"{a.upper()} error, m/s²")
+            else:
+                lim = 1.2 * float(np.max(np.abs(r))) if r.size and np.max(np.abs(r)) > 0 else 1.0
+                ax.set_ylim(-lim, lim)
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", fontsize=7)
+    for ax in grid[-1]:
+        ax.set_xlabel("position")
+    grid[0, 0].set_title("On the seed's scale (cf. seed Fig. 4.14)")
+    grid[0, 1].set_title("On imurig's own scale")
     fig.tight_layout()
     fig.savefig(out.file("fig_4_14_residuals.png"), dpi=110)
     plt.close(fig)
