@@ -63,7 +63,8 @@ def _param_unit(effect: str, name: str, channel: str = "") -> str:
 def _engine_finding(f: dict, channel: str, observable: str, entry: dict, unit: str) -> dict:
     """One engine finding (:class:`imurig.diagnose.engine.Finding`) in the summary's form."""
     params = [{"name": p["name"].split(":", 1)[-1], "estimate": p["estimate"], "se": p["std_error"],
-               "unit": _param_unit(f["effect"], p["name"], f.get("channel", channel))} for p in f.get("parameters", [])]
+               "unit": p.get("unit") or _param_unit(f["effect"], p["name"], f.get("channel", channel))}
+              for p in f.get("parameters", [])]
     steps = entry.get("fit_steps") or []
     k = next((i for i, s in enumerate(steps) if s.get("after_effect") == f["effect"]), None)
     if k:

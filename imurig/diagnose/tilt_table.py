@@ -45,6 +45,7 @@ from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view, run_tests
 from imurig.sensors.effects.saturation import limit_from_samples
+from imurig.sensors.effects.temperature_drift import TemperatureDrift
 
 
 def _hours(rec: Recording, t: np.ndarray) -> np.ndarray:
@@ -132,6 +133,11 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                 f.update(previous_channel=prev, scan_order_from=scan_source)
             if f["effect"] == "saturation":
                 _saturation_limit(f, rec, ch, y, u[:, j], adc_step(rec, ch))
+            if f["effect"] == "temperature_drift":
+                # per unit of the temperature channel as read (V of a 10 mV/K sensor, or K)
+                t_ch = next((c for c in TemperatureDrift.channels if c in rec.channels), None)
+                for q in f.get("parameters", []):
+                    q["unit"] = f"m/s^2/{rec.units.get(t_ch, 'V')}"
         if alias is not None:
             entry["indistinguishable"] = [alias]
         if absorbed:

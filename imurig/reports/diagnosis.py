@@ -11,7 +11,7 @@ import numpy as np
 # TWIN_OPTIONS re-exported: the twin options `imurig diagnose` reads (the concealed suite checks its cases)
 from imurig.diagnose.dispatch import TWIN_OPTIONS, diagnose, record_kind, twin_options  # noqa: F401
 from imurig.diagnose.rate_table import SEED_SAYS
-from imurig.diagnose.summary import summarise
+from imurig.diagnose.summary import _param_unit, summarise
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.kernel.infer import inference_report
@@ -144,8 +144,12 @@ def _overlays(rec: Recording, d: dict):
 
 
 def _engine_row(where: str, f: dict, seed_says: dict) -> list:
-    """One report row for a finding of the selection engine."""
-    ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}" for p in f["parameters"])
+    """One report row for a finding of the selection engine (each parameter with its unit)."""
+    def unit(p):
+        u = p.get("unit") or _param_unit(f["effect"], p["name"], f.get("channel", ""))
+        return "" if u in ("–", "1", "-") else f" {u}"
+
+    ps = "; ".join(f"{p['name']} = {p['estimate']:.4g} ± {p['std_error']:.2g}{unit(p)}" for p in f["parameters"])
     alias = f"; indistinguishable from {f['indistinguishable_from']}" if f.get("indistinguishable_from") else ""
     return [where, f["effect"], f["physics"], (f"{ps}; F = {f['statistic']:.1f} > {f['threshold']:.1f}; share "
             f"{f['variance_share'] * 100:.0f} % of the residual{alias}"), seed_says.get(f["effect"], "–")]
