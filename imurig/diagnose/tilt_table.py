@@ -121,7 +121,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         alias = _crosstalk_alias_of_drift(lib, X0, prev)
         if alias is not None:
             lib = [c for c in lib if c.name != "adc_crosstalk"]
-        noise, noise_info = _level_noise(rec, rec100, ch, y, X0, medians(ch))
+        noise, noise_info = _level_noise(rec, rec100, ch, y, X0, medians(ch), averaged=stat != "median")
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim, noise=noise)
         entry = d.to_dict()
         entry["noise_model"] = noise_info
@@ -211,9 +211,13 @@ _REVEAL = {"adc_crosstalk": ("median of the previously scanned channel '{prev}'"
            "saturation": ("the twin's reference beyond the clip limit, max(y − L, 0)", "m/s²")}
 
 
-def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: np.ndarray, median_V: np.ndarray):
+def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: np.ndarray, median_V: np.ndarray,
+                 averaged: bool = False):
     """The position regression's noise where positions at one level share the ADC's rounding error
-    (:func:`imurig.diagnose.position_noise.position_noise`): (noise generator or None, its figures)."""
+    (:func:`imurig.diagnose.position_noise.position_noise`): (noise generator or None, its figures).
+    ``averaged``: the position statistic averages codes (a clipped mean), so the shared error is the
+    rounding smoothed by the samples' own dither, as for a low-passed record, not by the median's
+    sampling spread."""
     sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
     if sens is None or median_V is None:
         return None, {"shared_level_errors": False, "why": "no nominal sensitivity"}
@@ -223,7 +227,7 @@ def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: 
     sd = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
     n = np.array([s.stop - s.start for s in sl])
     return position_noise(y, X0, y, median_V, adc_step(rec, ch), float(sens["xyz".index(ch[-1])]), sd, n,
-                          decimated=rec100 is not rec)
+                          decimated=rec100 is not rec or averaged)
 
 
 def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:
