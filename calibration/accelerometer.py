@@ -6,7 +6,8 @@ the accelerometer's channels, inputs (ax, ay, az in m/s^2) and the seed's models
 from __future__ import annotations
 
 
-from imurig.calibration.terms import TermLibrary, paper_eq2_terms, seed_accelerometer_terms
+from imurig.calibration.paper_models import paper_eq2_terms
+from imurig.calibration.terms import TermLibrary, seed_accelerometer_terms
 from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.calibration.triad import indicated as _indicated
 from imurig.kernel.recording import Recording

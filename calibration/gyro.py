@@ -24,7 +24,8 @@ from typing import Self
 
 import numpy as np
 
-from imurig.calibration.terms import TermLibrary, paper_eq3_terms, polynomial
+from imurig.calibration.paper_models import paper_eq3_terms
+from imurig.calibration.terms import TermLibrary, polynomial
 from imurig.calibration.triad import TriadCalibration, TriadSpec, forward_parameters
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording

@@ -8,7 +8,8 @@ import pytest
 
 from imurig.calibration.accelerometer import AccelerometerCalibration
 from imurig.calibration.gyro import GyroCalibration
-from imurig.calibration.terms import TermLibrary, paper_eq2_terms, paper_eq3_terms
+from imurig.calibration.paper_models import paper_eq2_terms, paper_eq3_terms
+from imurig.calibration.terms import TermLibrary
 from imurig.kernel.recording import Recording
 
 
