@@ -383,4 +383,3 @@ def seed_accelerometer_terms(axis: str) -> TermLibrary:
     if axis not in cross:
         raise ValueError(f"axis must be one of 'x', 'y', 'z', got {axis!r}")
     return TermLibrary.from_names(["1", "ax", "ax^2", "ay", "ay^2", "az", "az^2", cross[axis]])
-
