@@ -54,6 +54,12 @@ def _pyplot():
     return plt
 
 
+def _figure_legend(fig, ax) -> None:
+    """One legend for the whole figure (every panel draws the same runs), above the panels."""
+    handles, labels = ax.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, bbox_to_anchor=(0.5, 0.955))
+
+
 def fig_static_roll_pitch(folder, truth, runs):
     """Fig. 6: roll and pitch in the static phases (or the first minute on the ground)."""
     plt, col = _pyplot(), COLOURS
@@ -72,11 +78,13 @@ def fig_static_roll_pitch(folder, truth, runs):
         ax[i, 1].plot(truth.time_s[idx], np.degrees(pt), "k--", label="truth")
         ax[i, 0].set_ylabel(f"roll, deg\n{nm}", fontsize=7)
         ax[i, 1].set_ylabel("pitch, deg")
-    ax[0, 0].legend(fontsize=7)
     ax[-1, 0].set_xlabel("time, s")
     ax[-1, 1].set_xlabel("time, s")
+    ax[0, 0].set_title("roll", fontsize=9)
+    ax[0, 1].set_title("pitch", fontsize=9)
+    _figure_legend(fig, ax[0, 0])
     fig.suptitle("Estimated roll and pitch in the static tests (cf. paper Fig. 6)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(folder.file("fig6_static_roll_pitch.png"), dpi=90)
     plt.close(fig)
 
@@ -92,9 +100,9 @@ def fig_bias_estimates(folder, runs):
     for j, a in enumerate("XYZ"):
         ax[j, 0].set_ylabel(f"{a} acc. bias, m/s²")
         ax[j, 1].set_ylabel(f"{'pqr'[j]} gyro bias, deg/s")
-    ax[0, 0].legend(fontsize=7)
+    _figure_legend(fig, ax[0, 0])
     fig.suptitle("Accelerometer and gyro bias estimates before/after calibration (cf. paper Fig. 7)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(folder.file("fig7_bias_estimates.png"), dpi=90)
     plt.close(fig)
 
