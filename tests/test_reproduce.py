@@ -40,3 +40,48 @@ def test_paper_table_1_from_the_gramian():
     rows = R.paper_table_1()
     assert {r["quantity"]: r["imurig"] for r in rows}["gyro biases observable"] == "yes"
     assert sum(r["verdict"] == "match" for r in rows) >= 5
+
+
+def test_normal_gravity_closed_form_and_the_site_row():
+    from imurig.reports.reproduce_lab import normal_gravity, site_gravity
+
+    # Somigliana's closed form at the equator and the pole (WGS-84 defining values)
+    assert abs(normal_gravity(0.0) - 9.7803253359) < 1e-10
+    assert abs(normal_gravity(90.0) - 9.8321849378) < 1e-9
+    assert abs(normal_gravity(45.0, 100.0) - normal_gravity(45.0) + 3.086e-4) < 1e-12
+    (r,) = site_gravity()
+    # normal gravity at 52 N is within a few mGal of the geodetic value; the tolerance is the latitude/height spread
+    assert abs(r["imurig"] - r["seed"]) < 2e-4 and 1e-5 < r["tolerance"] < 1e-4
+
+
+def test_timer_resolution_and_time_budget_rows():
+    from imurig.reports.reproduce_lab import tab_4_7, timer_resolution
+
+    rows = timer_resolution()
+    assert [r["imurig"] for r in rows] == [0.0005, 0.5] and all(r["verdict"] == "within" for r in rows)
+    t = {r["quantity"]: r for r in tab_4_7()}
+    # 10 tilt angles x 12 phi positions at 15 s + 45 s each: 120 min, the row the pace is taken from
+    assert t["10 tilt angles (one mounting)"]["imurig"] == 120.0
+    assert t["12 positions in the phi plane"]["imurig"] == 12.0
+
+
+def test_item_verdicts_and_their_explanations_in_the_report(tmp_path):
+    from imurig.kernel.outputs import OutputFolder
+
+    out = OutputFolder(tmp_path / "r")
+    with out:
+        summary = R.reproduce("site_gravity", out, log=lambda *_: None)
+    md = (tmp_path / "r" / "reproduce.md").read_text()
+    ok = summary["items_within"] == ["site_gravity"]
+    assert ok == ("Why not" not in md)
+    assert ("anomaly" in md) == (not ok)
+
+
+@pytest.mark.slow
+def test_simona_items_side_by_side():
+    from imurig.reports.reproduce_lab import b_1_round_times, fig_4_19
+
+    (b1,) = b_1_round_times()
+    assert 1.0 < b1["seed"] < 8.0 and b1["verdict"] == "within"
+    rows = fig_4_19()
+    assert len(rows) == 3 and all(0.01 < r["imurig"] < 0.2 for r in rows)
