@@ -85,3 +85,19 @@ def test_simona_items_side_by_side():
     assert 1.0 < b1["seed"] < 8.0 and b1["verdict"] == "within"
     rows = fig_4_19()
     assert len(rows) == 3 and all(0.01 < r["imurig"] < 0.2 for r in rows)
+
+
+def test_the_van_ground_test_is_a_flight_choice():
+    from imurig.campaigns.flight import FlightOptions
+    from imurig.kernel.errors import ConfigError
+
+    assert FlightOptions(flight="van").validate().flight == "van"
+    with pytest.raises(ConfigError, match="'van'"):
+        FlightOptions(flight="bus").validate()
+
+
+@pytest.mark.slow
+def test_paper_fig_8_from_the_van_ground_test():
+    (r,) = R.ITEMS["paper_fig_8"].run()
+    # the manufacturer's (datasheet) conversion moves the compass heading by degrees, not by hundredths
+    assert 1.0 < r["imurig"] < 30.0 and r["seed"] == 10

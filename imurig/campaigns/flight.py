@@ -63,6 +63,7 @@ from imurig.flights.gps import GpsReceiver
 from imurig.flights.imu import measure_flight
 from imurig.flights.plan import simulate_flight
 from imurig.flights.truth import static_tests_truth
+from imurig.flights.van import VanPlan, simulate_van
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.navdata import GpsFixes
@@ -81,7 +82,7 @@ __all__ = [
 
 @dataclass
 class FlightOptions:
-    flight: str = "default"            # "default" (6A's plan) or "static" (paper 4.2 static tests)
+    flight: str = "default"            # "default" (6A's plan), "static" (paper 4.2) or "van" (paper 4.3 ground test)
     seed: int = 2005
     duration_s: float | None = None
     nav_rate_hz: float = 25.0
@@ -96,8 +97,8 @@ class FlightOptions:
     mag_iron_states: bool = True
 
     def validate(self):
-        if self.flight not in ("default", "static"):
-            raise ConfigError(f"unknown flight {self.flight!r}; choose 'default' or 'static'")
+        if self.flight not in ("default", "static", "van"):
+            raise ConfigError(f"unknown flight {self.flight!r}; choose 'default', 'static' or 'van'")
         if self.gps_rate_hz > self.imu_rate_hz:
             raise ConfigError(f"GPS rate {self.gps_rate_hz:g} Hz above the IMU rate {self.imu_rate_hz:g} Hz")
         if not (0 < self.nav_rate_hz <= self.imu_rate_hz):
@@ -111,10 +112,12 @@ class FlightOptions:
 
 # ------------------------------------------------------------------ truth, IMU, GPS
 def flight_truth(opt: FlightOptions):
-    """The flight's truth at the IMU: the default plan flown in MuJoCo, or the static tests; cut
-    to ``opt.duration_s`` if given."""
+    """The flight's truth at the IMU: the default plan flown in MuJoCo, the static tests, or the
+    van's ground test driven in MuJoCo (paper section 4.3); cut to ``opt.duration_s`` if given."""
     if opt.flight == "static":
         tr = static_tests_truth(rate_hz=opt.imu_rate_hz)
+    elif opt.flight == "van":
+        tr = simulate_van(VanPlan(rate_hz=opt.imu_rate_hz))
     else:
         tr = simulate_flight(progress_bar=True)
     if opt.duration_s is not None:

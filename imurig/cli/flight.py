@@ -7,8 +7,10 @@ import argparse
 def add_flight_parser(sub) -> None:
     p = sub.add_parser("flight", help="fly the default flight plan through the GPS/INS filter, uncalibrated vs calibrated",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--flight", default="default", choices=["default", "static"],
-                   help="'default': the Citation's default flight plan; 'static': the paper's static attitude tests")
+    p.add_argument("--flight", default="default", choices=["default", "static", "van"],
+                   help="'default': the Citation's default flight plan; 'static': the paper's static attitude "
+                        "tests; 'van': the paper's ground test (section 4.3, Figs. 8-9): a van driven on straight "
+                        "runs and circles, braking hard, parked on a ramp")
     p.add_argument("--duration", type=float, default=None, help="cut the flight to this many seconds")
     p.add_argument("--seed", type=int, default=2005, help="the IMU (same seed as the calibration campaigns)")
     p.add_argument("--nav-rate", type=float, default=25.0, help="navigation/filter rate, Hz")
