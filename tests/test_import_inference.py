@@ -161,6 +161,38 @@ def test_counts_and_physical_units(tmp_path):
     assert u[3, 0] == pytest.approx(np.median(rec.channels["acc_x"][sl]))
 
 
+@pytest.mark.parametrize("suffix, value, says", [("degC", 298.15, "look like kelvin: name the column temp_box_K"),
+                                                  ("K", 25.0, "look like degrees Celsius: name the column "
+                                                              "temp_box_degC")])
+def test_temperature_units_that_contradict_the_values_are_refused(tmp_path, suffix, value, says):
+    cols, _ = tilt_table(dwell=1.5)
+    cols["temp_box_degC"] = np.full(cols["time_s"].size, value)
+    with pytest.raises(RecordingError, match=says):
+        read_csv(write(tmp_path / "t.csv", cols, rename={"temp_box_degC": f"temp_box_{suffix}"}))
+
+
+def test_accelerations_in_g_named_m_s2_are_refused(tmp_path):
+    _, truth = tilt_table(dwell=1.5)
+    cols, _ = tilt_table(dwell=1.5)
+    for j, a in enumerate("xyz"):
+        cols.pop(f"acc_{a}_V")
+        cols[f"acc_{a}_m_s2"] = truth["f"][:, j] / 9.80665          # g, under an m/s^2 header
+    with pytest.raises(RecordingError, match="look like g in a channel read as m/s\\^2"):
+        read_csv(write(tmp_path / "g.csv", cols))
+
+
+def test_rates_in_deg_s_named_rad_s_are_refused(tmp_path):
+    cols, _ = turn_table()
+    cols["rate_rad_s"] = cols.pop("rate_dps") * 40.0           # 800-1600 deg/s read as rad/s: beyond 20 turns/s
+    with pytest.raises(RecordingError, match="name the column rate_dps"):
+        read_csv(write(tmp_path / "r.csv", cols, head=("# rig: turn_table", "# site: delft")))
+    cols, _ = turn_table()
+    for a in "xyz":
+        cols[f"gyro_{a}_rad_s"] = cols.pop(f"gyro_{a}_V") / 6e-3            # deg/s under rad/s headers
+    with pytest.raises(RecordingError, match="look like deg/s in a channel read as rad/s"):
+        read_csv(write(tmp_path / "g.csv", cols, head=("# rig: turn_table", "# site: delft")))
+
+
 def test_memory_estimate_refuses_before_allocating(tilt):
     p = tilt[0]
     with pytest.raises(RecordingError, match="GB are available"):

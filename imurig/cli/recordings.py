@@ -11,7 +11,7 @@ import numpy as np
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError, OutputExistsError
 from imurig.kernel.files import load
-from imurig.kernel.infer import inference_report
+from imurig.kernel.infer import inference_report, warning_banner
 from imurig.kernel.labcsv import write_csv
 from imurig.kernel.outputs import OutputFolder
 from imurig.kernel.recording import save_h5
@@ -155,7 +155,11 @@ def _calibrate_tilt_table(a, rec, model):
         imported, section = inference_report(rec.meta)
         s.update(imported)
         out.write_json("summary.json", s)
-        out.write_text("report.md", _report_md(None, rec, res, figs, {}) + ("\n" + section if section else ""))
+        md = _report_md(None, rec, res, figs, {})
+        head, _, rest = md.partition("\n")
+        banner = warning_banner(rec.meta)
+        out.write_text("report.md", head + "\n" + (f"\n{banner}" if banner else "") + rest
+                       + ("\n" + section if section else ""))
     print_summary(s, a.out)
 
 

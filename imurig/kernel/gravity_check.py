@@ -23,6 +23,7 @@ from imurig.kernel.errors import RecordingError
 from imurig.kernel.infer import ACC, ACC_KEY, GYRO, GYRO_KEY, note, warn
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
+from imurig.kernel.units import G_STANDARD
 
 TILT_MOUNTS = {"z_up": np.eye(3), "z_down": np.diag([1.0, -1.0, -1.0])}
 
@@ -117,7 +118,10 @@ def check_labels(rec: Recording, v: np.ndarray, f: np.ndarray, s: np.ndarray, wh
             marginal.append(f"'{c}' correlates only {r[j, j]:.2f} with gravity on its axis")
         else:
             slope = np.polyfit(f[:, j], v[:, j], 1)[0]
-            if not 0.5 < slope / s[j] < 2.0:
+            unit = _unit_factor(slope / s[j], G_STANDARD, "g", "m/s^2")
+            if unit:
+                problems.append(f"'{c}' reads {slope / s[j]:.4g} x the specific force its set-points give: {unit}")
+            elif not 0.5 < slope / s[j] < 2.0:
                 marginal.append(f"'{c}' gives {slope:.4g} V per m/s^2, nominal {s[j]:.4g}: check the sensitivity")
     note(rec, "label_check", {"correlation_V_vs_f": np.round(r, 4).tolist()},
          "correlation across plateaus of each accelerometer channel (rows x, y, z) with gravity's "
@@ -129,7 +133,19 @@ def check_labels(rec: Recording, v: np.ndarray, f: np.ndarray, s: np.ndarray, wh
         warn(rec, "MARGINAL: " + m)
 
 
-def turn_runs(rec: Recording) -> None:
+def _unit_factor(ratio: float, factor: float, big: str, small: str) -> str:
+    """A hint when ``ratio`` (indicated / expected) is a unit conversion factor (within 3 %), else ""."""
+    if abs(ratio * factor - 1) < 0.03:
+        return (f"the values look like {big} in a channel read as {small} (or the nominal sensitivity is per "
+                f"{small} where it should be per {big}): name the column's unit _{big.replace('/', '_')} or fix the "
+                "sensitivity")
+    if abs(ratio / factor - 1) < 0.03:
+        return (f"the values look like {small} in a channel read as {big} (or the nominal sensitivity is per "
+                f"{big} where it should be per {small}): fix the column's unit or the sensitivity")
+    return ""
+
+
+def turn_runs(rec: Recording, where: str = "recording") -> None:
     """Turn-table mounting per step: the gyro that answers the dial, and its sign."""
     if not all(c in rec.channels for c in GYRO) or "rate_dial" not in rec.segments or "run" in rec.segments:
         return
@@ -153,6 +169,9 @@ def turn_runs(rec: Recording) -> None:
     ratio = [float(u[i, "pqr".index(labels[i][0])] * rate[i] / rate[i] ** 2) for i in np.flatnonzero(moving)]
     note(rec, "runs", names, f"the gyro answering the dial at each turning step (indicated/dial: median "
                              f"{np.median(np.abs(ratio)):.3f}, sign per mounting)")
+    unit = _unit_factor(float(np.median(np.abs(ratio))), 180 / np.pi, "rad/s", "deg/s")
+    if unit:
+        raise RecordingError(f"{where}: the gyros read {np.median(np.abs(ratio)):.4g} x the dial rate: {unit}")
     if not 0.5 < np.median(np.abs(ratio)) < 2.0:
         warn(rec, f"MARGINAL: the gyros read {np.median(np.abs(ratio)):.3f} x the dial with the nominal sensitivity; "
                   "check the gyro sensitivity or the dial's unit")

@@ -115,6 +115,7 @@ def columns_to_channels(cols: dict, meta: dict, where: str):
             channels[name] = to_si(np.asarray(x, float), spec)
             units[name] = spec.si
             check_angle_range(h, name, channels[name], spec.si, where)
+            check_unit_range(h, channels[name], spec.si, where)
     return channels, units, events, notes
 
 
@@ -132,6 +133,36 @@ def check_angle_range(column: str, name: str, x_si: np.ndarray, unit_si: str, wh
         raise RecordingError(f"{where}: column '{column}' reaches {np.degrees(fin.max()) if column.endswith('_deg') else fin.max():.6g} "
                              f"{'deg' if column.endswith('_deg') else 'rad'}, beyond one turn: "
                              f"{'are the values degrees? name the column ' + name + '_deg' if column.endswith('_rad') else 'check the set-point column'}")
+
+
+#: plausible ranges in SI of quantities whose unit is easily mistaken for another (module doc):
+#: a lab's temperatures (-100 to 200 C) and a rate table's rates (up to 20 turns per second)
+PLAUSIBLE = {"K": (173.15, 473.15), "rad/s": (0.0, 2 * np.pi * 20)}
+
+
+def check_unit_range(column: str, x_si: np.ndarray, unit_si: str, where: str) -> None:
+    """Refuse a temperature or rate column whose values contradict its unit: a temperature outside
+    -100..200 degC once converted (kelvin named _degC, or Celsius named _K), a rate beyond 20 turns
+    per second (degrees per second named _rad_s)."""
+    if unit_si not in PLAUSIBLE:
+        return
+    lo, hi = PLAUSIBLE[unit_si]
+    fin = x_si[np.isfinite(x_si)]
+    if not fin.size:
+        return
+    if unit_si == "K" and (fin.min() < lo or fin.max() > hi):
+        base = column.rpartition("_")[0]
+        hint = (f"the values look like kelvin: name the column {base}_K" if column.endswith("_degC") and fin.min() > 400
+                else f"the values look like degrees Celsius: name the column {base}_degC" if column.endswith("_K")
+                else "check the column's unit")
+        raise RecordingError(f"{where}: column '{column}' gives {fin.min() - 273.15:.4g} to {fin.max() - 273.15:.4g} "
+                             f"degC, outside a lab's -100..200 degC: {hint}")
+    if unit_si == "rad/s" and np.abs(fin).max() > hi:
+        base = column.rpartition("_")[0]
+        hint = (f"are the values deg/s? name the column {base.removesuffix('_rad')}_dps"
+                if column.endswith("_rad_s") else "check the column's unit")
+        raise RecordingError(f"{where}: column '{column}' reaches {np.abs(fin).max():.6g} rad/s, beyond 20 turns "
+                             f"per second: {hint}")
 
 
 def infer_structure(rec: Recording, where: str, order: list[str], rig: str | None = None, site=None,
@@ -163,7 +194,7 @@ def infer_structure(rec: Recording, where: str, order: list[str], rig: str | Non
         if r == "tilt_table":
             gravity_check.tilt_runs(rec, where)
         elif r == "turn_table":
-            gravity_check.turn_runs(rec)
+            gravity_check.turn_runs(rec, where)
             infer.gyro_noise_model(rec)
     else:
         infer.warn(rec, "no set-point columns (theta_deg, phi_deg, psi_deg or rate_dps): no segments")

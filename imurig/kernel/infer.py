@@ -292,6 +292,15 @@ def inference_report(meta: dict) -> tuple[dict, str]:
     return {"inferred": inferred, "import_warnings": warnings}, "\n".join(lines) + "\n"
 
 
+def warning_banner(meta: dict) -> str:
+    """One bold line for the top of a report when the import accepted the file with warnings ("" if none)."""
+    w = meta.get("import_warnings", [])
+    if not w:
+        return ""
+    return (f"**Accepted with {len(w)} import warning{'s' if len(w) > 1 else ''}** (see \"What the import "
+            f"inferred\" at the end): {w[0]}{' …' if len(w) > 1 else ''}\n")
+
+
 def gyro_noise_model(rec: Recording) -> None:
     """``gyro_noise_model`` from the data when the file gives none: white rate noise sigma per sample
     from the first differences within the plateaus (2 % trimmed at each end), sigma = median over

@@ -21,6 +21,7 @@ from imurig.calibration.triad import nominal_sensitivity
 from imurig.calibration.turned_axis import TurnedAxisCalibration
 from imurig.campaigns.turn_table import gyro_parameters
 from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.infer import inference_report, warning_banner
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.kernel.recording import Recording
 from imurig.reports.common import md_table
@@ -88,17 +89,20 @@ def _write(out: OutputFolder, rig: str, rec: Recording, calibrations: dict, para
     files = {"report": "report.md", "summary": "summary.json", **{k: k for k in calibrations}}
     for name, d in calibrations.items():
         out.write_json(name, d)
+    imported, section = inference_report(rec.meta)
     summary = clean_json({"rig": rig, "imurig_version": imurig.__version__, "parameters": params, "notes": notes,
                           "n_samples": rec.n, "sample_rate_hz": rec.sample_rate_hz, "files": files,
-                          "models": {}, **(extra or {})})
+                          "models": {}, **(extra or {}), **imported})
     out.write_json("summary.json", summary)
-    L = [f"# {rig} calibration — imurig {imurig.__version__}\n",
+    L = [f"# {rig} calibration — imurig {imurig.__version__}\n", warning_banner(rec.meta),
          f"Recording: {rec.meta.get('source', '?')}, {rec.n:,} samples at {rec.sample_rate_hz:.6g} Hz.\n"]
     L += [f"- {n}" for n in notes]
     L.append("\n## Parameters (forward model)\n")
     L.append(md_table(["parameter", "unit", "estimate", "std. error", "injected", "z"],
                       [[p["name"], p["unit"], p["estimate"], p["std_error"], p.get("injected"), p.get("z")]
                        for p in params]))
+    if section:
+        L.append("\n" + section)
     out.write_text("report.md", "\n".join(L) + "\n")
     return summary
 

@@ -14,7 +14,7 @@ from imurig.diagnose.rate_table import SEED_SAYS
 from imurig.diagnose.summary import _param_unit, summarise
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
-from imurig.kernel.infer import inference_report
+from imurig.kernel.infer import inference_report, warning_banner
 from imurig.reports.common import md_table
 from imurig.reports.diagnosis_figures import figure_fit_before_after
 from imurig.reports.diagnosis_figures_tilt import figure_tilt_positions, figure_tilt_slews
@@ -43,6 +43,7 @@ def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_mo
         md = ["# Diagnosis: where the recording and its twin differ\n",
               f"Recording: {rec.meta.get('source', rec.meta.get('rig', '–'))}. Twin: {d.get('twin', '–')}.\n",
               f"**Verdict:** {d['verdict']}.\n",
+              warning_banner(rec.meta),
               "" if rows else "No effect accepted: the recording agrees with its twin.\n",
               "## What differs and where, the physics left out, beside what the seed says\n",
               md_table(["observable", "effect", "physics left out", "fitted / evidence", "seed"], rows) if rows else "",
