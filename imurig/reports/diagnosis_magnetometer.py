@@ -67,16 +67,17 @@ def _figure(out, d: dict) -> str:
 
 
 def _rrd(path, d: dict):
-    from imurig.reports.viz import RrdWriter, log_scalars, log_text  # lazy: rerun only when a report is written
+    """The .rrd (imurig.reports.diagnosis_rrd): per axis ``signals/mag_<a>/field/{recording,
+    twin,corrected_twin}`` in nT and their residuals."""
+    from imurig.reports.diagnosis_rrd import write  # lazy: rerun only when a report is written
 
     s = d["series"]
     t = np.asarray(s["time_s"])
-    with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
-        for key, name in (("recording_nT", "recording"), ("twin_nT", "twin"), ("corrected_twin_nT", "corrected_twin")):
-            v = np.asarray(s[key])
-            log_scalars(w, f"signals/mag/{name}", t, {f"mag_{a}": v[:, j] for j, a in enumerate(AXES)},
-                        {f"mag_{a}": "nT" for a in AXES})
-        log_text(w, "summary", "# Diagnosis\n\n" + "\n".join(f"- **{r[1]}**: {r[2]}" for r in findings_rows(d)))
+    v = {name: np.asarray(s[key]) for key, name in (("recording_nT", "recording"), ("twin_nT", "twin"),
+                                                     ("corrected_twin_nT", "corrected_twin"))}
+    overlays = [(f"signals/mag_{a}/field", t, {k: x[:, j] for k, x in v.items()}, "nT") for j, a in enumerate(AXES)]
+    write(path, overlays, "# Diagnosis\n\n" + ("\n".join(f"- **{r[1]}**: {r[2]}" for r in findings_rows(d))
+                                                 or "No effect accepted: the recording agrees with its twin."))
 
 
 def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "nominal") -> dict:
