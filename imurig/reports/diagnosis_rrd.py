@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import rerun.blueprint as rrb
 
-from imurig.reports.rrd_layout import layout, readable, series_view, summary_view
+from imurig.reports.rrd_layout import layout, readable, series_view, summary_view, symmetric_range
 from imurig.reports.viz import RrdWriter, log_scalars, log_text
 
 ROLE = {"recording": "measured", "twin": "twin", "corrected_twin": "corrected_twin"}
@@ -21,6 +21,14 @@ def _title(prefix: str) -> str:
         .replace("gyro ", "gyro_").replace("mag ", "mag_")
 
 
+def _residuals(series: dict, unit: str) -> tuple[dict, str]:
+    """({"before": recording − twin, "after": recording − corrected twin} scaled, unit)."""
+    rec = np.asarray(series["recording"], dtype=float)
+    res = {"before": rec - np.asarray(series["twin"]), "after": rec - np.asarray(series["corrected_twin"])}
+    f, u = readable(np.concatenate(list(res.values())), unit)
+    return {k: v * f for k, v in res.items()}, u
+
+
 def blueprint(overlays) -> rrb.Blueprint:
     """A grid of COLUMNS columns: a row of overlays, then the row of their residuals, per group
     of COLUMNS (channel, observable) pairs; the findings on the right."""
@@ -29,8 +37,10 @@ def blueprint(overlays) -> rrb.Blueprint:
         group = overlays[g:g + COLUMNS]
         for prefix, _t, _s, unit in group:
             views.append(series_view(f"{_title(prefix)}, {unit}", [f"/{prefix}/**"]))
-        for prefix, _t, _s, unit in group:
-            views.append(series_view(f"{_title(prefix)}: residuals", [f"/residuals/{prefix[8:]}/**"]))
+        for prefix, _t, series, unit in group:
+            res, _u = _residuals(series, unit)
+            views.append(series_view(f"{_title(prefix)}: residuals", [f"/residuals/{prefix[8:]}/**"],
+                                     y_range=symmetric_range(*res.values())))
     if not views:
         return layout(rrb.Horizontal(summary_view("findings")))
     return layout(rrb.Horizontal(rrb.Grid(*views, grid_columns=min(COLUMNS, len(overlays))),
@@ -50,10 +60,8 @@ def write(path, overlays, summary: str) -> None:
                 if k in series:
                     log_scalars(w, prefix, t, {k: series[k]}, {k: unit}, role=ROLE[k], points=points,
                                 labels={k: f"{LABEL[k]} [{unit}]"})
-            rec = np.asarray(series["recording"])
-            res = {"before": rec - np.asarray(series["twin"]), "after": rec - np.asarray(series["corrected_twin"])}
-            f, u = readable(np.concatenate([res["before"], res["after"]]), unit)
+            res, u = _residuals(series, unit)
             for k, role in (("before", "residual"), ("after", "residual_after")):
-                log_scalars(w, f"residuals/{prefix[8:]}", t, {k: res[k] * f}, {k: u}, role=role, points=points,
+                log_scalars(w, f"residuals/{prefix[8:]}", t, {k: res[k]}, {k: u}, role=role, points=points,
                             labels={k: f"{LABEL[k]} [{u}]"})
         log_text(w, "summary", summary)

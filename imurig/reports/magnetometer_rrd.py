@@ -8,7 +8,7 @@ import rerun.blueprint as rrb
 
 from imurig.campaigns.magnetometer import indicated_field, manoeuvre_mask
 from imurig.kernel.recording import Recording
-from imurig.reports.rrd_layout import layout, rig_view, role_color, series_view, summary_view
+from imurig.reports.rrd_layout import layout, rig_view, role_color, series_view, summary_view, symmetric_range
 from imurig.reports.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
                                 log_scalars, log_sphere, log_text)
 from imurig.rigs.mujoco_rig import load_model
@@ -16,7 +16,7 @@ from imurig.rigs.mujoco_rig import load_model
 UT_TO_M = 0.01  # field space drawn at 1 uT = 1 cm
 
 
-def blueprint(model) -> rrb.Blueprint:
+def blueprint(model, residual_range=None) -> rrb.Blueprint:
     """Left: the gimbal (camera on the IMU) over field space (measured ellipsoid, calibrated
     points, IGRF sphere). Middle: measured and calibrated components. Right: |B| over the IGRF
     magnitude, its residual, the summary."""
@@ -31,7 +31,7 @@ def blueprint(model) -> rrb.Blueprint:
                                  [f"/signals/calibrated/B_{a}" for a in "xyz"])),
         rrb.Vertical(series_view("calibrated |B| over the IGRF magnitude, nT",
                                  ["/signals/calibrated/norm", "/signals/truth/**"]),
-                     series_view("residual |B| − IGRF, nT", ["/signals/residuals/**"]), summary_view()),
+                     series_view("residual |B| − IGRF, nT", ["/signals/residuals/**"], y_range=residual_range), summary_view()),
         column_shares=[2, 2, 2]))
 
 
@@ -47,7 +47,10 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
     tum = manoeuvre_mask(rec, "tumble")
     t = rec.time_s[idx]
     igrf_nT = float(res["igrf"]["total_nT"])
-    with RrdWriter(path, recording_name="magnetometer campaign", overwrite=overwrite, blueprint=blueprint(model)) as w:
+    cal = res["ellipsoid"].apply(m)
+    norm = np.linalg.norm(cal[idx], axis=1) * 1e9
+    bp = blueprint(model, symmetric_range(norm - igrf_nT))
+    with RrdWriter(path, recording_name="magnetometer campaign", overwrite=overwrite, blueprint=bp) as w:
         log_mujoco_model(w, model)
         log_body_poses(w, model, t, qpos)
         log_frame_axes(w, body_path(model, model.body("imu_mount").id))
@@ -55,10 +58,8 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
         log_points(w, "field_space/calibrated", res["ellipsoid"].apply(m[tum])[::5] * 1e6 * UT_TO_M,
                    color=role_color("calibrated"), radius=0.004)
         log_sphere(w, "field_space/igrf_sphere", igrf_nT * 1e-3 * UT_TO_M, color=(120, 120, 120, 255))
-        cal = res["ellipsoid"].apply(m)
         log_scalars(w, "signals/raw", t, {f"m_{a}": m[idx, j] * 1e9 for j, a in enumerate("xyz")},
                     {f"m_{a}": "nT" for a in "xyz"}, role="measured")
-        norm = np.linalg.norm(cal[idx], axis=1) * 1e9
         log_scalars(w, "signals/truth", t, {"norm": np.full_like(t, igrf_nT)}, {"norm": "nT"}, role="truth")
         log_scalars(w, "signals/calibrated", t, {**{f"B_{a}": cal[idx, j] * 1e9 for j, a in enumerate("xyz")},
                                                  "norm": norm}, {"norm": "nT", **{f"B_{a}": "nT" for a in "xyz"}},

@@ -15,7 +15,8 @@ Z95 = 1.959963984540054
 
 
 def _unit_key(unit: str) -> str:
-    return rr.escape_entity_path_part(unit or "1")
+    """An entity name for a unit: ``m/s^2`` -> ``m_per_s2``, dimensionless -> ``1``."""
+    return rr.escape_entity_path_part((unit or "1").replace("/", "_per_").replace("^", ""))
 
 
 def blueprint(units) -> rrb.Blueprint:

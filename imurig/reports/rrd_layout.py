@@ -81,6 +81,23 @@ def readable(values, unit: str) -> tuple[float, str]:
     return factor, ("10⁻³ " if factor == 1e3 else "10⁻⁶ ") + (unit or "1")
 
 
+def symmetric_range(*arrays) -> tuple[float, float] | None:
+    """(-R, R) for residual plots: R the least of 1, 2, 2.5, 5 x 10^k at or above 1.05 max |value|.
+
+    The viewer labels the y axis only at powers of ten whose spacing is wide enough; residuals
+    that span less than one such step (e.g. ±0.9) get a single label, 0. A range of 1, 2, 2.5 or 5
+    steps puts three to eleven labelled ticks on the axis. ``None`` when there is no finite value.
+    """
+    v = np.abs(np.concatenate([np.ravel(np.asarray(a, dtype=float)) for a in arrays]))
+    v = v[np.isfinite(v)]
+    if v.size == 0 or v.max() == 0.0:
+        return None
+    top = 1.05 * float(v.max())
+    k = np.floor(np.log10(top))
+    r = next(m * 10.0**k for m in (1.0, 2.0, 2.5, 5.0, 10.0) if m * 10.0**k >= top)
+    return -float(r), float(r)
+
+
 # ----------------------------------------------------------------------------- views
 
 def device_eye(model, body: str, distance_m: float = 0.9, elevation_deg: float = 30.0,
@@ -105,12 +122,15 @@ def rig_view(model, name: str = "rig", root: str = "world", device: str = "imu_m
                              line_grid=rrb.LineGrid3D(visible=False))
 
 
-def series_view(name: str, paths, origin: str = "/", legend_corner=rrb.Corner2D.RightTop) -> rrb.TimeSeriesView:
+def series_view(name: str, paths, origin: str = "/", legend_corner=rrb.Corner2D.RightTop,
+                y_range: tuple[float, float] | None = None) -> rrb.TimeSeriesView:
     """A time-series view of exactly ``paths`` (entities or ``subtree/**``) over the whole
-    recording (not a window around the time cursor)."""
+    recording (not a window around the time cursor); ``y_range`` fixes the y axis (see
+    :func:`symmetric_range`)."""
     whole = TimeRange(start=TimeRangeBoundary.infinite(), end=TimeRangeBoundary.infinite())
     return rrb.TimeSeriesView(origin=origin, name=name, contents=[f"+ {p}" for p in paths],
                               axis_x=rrb.TimeAxis(view_range=whole),
+                              axis_y=None if y_range is None else rrb.ScalarAxis(range=y_range),
                               plot_legend=rrb.PlotLegend(corner=legend_corner, visible=True))
 
 
