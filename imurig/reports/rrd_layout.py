@@ -35,7 +35,7 @@ ROLES = {
     "measured": [(217, 95, 2), (253, 141, 60), (253, 190, 133)],
     "calibrated": [(8, 81, 156), (49, 130, 189), (107, 174, 214)],
     "truth": [(40, 40, 40, 110), (110, 110, 110, 110), (170, 170, 170, 130)],  # see-through: wide, underneath
-    "twin": [(0, 109, 44), (49, 163, 84), (116, 196, 118)],
+    "twin": [(0, 109, 44, 150), (49, 163, 84, 150), (116, 196, 118, 160)],  # see-through: larger, underneath
     "corrected_twin": [(84, 39, 143), (128, 105, 185), (170, 160, 210)],
     "residual": [(165, 15, 21), (222, 45, 38), (251, 106, 74)],
     "residual_after": [(84, 39, 143), (128, 105, 185), (170, 160, 210)],
@@ -43,7 +43,8 @@ ROLES = {
     "uncalibrated": [(203, 24, 29), (239, 59, 44), (252, 146, 114)],
     "bound": [(150, 150, 150), (150, 150, 150), (150, 150, 150)],
 }
-WIDTH = {"truth": 4.0, "bound": 1.0}
+WIDTH = {"truth": 4.0, "twin": 3.0, "bound": 1.0}
+MARKER = {"truth": 6.0, "twin": 6.0, "corrected_twin": 4.0}  # marker sizes; 3 otherwise
 # the legend word of each role (underscores read badly in a legend)
 WORD = {"corrected_twin": "corrected twin", "residual_after": "residual after"}
 

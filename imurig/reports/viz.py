@@ -31,7 +31,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from imurig.kernel.errors import OutputExistsError
-from imurig.reports.rrd_layout import _VIEW_OF, legend, role_color, uncovered, views_of, WIDTH
+from imurig.reports.rrd_layout import _VIEW_OF, MARKER, WIDTH, legend, role_color, uncovered, views_of
 
 TIMELINE = "time"
 _SOLID = rr.components.FillMode.Solid
@@ -361,7 +361,7 @@ def log_scalars(w: RrdWriter, entity_prefix: str, time_s, series: dict[str, np.n
         if role is not None or name in (colors or {}):
             style["colors"] = [(colors or {}).get(name) or role_color(role, i)]
         if points:
-            w.log(entity, rr.SeriesPoints(**style, marker_sizes=[3.0]), static=True)
+            w.log(entity, rr.SeriesPoints(**style, marker_sizes=[MARKER.get(role, 3.0)]), static=True)
         else:
             w.log(entity, rr.SeriesLines(**style, widths=[WIDTH.get(role, 1.5)]), static=True)
         w.note(entity, "Scalars")
