@@ -31,7 +31,7 @@ KINDS = {
     "diagnosis-magnetometer": ([["concealed", "write", "magnetometer:hard_iron", "--out", "{d}/rec.h5",
                                  "--overwrite"],
                                 ["diagnose", "{d}/rec.h5", "--out", "{d}/out", "--overwrite"]], "out/diagnosis.rrd"),
-    "montecarlo": ([["montecarlo", "tilt-table", "--n-runs", "8", "--workers", "1", "--theta", "0,45,90",
+    "montecarlo": ([["montecarlo", "tilt-table", "--n-runs", "4", "--workers", "1", "--theta", "0,45,90",
                      "--phi", "0,90,180,270", "--dwell", "2", "--out", "{d}/out", "--overwrite"]], "out/study.rrd"),
 }
 
