@@ -3,8 +3,9 @@ parameter's z-score inside the ±1.96 band, and its error (estimate − injected
 unit; the per-parameter statistics as text."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
-import rerun as rr
 import rerun.blueprint as rrb
 
 from imurig.montecarlo.stats import table_arrays
@@ -15,8 +16,9 @@ Z95 = 1.959963984540054
 
 
 def _unit_key(unit: str) -> str:
-    """An entity name for a unit: ``m/s^2`` -> ``m_per_s2``, dimensionless -> ``1``."""
-    return rr.escape_entity_path_part((unit or "1").replace("/", "_per_").replace("^", ""))
+    """An entity name for a unit (letters, digits, underscores): ``m/s^2`` -> ``m_per_s2``,
+    ``V/(m/s^2)`` -> ``V_per_m_per_s2``, dimensionless -> ``1``."""
+    return re.sub(r"[^A-Za-z0-9_]", "", (unit or "1").replace("/", "_per_")) or "1"
 
 
 def blueprint(units) -> rrb.Blueprint:
