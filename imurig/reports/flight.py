@@ -133,23 +133,26 @@ def fig_heading_vs_track(folder, runs, gps):
 
 
 def fig_errors_consistency(folder, runs):
-    """Attitude, heading (with 3σ), position errors and NEES of both runs."""
+    """Attitude, heading (with 3σ), position errors and NEES of both runs; every panel's legend
+    names every line."""
     plt, col = _pyplot(), COLOURS
     fig, ax = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
     for name, (res, err, _) in runs.items():
         ax[0].plot(res.time_s, np.degrees(err["roll_rad"]), color=col[name], lw=0.7, label=f"roll {name}")
-        ax[0].plot(res.time_s, np.degrees(err["pitch_rad"]), color=col[name], lw=0.7, ls=":")
-        ax[1].plot(res.time_s, np.degrees(err["heading_rad"]), color=col[name], lw=0.7, label=name)
-        ax[1].plot(res.time_s, 3 * np.degrees(np.sqrt(res.P_diag[:, 8])), color=col[name], lw=0.5, ls="--")
+        ax[0].plot(res.time_s, np.degrees(err["pitch_rad"]), color=col[name], lw=0.7, ls=":", label=f"pitch {name}")
+        ax[1].plot(res.time_s, np.degrees(err["heading_rad"]), color=col[name], lw=0.7, label=f"heading {name}")
+        ax[1].plot(res.time_s, 3 * np.degrees(np.sqrt(res.P_diag[:, 8])), color=col[name], lw=0.5, ls="--",
+                   label=f"3σ {name}")
         ax[2].plot(res.time_s, np.linalg.norm(err["pos_N_m"], axis=1), color=col[name], lw=0.7, label=name)
         ax[3].semilogy(res.time_s, np.maximum(err["nees"], 1e-3), color=col[name], lw=0.5, label=name)
-    ax[3].axhline(9, color="k", lw=0.5)
+    ax[3].axhline(9, color="k", lw=0.5, label="9 (its mean for a consistent filter)")
     ax[0].set_ylabel("roll/pitch err, deg")
-    ax[1].set_ylabel("heading err, deg\n(-- 3σ)")
+    ax[1].set_ylabel("heading err, deg")
     ax[2].set_ylabel("position err, m")
     ax[3].set_ylabel("NEES (9 dof)")
     ax[3].set_xlabel("time, s")
-    ax[0].legend(fontsize=7)
+    for a in ax:
+        a.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     fig.savefig(folder.file("fig_errors_consistency.png"), dpi=90)
     plt.close(fig)
