@@ -190,3 +190,16 @@ def test_flight_recording(tmp_path):
     lg = legends(out)
     assert lg["/errors/calibrated/roll_err_deg"][1] != lg["/errors/uncalibrated/roll_err_deg"][1]
     assert lg["/errors/calibrated/roll_err_deg"][0] != lg["/errors/uncalibrated/roll_err_deg"][0]
+
+
+def test_rrd_follows_the_umask(tmp_path):
+    """A lab group shares its outputs: the .rrd gets 0666 less the umask (not mkstemp's 0600)."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        with viz.RrdWriter(tmp_path / "u.rrd", blueprint=None) as w:
+            viz.log_text(w, "summary", "x")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "u.rrd").stat().st_mode & 0o777 == 0o644

@@ -104,6 +104,9 @@ class RrdWriter:
         self._check_target()
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent or ".")
         os.close(fd)
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)  # the user's umask, not mkstemp's 0600
         self._tmp = Path(tmp)
         self._open = True
         self.entities: dict[str, set[str]] = {}
