@@ -183,6 +183,9 @@ def main(argv=None) -> int:
         rrds = rrd_examples.write(a.out_dir, kinds)
     else:
         rrds = {k: a.out_dir / k / rrd_examples.KINDS[k][1] for k in kinds}
+    missing = [str(p) for p in rrds.values() if not p.is_file()]
+    if missing:
+        raise SystemExit(f"no recording at {', '.join(missing)}: write them first (--write)")
     a.png_dir.mkdir(parents=True, exist_ok=True)
     for kind, rrd in rrds.items():
         size = screenshot(rrd, a.png_dir / f"{kind}.png", settle_s=a.settle)

@@ -203,3 +203,14 @@ def test_rrd_follows_the_umask(tmp_path):
     finally:
         os.umask(old)
     assert (tmp_path / "u.rrd").stat().st_mode & 0o777 == 0o644
+
+
+def test_lines_break_at_gaps():
+    """A NaN in the middle of each gap longer than 5 sample intervals (the viewer breaks the line
+    there); nothing else changes."""
+    t = np.concatenate([np.arange(0.0, 1.0, 0.1), np.arange(5.0, 6.0, 0.1)])
+    t2, s2 = viz.break_gaps(t, {"a": np.arange(t.size, dtype=float)})
+    assert t2.size == t.size + 1 and t2[10] == pytest.approx(0.5 * (0.9 + 5.0)) and np.isnan(s2["a"][10])
+    np.testing.assert_array_equal(np.delete(s2["a"], 10), np.arange(t.size))
+    t3, s3 = viz.break_gaps(np.arange(0.0, 1.0, 0.1), {"a": np.ones(10)})
+    assert t3.size == 10 and not np.isnan(s3["a"]).any()

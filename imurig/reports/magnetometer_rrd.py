@@ -9,7 +9,7 @@ import rerun.blueprint as rrb
 from imurig.campaigns.magnetometer import indicated_field, manoeuvre_mask
 from imurig.kernel.recording import Recording
 from imurig.reports.rrd_layout import layout, rig_view, role_color, series_view, summary_view, symmetric_range
-from imurig.reports.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
+from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
                                 log_scalars, log_sphere, log_text)
 from imurig.rigs.mujoco_rig import load_model
 
@@ -58,13 +58,13 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
         log_points(w, "field_space/calibrated", res["ellipsoid"].apply(m[tum])[::5] * 1e6 * UT_TO_M,
                    color=role_color("calibrated"), radius=0.004)
         log_sphere(w, "field_space/igrf_sphere", igrf_nT * 1e-3 * UT_TO_M, color=(120, 120, 120, 255))
-        log_scalars(w, "signals/raw", t, {f"m_{a}": m[idx, j] * 1e9 for j, a in enumerate("xyz")},
+        log_scalars(w, "signals/raw", *break_gaps(t, {f"m_{a}": m[idx, j] * 1e9 for j, a in enumerate("xyz")}),
                     {f"m_{a}": "nT" for a in "xyz"}, role="measured")
         log_scalars(w, "signals/truth", t, {"norm": np.full_like(t, igrf_nT)}, {"norm": "nT"}, role="truth")
-        log_scalars(w, "signals/calibrated", t, {**{f"B_{a}": cal[idx, j] * 1e9 for j, a in enumerate("xyz")},
-                                                 "norm": norm}, {"norm": "nT", **{f"B_{a}": "nT" for a in "xyz"}},
+        b_cal = {**{f"B_{a}": cal[idx, j] * 1e9 for j, a in enumerate("xyz")}, "norm": norm}
+        log_scalars(w, "signals/calibrated", *break_gaps(t, b_cal), {n: "nT" for n in b_cal},
                     role="calibrated", colors={"norm": role_color("calibrated")})
-        log_scalars(w, "signals/residuals", t, {"norm": norm - igrf_nT}, {"norm": "nT"}, role="residual")
+        log_scalars(w, "signals/residuals", *break_gaps(t, {"norm": norm - igrf_nT}), {"norm": "nT"}, role="residual")
         log_text(w, "summary", "# Magnetometer calibration\n\n" + "\n".join(
             f"- heading error {k_}: RMS {v['rms']:.3f} deg, max {v['max_abs']:.3f} deg"
             for k_, v in res["heading_error_deg"].items()))

@@ -83,12 +83,14 @@ def readable(values, unit: str) -> tuple[float, str]:
 
 
 def symmetric_range(*arrays) -> tuple[float, float] | None:
-    """(-R, R) for residual plots: R the least of 1.2, 2, 2.5, 5 x 10^k at or above 1.05 max |value|.
+    """(-R, R) for residual plots: R the least of 1.2, 2, 2.5, 3, 4, 12 x 10^k at or above 1.05 max |value|.
 
     The viewer labels the y axis only at multiples of a power of ten whose spacing on screen is
     wide enough; residuals that span less than one such step (e.g. ±0.9) get a single label, 0,
     and a range of exactly ±10^k puts its other two labels on the plot's edges, where they are
-    cut. A range of 1.2, 2, 2.5 or 5 steps puts the labels ±10^k (and more) inside the plot.
+    cut, and in a short plot more than some eight steps are too close to be labelled. A range
+    of 1.2 to 4 steps puts the labels ±10^k (and more) inside the plot; above 4 steps the next
+    power of ten is the step (R = 1.2 x 10^(k+1)).
     ``None`` when there is no finite value.
     """
     v = np.abs(np.concatenate([np.ravel(np.asarray(a, dtype=float)) for a in arrays]))
@@ -97,7 +99,7 @@ def symmetric_range(*arrays) -> tuple[float, float] | None:
         return None
     top = 1.05 * float(v.max())
     k = np.floor(np.log10(top))
-    r = next(m * 10.0**k for m in (1.2, 2.0, 2.5, 5.0, 12.0) if m * 10.0**k >= top)
+    r = next(m * 10.0**k for m in (1.2, 2.0, 2.5, 3.0, 4.0, 12.0) if m * 10.0**k >= top)
     r = float(f"{r:.12g}")
     return -r, r
 

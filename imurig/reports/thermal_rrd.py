@@ -9,7 +9,8 @@ import rerun.blueprint as rrb
 from imurig.kernel.recording import Recording
 from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
 from imurig.reports.turn_table_rrd import block_means
-from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
+                                log_scalars, log_text)
 from imurig.rigs.mujoco_rig import load_model
 
 
@@ -74,7 +75,7 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True, display_p
                     role="truth")
         names = [c for c in ("acc_x", "acc_y", "acc_z", "gyro_p", "gyro_q", "gyro_r", "temp_box") if c in rec.channels]
         tb, raw = block_means(rec, names, k)
-        log_scalars(w, "signals/raw", tb, raw, {n: "V" for n in names}, role="measured")
+        log_scalars(w, "signals/raw", *break_gaps(tb, raw), {n: "V" for n in names}, role="measured")
         seg_t = np.array([rec.segments["stop_s"][rec.segments["step"] == s].max() for s in tab["step"]])
         _biases(w, "signals/calibrated", seg_t, tab, "calibrated")
         if "twin_table" in res:

@@ -9,7 +9,8 @@ from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
 from imurig.rigs.tilt_table import MOUNTS, _quat_wxyz
 from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
-from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
+                                log_scalars, log_text)
 
 DISPLAY_HZ = 10.0
 
@@ -54,14 +55,16 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
         log_body_poses(w, model, t, qpos, body_quat_overrides={"imu_mount": mount_q})
         imu_path = body_path(model, model.body("imu_mount").id)
         log_frame_axes(w, imu_path, length=0.15)
-        log_scalars(w, "signals/raw", t, {c: rec100.channels[c][idx] for c in ACC}, {c: "V" for c in ACC},
+        log_scalars(w, "signals/raw", *break_gaps(t, {c: rec100.channels[c][idx] for c in ACC}), {c: "V" for c in ACC},
                     role="measured")
         calibrated = cal.apply(rec100)
         f_units = {f"f_{a}": "m/s^2" for a in AXES}
         if rec100.truth_signals.get("f_C_x") is not None:  # first: drawn wide, underneath
-            log_scalars(w, "signals/truth", t, {f"f_{a}": rec100.truth_signals[f"f_C_{a}"][idx] for a in AXES},
+            truth = {f"f_{a}": rec100.truth_signals[f"f_C_{a}"][idx] for a in AXES}
+            log_scalars(w, "signals/truth", *break_gaps(t, truth),
                         f_units, role="truth")
-        log_scalars(w, "signals/calibrated", t, {f"f_{a}": calibrated.channels[f"acc_cal_{a}"][idx] for a in AXES},
+        f_cal = {f"f_{a}": calibrated.channels[f"acc_cal_{a}"][idx] for a in AXES}
+        log_scalars(w, "signals/calibrated", *break_gaps(t, f_cal),
                     f_units, role="calibrated")
         mid = 0.5 * (rec100.segments["start_s"] + rec100.segments["stop_s"])
         log_scalars(w, "signals/residuals", mid, resid, {n: unit for n in resid}, role="residual", points=True)

@@ -12,7 +12,8 @@ from imurig.rigs.tilt_table import _quat_wxyz
 from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
 from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
 from imurig.reports.tilt_table_rrd import parameter_table
-from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
+                                log_scalars, log_text)
 
 DISPLAY_HZ = 10.0
 
@@ -74,7 +75,7 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
         log_body_poses(w, model, t_pose, qpos, body_quat_overrides={"imu_mount": mount_q})
         log_frame_axes(w, body_path(model, model.body("imu_mount").id), length=0.15)
         t, raw = block_means(rec, list(GYRO), k)
-        log_scalars(w, "signals/raw", t, raw, {c: "V" for c in GYRO}, role="measured")
+        log_scalars(w, "signals/raw", *break_gaps(t, raw), {c: "V" for c in GYRO}, role="measured")
         calibrated = cal.apply(rec)
         t, c = block_means(calibrated, [f"gyro_cal_{a}" for a in AXES], k)
         units = {f"w_{a}": "deg/s" for a in AXES}
@@ -82,7 +83,8 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
         log_scalars(w, "signals/reference", mid, {f"w_{a}": np.degrees(res["reference"][:, j])
                                                   for j, a in enumerate(AXES)}, units, role="truth", points=True,
                     labels={f"w_{a}": f"w_{a} reference [deg/s]" for a in AXES})
-        log_scalars(w, "signals/calibrated", t, {f"w_{a}": np.degrees(c[f"gyro_cal_{a}"]) for a in AXES}, units,
+        w_cal = {f"w_{a}": np.degrees(c[f"gyro_cal_{a}"]) for a in AXES}
+        log_scalars(w, "signals/calibrated", *break_gaps(t, w_cal), units,
                     role="calibrated")
         log_scalars(w, "signals/residuals", mid, resid, {n: unit for n in resid}, role="residual", points=True)
         for i, (name, ev) in enumerate(rec.events.items()):

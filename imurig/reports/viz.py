@@ -41,6 +41,7 @@ __all__ = [
     "RrdLayoutWarning",
     "RrdWriter",
     "body_path",
+    "break_gaps",
     "default_blueprint",
     "log_body_poses",
     "log_frame_axes",
@@ -338,7 +339,8 @@ def log_frame_axes(w: RrdWriter, entity: str, length: float = 0.15) -> None:
 
 def log_scalars(w: RrdWriter, entity_prefix: str, time_s, series: dict[str, np.ndarray],
                 units: dict[str, str] | None = None, role: str | None = None, points: bool = False,
-                colors: dict[str, tuple] | None = None, labels: dict[str, str] | None = None) -> None:
+                colors: dict[str, tuple] | None = None, labels: dict[str, str] | None = None,
+                sequence: str | None = None) -> None:
     """Log each (T,) series to ``entity_prefix/<name>`` with one send_columns call.
 
     Without ``role`` a static SeriesLines name ``"<name> [<unit>]"`` is logged (unit when
@@ -346,10 +348,11 @@ def log_scalars(w: RrdWriter, entity_prefix: str, time_s, series: dict[str, np.n
     reads ``"<name> <role> [<unit>]"`` and the i-th series takes the role's i-th colour (the
     truth drawn wider); ``colors`` {name: rgb} and ``labels`` {name: legend} override them.
     ``points=True`` draws markers (SeriesPoints) instead of lines: for values per position,
-    step or run rather than per sample.
+    step or run rather than per sample. ``sequence`` puts the values on a sequence timeline of
+    that name (``time_s`` then holds integers, e.g. run numbers) instead of ``"time"``.
     """
     time_s = np.asarray(time_s, dtype=float)
-    times = _time_column(time_s)
+    times = _time_column(time_s) if sequence is None else rr.TimeColumn(sequence, sequence=time_s.astype(np.int64))
     units = units or {}
     for i, (name, values) in enumerate(series.items()):
         values = np.asarray(values, dtype=float)
@@ -369,6 +372,21 @@ def log_scalars(w: RrdWriter, entity_prefix: str, time_s, series: dict[str, np.n
             w.log(entity, rr.SeriesLines(**style, widths=[WIDTH.get(role, 1.5)]), static=True)
         w.note(entity, "Scalars")
         w.stream.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=values))
+
+
+def break_gaps(time_s, series: dict[str, np.ndarray], factor: float = 5.0):
+    """(time_s, series) with a NaN sample in the middle of every gap longer than ``factor`` times
+    the median sample interval: the viewer breaks a line at a NaN instead of drawing a straight
+    line across the gap (between runs, blocks or manoeuvres)."""
+    t = np.asarray(time_s, dtype=float)
+    dt = np.diff(t)
+    if dt.size < 2 or not np.any(dt > 0):
+        return t, series
+    cut = np.flatnonzero(dt > factor * np.median(dt[dt > 0]))
+    if cut.size == 0:
+        return t, series
+    t_new = np.insert(t, cut + 1, 0.5 * (t[cut] + t[cut + 1]))
+    return t_new, {k: np.insert(np.asarray(v, dtype=float), cut + 1, np.nan) for k, v in series.items()}
 
 
 def log_text(w: RrdWriter, entity: str, markdown: str) -> None:
