@@ -44,6 +44,12 @@ def test_rrd_opens_and_holds_rig_and_signals(report):
     assert any(p.startswith("/world/pedestal/base/cradle/platform") for p in paths), sorted(paths)[:20]
     assert any("signals/raw/acc_x" in p for p in paths)
     assert any("signals/calibrated/f_z" in p for p in paths)
+    # every logged entity in a view of the stored blueprint; residuals logged and shown
+    from imurig.reports.rrd_layout import entities_in_rrd, uncovered, views_in_rrd
+
+    ents = entities_in_rrd(report / "campaign.rrd")
+    assert uncovered(ents, views_in_rrd(report / "campaign.rrd")) == []
+    assert {"/signals/residuals/f_x", "/signals/truth/f_x", "/summary"} <= set(ents)
 
 
 def test_second_run_refuses_to_overwrite(report, capsys):
@@ -113,6 +119,11 @@ def test_turn_table_campaign_cli(tmp_path):
 
     paths = {str(c.entity_path) for c in rr.chunk.RrdReader(str(out / "campaign.rrd")).stream()}
     assert any("spindle" in p for p in paths) and any("signals/raw/gyro_p" in p for p in paths)
+    from imurig.reports.rrd_layout import entities_in_rrd, uncovered, views_in_rrd
+
+    ents = entities_in_rrd(out / "campaign.rrd")
+    assert uncovered(ents, views_in_rrd(out / "campaign.rrd")) == []
+    assert {"/signals/residuals/w_p", "/signals/reference/w_p", "/signals/pulses/pulse_true"} <= set(ents)
     assert (out / "fig_4_21_gyro_residuals.png").stat().st_size > 0
 
 

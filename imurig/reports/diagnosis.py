@@ -92,14 +92,11 @@ def _figures(out, rec: Recording, d: dict) -> list[tuple[str, str]]:
 def _rrd(path, rec: Recording, d: dict):
     """The .rrd: recording, twin and corrected twin overlaid per channel (entities
     ``signals/<channel>/<observable>/{recording,twin,corrected_twin}``) and the findings as text."""
-    from imurig.reports.viz import RrdWriter, log_scalars, log_text  # lazy: rerun only when a report is written
+    from imurig.reports.diagnosis_rrd import write  # lazy: rerun only when a report is written
 
     summary = "# Diagnosis\n\n" + ("\n".join(f"- **{r[1]}** ({r[0]}): {r[2]}" for r in _findings_rows(d))
                                     or "No effect accepted: the recording agrees with its twin.")
-    with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
-        for ent, t, series, unit in _overlays(rec, d):
-            log_scalars(w, ent, t, series, {k: unit for k in series})
-        log_text(w, "summary", summary)
+    write(path, _overlays(rec, d), summary)
 
 
 def _overlays(rec: Recording, d: dict):

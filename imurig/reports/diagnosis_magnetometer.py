@@ -48,16 +48,17 @@ def _figure(out, d: dict) -> str:
     rec_, tw, cor = (np.asarray(s[k]) for k in ("recording_nT", "twin_nT", "corrected_twin_nT"))
     fig, axs = plt.subplots(3, 2, figsize=(11, 8), sharex=True)
     for j, a in enumerate(AXES):
-        axs[j, 0].plot(t, rec_[:, j] - tw[:, j], ".", ms=2)
+        axs[j, 0].plot(t, rec_[:, j] - tw[:, j], ".", ms=2, label="recording − nominal twin")
         axs[j, 0].set(ylabel=f"mag_{a} residual, nT")
-        axs[j, 1].plot(t, rec_[:, j] - cor[:, j], ".", ms=2, color="C1")
+        axs[j, 1].plot(t, rec_[:, j] - cor[:, j], ".", ms=2, color="C1", label="recording − corrected twin")
         sb = d["noise"]["block_sigma_predicted_nT"][j]
         axs[j, 1].axhspan(-2 * sb, 2 * sb, color="0.85", zorder=0, label="±2σ noise model")
         axs[j, 0].grid(alpha=0.3)
         axs[j, 1].grid(alpha=0.3)
     axs[0, 0].set_title("recording − nominal twin")
     axs[0, 1].set_title("recording − corrected twin (effects found)")
-    axs[0, 1].legend(fontsize=7)
+    for ax in axs.ravel():
+        ax.legend(fontsize=7, loc="upper right")
     axs[2, 0].set_xlabel("time, s")
     axs[2, 1].set_xlabel("time, s")
     fig.tight_layout()
@@ -67,16 +68,17 @@ def _figure(out, d: dict) -> str:
 
 
 def _rrd(path, d: dict):
-    from imurig.reports.viz import RrdWriter, log_scalars, log_text  # lazy: rerun only when a report is written
+    """The .rrd (imurig.reports.diagnosis_rrd): per axis ``signals/mag_<a>/field/{recording,
+    twin,corrected_twin}`` in nT and their residuals."""
+    from imurig.reports.diagnosis_rrd import write  # lazy: rerun only when a report is written
 
     s = d["series"]
     t = np.asarray(s["time_s"])
-    with RrdWriter(path, recording_name="diagnosis", overwrite=True) as w:
-        for key, name in (("recording_nT", "recording"), ("twin_nT", "twin"), ("corrected_twin_nT", "corrected_twin")):
-            v = np.asarray(s[key])
-            log_scalars(w, f"signals/mag/{name}", t, {f"mag_{a}": v[:, j] for j, a in enumerate(AXES)},
-                        {f"mag_{a}": "nT" for a in AXES})
-        log_text(w, "summary", "# Diagnosis\n\n" + "\n".join(f"- **{r[1]}**: {r[2]}" for r in findings_rows(d)))
+    v = {name: np.asarray(s[key]) for key, name in (("recording_nT", "recording"), ("twin_nT", "twin"),
+                                                     ("corrected_twin_nT", "corrected_twin"))}
+    overlays = [(f"signals/mag_{a}/field", t, {k: x[:, j] for k, x in v.items()}, "nT") for j, a in enumerate(AXES)]
+    write(path, overlays, "# Diagnosis\n\n" + ("\n".join(f"- **{r[1]}**: {r[2]}" for r in findings_rows(d))
+                                                 or "No effect accepted: the recording agrees with its twin."))
 
 
 def run(rec: Recording, out_dir, overwrite: bool = False, seed: int = 0, twin_model: str = "nominal") -> dict:

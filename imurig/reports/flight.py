@@ -133,23 +133,26 @@ def fig_heading_vs_track(folder, runs, gps):
 
 
 def fig_errors_consistency(folder, runs):
-    """Attitude, heading (with 3σ), position errors and NEES of both runs."""
+    """Attitude, heading (with 3σ), position errors and NEES of both runs; every panel's legend
+    names every line."""
     plt, col = _pyplot(), COLOURS
     fig, ax = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
     for name, (res, err, _) in runs.items():
         ax[0].plot(res.time_s, np.degrees(err["roll_rad"]), color=col[name], lw=0.7, label=f"roll {name}")
-        ax[0].plot(res.time_s, np.degrees(err["pitch_rad"]), color=col[name], lw=0.7, ls=":")
-        ax[1].plot(res.time_s, np.degrees(err["heading_rad"]), color=col[name], lw=0.7, label=name)
-        ax[1].plot(res.time_s, 3 * np.degrees(np.sqrt(res.P_diag[:, 8])), color=col[name], lw=0.5, ls="--")
+        ax[0].plot(res.time_s, np.degrees(err["pitch_rad"]), color=col[name], lw=0.7, ls=":", label=f"pitch {name}")
+        ax[1].plot(res.time_s, np.degrees(err["heading_rad"]), color=col[name], lw=0.7, label=f"heading {name}")
+        ax[1].plot(res.time_s, 3 * np.degrees(np.sqrt(res.P_diag[:, 8])), color=col[name], lw=0.5, ls="--",
+                   label=f"3σ {name}")
         ax[2].plot(res.time_s, np.linalg.norm(err["pos_N_m"], axis=1), color=col[name], lw=0.7, label=name)
         ax[3].semilogy(res.time_s, np.maximum(err["nees"], 1e-3), color=col[name], lw=0.5, label=name)
-    ax[3].axhline(9, color="k", lw=0.5)
+    ax[3].axhline(9, color="k", lw=0.5, label="9 (its mean for a consistent filter)")
     ax[0].set_ylabel("roll/pitch err, deg")
-    ax[1].set_ylabel("heading err, deg\n(-- 3σ)")
+    ax[1].set_ylabel("heading err, deg")
     ax[2].set_ylabel("position err, m")
     ax[3].set_ylabel("NEES (9 dof)")
     ax[3].set_xlabel("time, s")
-    ax[0].legend(fontsize=7)
+    for a in ax:
+        a.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     fig.savefig(folder.file("fig_errors_consistency.png"), dpi=90)
     plt.close(fig)
@@ -191,27 +194,8 @@ Real-time factor of the filter: {summary['real_time_factor']:.1f}x ({summary['fi
 
 
 def write_rrd(folder, truth, runs, gps, text: str):
-    """flight.rrd: the routes (truth, GPS, both filters) and the errors with their 3σ."""
-    from imurig.reports import viz  # lazy: rerun is loaded only when the .rrd is written
+    """flight.rrd (imurig.reports.flight_rrd): the routes and the errors with their 3σ."""
+    from imurig.reports.flight_rrd import write_rrd as _write  # lazy: rerun is loaded only when the .rrd is written
 
-    with viz.RrdWriter(folder.file("flight.rrd"), overwrite=True) as w:
-        lat0, lon0, h0 = truth.lat_rad[0], truth.lon_rad[0], truth.h_m[0]
-        sub = slice(None, None, max(1, int(truth.rate_hz)))
-        d_true = E.ned_from_geodetic(truth.lat_rad[sub], truth.lon_rad[sub], truth.h_m[sub], lat0, lon0, h0)
-        viz.log_points(w, "world/truth_route", d_true * [1, 1, -1], color=(200, 200, 200), radius=2.0)
-        d_gps = E.ned_from_geodetic(gps.lat_rad, gps.lon_rad, gps.h_m, lat0, lon0, h0)
-        viz.log_points(w, "world/gps_fixes", d_gps * [1, 1, -1], color=(255, 200, 0), radius=3.0)
-        for name, (res, err, _) in runs.items():
-            ss = slice(None, None, max(1, int(res.meta["nav_rate_hz"])))
-            d = E.ned_from_geodetic(res.lat_rad[ss], res.lon_rad[ss], res.h_m[ss], lat0, lon0, h0)
-            viz.log_points(w, f"world/ekf_{name}", d * [1, 1, -1],
-                           color=(220, 60, 60) if name == "uncalibrated" else (60, 60, 220), radius=1.5)
-            t = res.time_s[ss]
-            viz.log_scalars(w, f"errors/{name}", t, {
-                "roll_err_deg": np.degrees(err["roll_rad"][ss]), "pitch_err_deg": np.degrees(err["pitch_rad"][ss]),
-                "heading_err_deg": np.degrees(err["heading_rad"][ss]),
-                "heading_3sigma_deg": 3 * np.degrees(np.sqrt(res.P_diag[ss, 8])),
-                "pos_err_m": np.linalg.norm(err["pos_N_m"][ss], axis=1),
-                "pos_3sigma_m": 3 * np.sqrt(res.P_diag[ss, 0:3].sum(axis=1)), "nees": err["nees"][ss]})
-        viz.log_text(w, "summary", text)
+    _write(folder, truth, runs, gps, text)
 

@@ -11,7 +11,6 @@ from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.kernel.progress import progress
 from imurig.kernel.recording import Recording
-from imurig.rigs.mujoco_rig import load_model
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_figures_and_run, md_table, save_products
 
@@ -151,34 +150,7 @@ def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_rec
 
 
 def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
-    """The gimbal turning the IMU; the measured field (ellipsoid) against the calibrated one
-    (on the IGRF sphere), in uT; X, Y and norm over time."""
-    # rerun (reports.viz): heavy, loaded for the .rrd only
-    from imurig.reports.viz import (RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_points,
-                                    log_scalars, log_sphere, log_text)
+    """The campaign's .rrd (imurig.reports.magnetometer_rrd)."""
+    from imurig.reports.magnetometer_rrd import write_rrd as _write  # rerun: heavy, loaded for the .rrd only
 
-    model = load_model("mag_rig.xml")
-    k = max(1, int(round(rec.sample_rate_hz / 10)))
-    idx = np.arange(0, rec.n, k)
-    ts = rec.truth_signals
-    qpos = np.stack([ts["yaw"][idx], ts["pitch"][idx], ts["roll"][idx]], 1)
-    m = indicated_field(rec)
-    tum = manoeuvre_mask(rec, "tumble")
-    with RrdWriter(path, recording_name="magnetometer campaign", overwrite=overwrite) as w:
-        log_mujoco_model(w, model)
-        log_body_poses(w, model, rec.time_s[idx], qpos)
-        log_frame_axes(w, body_path(model, model.body("imu_mount").id))
-        # the field space sits beside the rig: 1 uT = 1 cm
-        log_points(w, "field_space/measured", m[tum][::5] * 1e6 * 0.01, color=(230, 90, 60), radius=0.004)
-        log_points(w, "field_space/calibrated", res["ellipsoid"].apply(m[tum])[::5] * 1e6 * 0.01,
-                   color=(60, 160, 230), radius=0.004)
-        log_sphere(w, "field_space/igrf_sphere", res["igrf"]["total_nT"] * 1e-3 * 0.01)
-        cal = res["ellipsoid"].apply(m)
-        log_scalars(w, "signals/raw", rec.time_s[idx], {f"m_{a}": m[idx, j] * 1e9 for j, a in enumerate("xyz")},
-                    {f"m_{a}": "nT" for a in "xyz"})
-        log_scalars(w, "signals/calibrated", rec.time_s[idx],
-                    {**{f"B_{a}": cal[idx, j] * 1e9 for j, a in enumerate("xyz")},
-                     "norm": np.linalg.norm(cal[idx], axis=1) * 1e9}, {"norm": "nT", **{f"B_{a}": "nT" for a in "xyz"}})
-        log_text(w, "summary", "# Magnetometer calibration\n\n" + "\n".join(
-            f"- heading error {k}: RMS {v['rms']:.3f} deg, max {v['max_abs']:.3f} deg"
-            for k, v in res["heading_error_deg"].items()))
+    _write(path, rec, res, overwrite=overwrite)

@@ -11,7 +11,7 @@ import numpy as np
 
 from imurig.kernel.outputs import atomic_write, clean_json
 from imurig.montecarlo.results import atomic_text, write_results_h5
-from imurig.montecarlo.stats import error_matrix, parameter_stats, table_arrays
+from imurig.montecarlo.stats import error_matrix, parameter_stats
 from imurig.reports.common import fmt, md_table
 from imurig.reports.flight_budget import budget_report
 
@@ -201,13 +201,7 @@ def render_report(study, stats, figs, lab, per_run, extra_md: str = "", lab_note
 
 
 def _write_rrd(path: Path, study, stats) -> None:
-    from imurig.reports.viz import RrdWriter, log_scalars, log_text  # rerun: heavy, loaded for the .rrd only
+    """study.rrd (imurig.reports.montecarlo_rrd): z and errors per run, the statistics."""
+    from imurig.reports.montecarlo_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
-    idx, names, units, A = table_arrays(study.rows)
-    with RrdWriter(path, recording_name="Monte-Carlo study", overwrite=True, blueprint=None) as w:
-        # the "time" timeline carries the run index here
-        log_scalars(w, "z", idx.astype(float), {n: A["z"][:, j] for j, n in enumerate(names)})
-        log_scalars(w, "error", idx.astype(float), {n: A["estimate"][:, j] - A["injected"][:, j]
-                                                    for j, n in enumerate(names)},
-                    units=dict(zip(names, units)))
-        log_text(w, "summary", stats_table(stats))
+    write_rrd(path, study, stats_table(stats))

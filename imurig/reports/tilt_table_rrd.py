@@ -2,14 +2,31 @@
 from __future__ import annotations
 
 import numpy as np
+import rerun.blueprint as rrb
 
 from imurig.calibration.accelerometer import ACC, AXES
 from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
 from imurig.rigs.tilt_table import MOUNTS, _quat_wxyz
-from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
+from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
+                                log_scalars, log_text)
 
 DISPLAY_HZ = 10.0
+
+
+def blueprint(model, residual_range=None) -> rrb.Blueprint:
+    """Left: the table with the camera on the IMU, the parameter table below. Right: measured
+    volts, calibrated specific force over the truth, and the per-position residuals (y axis
+    ``residual_range``)."""
+    return layout(rrb.Horizontal(
+        rrb.Vertical(rig_view(model, "tilt table", distance_m=0.8), summary_view(), row_shares=[3, 2]),
+        rrb.Vertical(series_view("measured: accelerometer volts", ["/signals/raw/**"]),
+                     series_view("calibrated over truth: specific force, m/s²",
+                                 ["/signals/calibrated/**", "/signals/truth/**"]),
+                     series_view("residuals per position (calibrated − reference)", ["/signals/residuals/**"],
+                                 y_range=residual_range)),
+        column_shares=[2, 3]))
 
 
 def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
@@ -29,25 +46,37 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
     seg_run = rec100.segments.get("run", np.zeros(rec100.n_segments, int)).astype(int)
     nxt = np.clip(np.searchsorted(rec100.segments["stop_s"], t), 0, rec100.n_segments - 1)
     mount_q = np.array([_quat_wxyz(MOUNTS[runs[r]]) for r in seg_run[nxt]])
-    with RrdWriter(path, recording_name="tilt-table campaign", overwrite=overwrite) as w:
+    resid = {f"f_{a}": cal.results_[a].residuals_ for a in AXES}
+    k, unit = readable(np.concatenate(list(resid.values())), "m/s^2")
+    resid = {n: v * k for n, v in resid.items()}
+    bp = blueprint(model, symmetric_range(*resid.values()))
+    with RrdWriter(path, recording_name="tilt-table campaign", overwrite=overwrite, blueprint=bp) as w:
         log_mujoco_model(w, model)
         log_body_poses(w, model, t, qpos, body_quat_overrides={"imu_mount": mount_q})
         imu_path = body_path(model, model.body("imu_mount").id)
         log_frame_axes(w, imu_path, length=0.15)
-        log_scalars(w, "signals/raw", t, {c: rec100.channels[c][idx] for c in ACC}, {c: "V" for c in ACC})
+        log_scalars(w, "signals/raw", *break_gaps(t, {c: rec100.channels[c][idx] for c in ACC}), {c: "V" for c in ACC},
+                    role="measured")
         calibrated = cal.apply(rec100)
-        log_scalars(w, "signals/calibrated", t, {f"f_{a}": calibrated.channels[f"acc_cal_{a}"][idx] for a in AXES},
-                    {f"f_{a}": "m/s^2" for a in AXES})
-        if rec100.truth_signals.get("f_C_x") is not None:
-            log_scalars(w, "signals/calibrated/truth", t,
-                        {f"f_{a}": rec100.truth_signals[f"f_C_{a}"][idx] for a in AXES},
-                        {f"f_{a}": "m/s^2" for a in AXES})
+        f_units = {f"f_{a}": "m/s^2" for a in AXES}
+        if rec100.truth_signals.get("f_C_x") is not None:  # first: drawn wide, underneath
+            truth = {f"f_{a}": rec100.truth_signals[f"f_C_{a}"][idx] for a in AXES}
+            log_scalars(w, "signals/truth", *break_gaps(t, truth),
+                        f_units, role="truth")
+        f_cal = {f"f_{a}": calibrated.channels[f"acc_cal_{a}"][idx] for a in AXES}
+        log_scalars(w, "signals/calibrated", *break_gaps(t, f_cal),
+                    f_units, role="calibrated")
         mid = 0.5 * (rec100.segments["start_s"] + rec100.segments["stop_s"])
-        log_scalars(w, "signals/residuals", mid,
-                    {f"res_{a}": cal.results_[a].residuals_ for a in AXES}, {f"res_{a}": "m/s^2" for a in AXES})
-        lines = ["# Tilt-table calibration", "", "| parameter | injected | estimate | std. error | z |",
-                 "|---|---|---|---|---|"]
-        for p in res["parameters"]:
-            lines.append(f"| {p['name']} | {p['injected']} | {p['estimate']:.6g} | {p['std_error']:.2g} | "
-                         f"{'' if p['z'] is None else f'{p[chr(122)]:+.2f}'} |")
-        log_text(w, "summary", "\n".join(lines))
+        log_scalars(w, "signals/residuals", mid, resid, {n: unit for n in resid}, role="residual", points=True)
+        log_text(w, "summary", parameter_table("Tilt-table calibration", res["parameters"]))
+
+
+def parameter_table(title: str, parameters) -> str:
+    """The parameter table (markdown): injected, estimate, standard error, z (– where absent)."""
+    def g(v, spec):
+        return "–" if v is None else format(v, spec)
+
+    lines = [f"# {title}", "", "| parameter | injected | estimate | std. error | z |", "|---|---|---|---|---|"]
+    lines += [f"| {p['name']} | {g(p.get('injected'), '.6g')} | {g(p.get('estimate'), '.6g')} | "
+              f"{g(p.get('std_error'), '.2g')} | {g(p.get('z'), '+.2f')} |" for p in parameters]
+    return "\n".join(lines)

@@ -3,13 +3,17 @@ raw gyro volts and calibrated rates (10 Hz block means), references per step."""
 from __future__ import annotations
 
 import numpy as np
+import rerun.blueprint as rrb
 
 from imurig.calibration.gyro import AXES, GYRO
 from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
 from imurig.rigs.tilt_table import _quat_wxyz
 from imurig.rigs.turn_table import MOUNTS, TurnTableErrors
-from imurig.reports.viz import RrdWriter, body_path, log_body_poses, log_frame_axes, log_mujoco_model, log_scalars, log_text
+from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
+from imurig.reports.tilt_table_rrd import parameter_table
+from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
+                                log_scalars, log_text)
 
 DISPLAY_HZ = 10.0
 
@@ -29,7 +33,24 @@ def block_means(rec: Recording, names, k: int, source="channels"):
     return np.concatenate(ts), {n: np.concatenate(v) for n, v in out.items()}
 
 
+def blueprint(model, residual_range=None) -> rrb.Blueprint:
+    """Left: the table with the camera on the IMU, the index pulses, the parameter table. Right:
+    measured volts, calibrated rates over the reference, residuals per step."""
+    return layout(rrb.Horizontal(
+        rrb.Vertical(rig_view(model, "turn table", distance_m=1.0),
+                     series_view("index pulses (one per revolution)", ["/signals/pulses/**"]), summary_view(),
+                     row_shares=[3, 1, 2]),
+        rrb.Vertical(series_view("measured: gyro volts (10 Hz means)", ["/signals/raw/**"]),
+                     series_view("calibrated (10 Hz means) over the reference per step, °/s",
+                                 ["/signals/calibrated/**", "/signals/reference/**"]),
+                     series_view("residuals per step (calibrated − reference)", ["/signals/residuals/**"],
+                                 y_range=residual_range)),
+        column_shares=[2, 3]))
+
+
 def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
+    """Write ``path``: the table turning (10 Hz), raw volts and calibrated rates (10 Hz block
+    means), the reference rate and the residual of each step, the index pulses, the summary."""
     model = load_model("turn_table.xml")
     k = max(1, int(round(rec.sample_rate_hz / DISPLAY_HZ)))
     # poses: the angle is sampled (not averaged) so the table turns smoothly in the viewer
@@ -45,25 +66,29 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
     block_of = np.searchsorted([rec.time_s[b.start] for b in rec.blocks()], t_pose, side="right") - 1
     mount_q = np.array([_quat_wxyz(e.wobble_rotation() @ MOUNTS[runs[min(i, len(runs) - 1)]]) for i in block_of])
     cal = res["main"]
-    with RrdWriter(path, recording_name="turn-table campaign", overwrite=overwrite) as w:
+    resid = {f"w_{a}": np.degrees(cal.results_[a].residuals_) for a in AXES}
+    k_r, unit = readable(np.concatenate(list(resid.values())), "deg/s")
+    resid = {n: v * k_r for n, v in resid.items()}
+    bp = blueprint(model, symmetric_range(*resid.values()))
+    with RrdWriter(path, recording_name="turn-table campaign", overwrite=overwrite, blueprint=bp) as w:
         log_mujoco_model(w, model)
         log_body_poses(w, model, t_pose, qpos, body_quat_overrides={"imu_mount": mount_q})
         log_frame_axes(w, body_path(model, model.body("imu_mount").id), length=0.15)
         t, raw = block_means(rec, list(GYRO), k)
-        log_scalars(w, "signals/raw", t, raw, {c: "V" for c in GYRO})
+        log_scalars(w, "signals/raw", *break_gaps(t, raw), {c: "V" for c in GYRO}, role="measured")
         calibrated = cal.apply(rec)
         t, c = block_means(calibrated, [f"gyro_cal_{a}" for a in AXES], k)
-        log_scalars(w, "signals/calibrated", t, {f"w_{a}": np.degrees(c[f"gyro_cal_{a}"]) for a in AXES},
-                    {f"w_{a}": "deg/s" for a in AXES})
+        units = {f"w_{a}": "deg/s" for a in AXES}
         mid = 0.5 * (res["windows"].segments["start_s"] + res["windows"].segments["stop_s"])
-        log_scalars(w, "signals/calibrated/reference", mid,
-                    {f"w_{a}": np.degrees(res["reference"][:, j]) for j, a in enumerate(AXES)},
-                    {f"w_{a}": "deg/s" for a in AXES})
-        for name, ev in rec.events.items():
+        log_scalars(w, "signals/reference", mid, {f"w_{a}": np.degrees(res["reference"][:, j])
+                                                  for j, a in enumerate(AXES)}, units, role="truth", points=True,
+                    labels={f"w_{a}": f"w_{a} reference [deg/s]" for a in AXES})
+        w_cal = {f"w_{a}": np.degrees(c[f"gyro_cal_{a}"]) for a in AXES}
+        log_scalars(w, "signals/calibrated", *break_gaps(t, w_cal), units,
+                    role="calibrated")
+        log_scalars(w, "signals/residuals", mid, resid, {n: unit for n in resid}, role="residual", points=True)
+        for i, (name, ev) in enumerate(rec.events.items()):
             if name.startswith("pulse_") and ev.size:
-                log_scalars(w, "signals/pulses", ev, {name: np.ones_like(ev)}, {name: "1"})
-        lines = ["# Turn-table gyro calibration", "", "| parameter | injected | estimate | std. error |",
-                 "|---|---|---|---|"]
-        for p in res["parameters"]:
-            lines.append(f"| {p['name']} | {p['injected']} | {p['estimate']:.6g} | {p['std_error']:.2g} |")
-        log_text(w, "summary", "\n".join(lines))
+                log_scalars(w, "signals/pulses", ev, {name: np.ones_like(ev)}, {name: "1"}, role="measured",
+                            points=True)
+        log_text(w, "summary", parameter_table("Turn-table gyro calibration", res["parameters"]))

@@ -1,6 +1,7 @@
 """Rerun (.rrd) logging of the MuJoCo rig, the IMU frame and signal time series.
 
-This is the only module that talks to rerun. Inputs are plain numpy arrays and MuJoCo
+This module and :mod:`imurig.reports.rrd_layout` (colours, views, the coverage check) are the
+only ones that talk to rerun. Inputs are plain numpy arrays and MuJoCo
 models; nothing here touches rerun's global/thread-local recording state and nothing
 connects to a viewer. Open a written file with ``rerun file.rrd``.
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 import os
 import tempfile
 import uuid
+import warnings
 from pathlib import Path
 
 import mujoco
@@ -29,14 +31,17 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from imurig.kernel.errors import OutputExistsError
+from imurig.reports.rrd_layout import _VIEW_OF, MARKER, WIDTH, legend, role_color, uncovered, views_of
 
 TIMELINE = "time"
 _SOLID = rr.components.FillMode.Solid
 
 __all__ = [
     "TIMELINE",
+    "RrdLayoutWarning",
     "RrdWriter",
     "body_path",
+    "break_gaps",
     "default_blueprint",
     "log_body_poses",
     "log_frame_axes",
@@ -61,6 +66,11 @@ def default_blueprint(root: str = "world") -> rrb.Blueprint:
     )
 
 
+class RrdLayoutWarning(UserWarning):
+    """A logged entity lies outside every view of the recording's blueprint (the viewer would
+    not show it). The test suite turns this warning into an error."""
+
+
 class RrdWriter:
     """Context manager writing one recording to an ``.rrd`` file, atomically.
 
@@ -83,6 +93,9 @@ class RrdWriter:
     stream : rr.RecordingStream
         The (non-global) stream; pass it around or use the ``log_*`` helpers.
     path : Path
+    entities : dict[str, set[str]]
+        Every entity the ``log_*`` helpers (or :meth:`log`) wrote, with the view class each needs.
+        On close, those that no view of the blueprint shows raise :class:`RrdLayoutWarning`.
     """
 
     def __init__(self, path, application_id: str = "imurig", recording_name: str | None = None,
@@ -92,11 +105,16 @@ class RrdWriter:
         self._check_target()
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent or ".")
         os.close(fd)
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)  # the user's umask, not mkstemp's 0600
         self._tmp = Path(tmp)
         self._open = True
+        self.entities: dict[str, set[str]] = {}
         try:
             self.stream = rr.RecordingStream(application_id, recording_id=uuid.uuid4())
             bp = default_blueprint() if blueprint is True else (blueprint or None)
+            self.blueprint = bp
             self.stream.save(self._tmp, default_blueprint=bp)
             if recording_name:
                 self.stream.send_recording_name(recording_name)
@@ -110,11 +128,31 @@ class RrdWriter:
                 f"{self.path} already exists; pass overwrite=True (or --overwrite on the command line) "
                 "to replace it, or choose another output path.")
 
+    def log(self, entity: str, *archetypes, static: bool = False) -> None:
+        """``stream.log`` that also notes ``entity`` and the view class its archetypes need."""
+        self.note(entity, *(type(a).__name__ for a in archetypes))
+        self.stream.log(entity, *archetypes, static=static)
+
+    def note(self, entity: str, *archetype_names: str) -> None:
+        """Record that ``entity`` holds the named archetypes (for the coverage check)."""
+        need = self.entities.setdefault("/" + entity.strip("/"), set())
+        need.update(_VIEW_OF[n] for n in archetype_names if n in _VIEW_OF)
+
+    def uncovered(self) -> list[str]:
+        """Logged entities no view of the blueprint shows (empty without a blueprint)."""
+        if not isinstance(self.blueprint, rrb.Blueprint):
+            return []
+        return uncovered(self.entities, views_of(self.blueprint))
+
     def close(self) -> Path:
         """Finalize the file and move it onto ``path``. Returns ``path``. Idempotent."""
         if not self._open:
             return self.path
         self._open = False
+        missing = self.uncovered()
+        if missing:
+            warnings.warn(RrdLayoutWarning(f"{self.path.name}: logged but in no view of its blueprint: "
+                                           + ", ".join(missing)), stacklevel=2)
         try:
             self.stream.flush()
             self.stream.disconnect()  # finalizes the file sink: writes the rrd footer
@@ -204,7 +242,7 @@ def log_mujoco_model(w: RrdWriter, model: mujoco.MjModel, root: str = "world") -
     infinite is drawn 1 m), other types (mesh, hfield, sdf) are skipped. Colors from
     geom_rgba (mat_rgba if a material sets the color). Also sets ``root`` to z-up.
     """
-    s = w.stream
+    s = w
     s.log(root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     G = mujoco.mjtGeom
     for g in range(model.ngeom):
@@ -286,6 +324,7 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     rel_quat = _quat_mul(qp_inv, xquat)
     times = _time_column(time_s)
     for b in range(1, nb):
+        w.note(body_path(model, b, root), "Transform3D")
         w.stream.send_columns(body_path(model, b, root), indexes=[times],
                               columns=rr.Transform3D.columns(translation=rel_pos[:, b],
                                                              quaternion=_xyzw(rel_quat[:, b])))
@@ -293,42 +332,75 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
 
 def log_frame_axes(w: RrdWriter, entity: str, length: float = 0.15) -> None:
     """Static x (red), y (green), z (blue) arrows of ``length`` m at ``entity``'s origin."""
-    w.stream.log(entity, rr.Arrows3D(vectors=np.eye(3) * length,
+    w.log(entity, rr.Arrows3D(vectors=np.eye(3) * length,
                                      colors=[[255, 0, 0], [0, 255, 0], [0, 0, 255]],
                                      labels=["x", "y", "z"], radii=length / 50), static=True)
 
 
 def log_scalars(w: RrdWriter, entity_prefix: str, time_s, series: dict[str, np.ndarray],
-                units: dict[str, str] | None = None) -> None:
+                units: dict[str, str] | None = None, role: str | None = None, points: bool = False,
+                colors: dict[str, tuple] | None = None, labels: dict[str, str] | None = None,
+                sequence: str | None = None) -> None:
     """Log each (T,) series to ``entity_prefix/<name>`` with one send_columns call.
 
-    A static SeriesLines name ``"<name> [<unit>]"`` is logged when ``units`` has the name.
+    Without ``role`` a static SeriesLines name ``"<name> [<unit>]"`` is logged (unit when
+    ``units`` has the name). With a ``role`` (see :mod:`imurig.reports.rrd_layout`) the legend
+    reads ``"<name> <role> [<unit>]"`` and the i-th series takes the role's i-th colour (the
+    truth drawn wider); ``colors`` {name: rgb} and ``labels`` {name: legend} override them.
+    ``points=True`` draws markers (SeriesPoints) instead of lines: for values per position,
+    step or run rather than per sample. ``sequence`` puts the values on a sequence timeline of
+    that name (``time_s`` then holds integers, e.g. run numbers) instead of ``"time"``.
     """
     time_s = np.asarray(time_s, dtype=float)
-    times = _time_column(time_s)
+    times = _time_column(time_s) if sequence is None else rr.TimeColumn(sequence, sequence=time_s.astype(np.int64))
     units = units or {}
-    for name, values in series.items():
+    for i, (name, values) in enumerate(series.items()):
         values = np.asarray(values, dtype=float)
         if values.shape != time_s.shape:
             raise ValueError(f"series {name!r} has shape {values.shape}, expected {time_s.shape} like time_s")
         entity = f"{entity_prefix}/{rr.escape_entity_path_part(name)}"
-        label = f"{name} [{units[name]}]" if name in units else name
-        w.stream.log(entity, rr.SeriesLines(names=label), static=True)
+        if role is None:
+            label = f"{name} [{units[name]}]" if name in units else name
+        else:
+            label = legend(name, role, units.get(name))
+        style = {"names": (labels or {}).get(name) or label}
+        if role is not None or name in (colors or {}):
+            style["colors"] = [(colors or {}).get(name) or role_color(role, i)]
+        if points:
+            w.log(entity, rr.SeriesPoints(**style, marker_sizes=[MARKER.get(role, 3.0)]), static=True)
+        else:
+            w.log(entity, rr.SeriesLines(**style, widths=[WIDTH.get(role, 1.5)]), static=True)
+        w.note(entity, "Scalars")
         w.stream.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=values))
+
+
+def break_gaps(time_s, series: dict[str, np.ndarray], factor: float = 5.0):
+    """(time_s, series) with a NaN sample in the middle of every gap longer than ``factor`` times
+    the median sample interval: the viewer breaks a line at a NaN instead of drawing a straight
+    line across the gap (between runs, blocks or manoeuvres)."""
+    t = np.asarray(time_s, dtype=float)
+    dt = np.diff(t)
+    if dt.size < 2 or not np.any(dt > 0):
+        return t, series
+    cut = np.flatnonzero(dt > factor * np.median(dt[dt > 0]))
+    if cut.size == 0:
+        return t, series
+    t_new = np.insert(t, cut + 1, 0.5 * (t[cut] + t[cut + 1]))
+    return t_new, {k: np.insert(np.asarray(v, dtype=float), cut + 1, np.nan) for k, v in series.items()}
 
 
 def log_text(w: RrdWriter, entity: str, markdown: str) -> None:
     """Static markdown TextDocument at ``entity`` (e.g. ``"summary"``)."""
-    w.stream.log(entity, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
+    w.log(entity, rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
 
 
 def log_points(w: RrdWriter, entity: str, points: np.ndarray, color=(200, 200, 200), radius: float = 0.01) -> None:
     """Static Points3D (n, 3) at ``entity`` (e.g. measured and calibrated magnetic field in uT)."""
     pts = np.asarray(points, dtype=np.float32)
-    w.stream.log(entity, rr.Points3D(pts, colors=[color], radii=radius), static=True)
+    w.log(entity, rr.Points3D(pts, colors=[color], radii=radius), static=True)
 
 
 def log_sphere(w: RrdWriter, entity: str, radius: float, color=(80, 200, 120, 60)) -> None:
     """A static wire sphere of ``radius`` at the entity's origin (e.g. the IGRF field magnitude)."""
-    w.stream.log(entity, rr.Ellipsoids3D(half_sizes=[[radius] * 3], colors=[color],
+    w.log(entity, rr.Ellipsoids3D(half_sizes=[[radius] * 3], colors=[color],
                                          fill_mode=rr.components.FillMode.MajorWireframe), static=True)
