@@ -232,7 +232,7 @@ class LooseEKF(Estimator):
         if Pm.shape != (n, n):
             raise ConfigError(f"P0 has shape {Pm.shape}, the filter has {n} states ({', '.join(c.state_names())})")
         st = FilterState(c, x0, Pm, process_noise(c, noise, gps_gm_var), gps_gm_var,
-                         None if ep.T_acc_K is None else ep.T_acc_K[0])
+                         None if ep.T_acc_K is None else ep.T_acc_K[0], noise)
         rec = SolutionRecord(ep.M, n)
         self._run(st, rec, ep, gps, sched, noise, progress)
         self.solution_ = FilterResult(

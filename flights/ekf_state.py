@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from imurig.flights import ins
-from imurig.flights.ekf_model import attitude_reset_jacobian
-from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, V
+from imurig.flights.ekf_model import ErrorDynamics, attitude_reset_jacobian
+from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, ImuNoise, V
 
 UPDATE_KINDS = ("gps_pos", "gps_vel", "mag", "temp")
 
@@ -67,6 +67,11 @@ class EpochData:
     B_B: np.ndarray | None
     fs: float
 
+    def __post_init__(self):
+        # the per-epoch vectors as lists of Python floats, for the plain-float propagation
+        self.dtheta_l, self.dv_l = self.dtheta_B.tolist(), self.dv_B.tolist()
+        self.f_l, self.w_l = np.asarray(self.f_B, float).tolist(), np.asarray(self.w_B, float).tolist()
+
     @property
     def M(self) -> int:
         return int(self.dtheta_B.shape[0])
@@ -78,11 +83,13 @@ class FilterState:
     the receiver's Gauss-Markov error, ``gps_used`` whether a fix has been used."""
 
     def __init__(self, cfg: FilterConfig, x0: ins.NavState, P0: np.ndarray, qc: np.ndarray, gps_gm_var,
-                 T_acc0_K: np.ndarray | None):
+                 T_acc0_K: np.ndarray | None, noise: ImuNoise | None = None):
         self.cfg = cfg
         self.lay = StateLayout(cfg)
         self.x = x0.copy()
-        self.P = P0
+        self.P = np.array(P0, float, order="C")    # propagated in place
+        self.dynamics = ErrorDynamics(cfg, ImuNoise() if noise is None else noise)
+        self.work = tuple(np.empty((self.lay.n, self.lay.n)) for _ in range(3))   # FT, Φ, scratch
         self.qc = qc
         self.gps_gm_var = gps_gm_var
         self.gps_used = False
