@@ -30,6 +30,7 @@ from typing import Self
 
 import numpy as np
 from imurig.flights import ins
+from imurig.flights import navmath as nm
 from imurig.flights.compass import (IgrfDeclination, declination_rad, mag_corrected_field, mag_heading,
                                     mag_heading_jacobian, mag_iron_hessian, mag_iron_jacobian, mag_iron_prior_cov)
 from imurig.flights.ekf_model import (alignment_covariance, attitude_reset_jacobian, error_dynamics,
@@ -258,7 +259,7 @@ class LooseEKF(Estimator):
                 gps_updates(st, rec, ep, gps, sched, k, lever)
             if mag_every and k % mag_every == 0:
                 mag_update(st, ep, k, self._declination(st.x), consider)
-            C = ins._dcm(st.x.q_NB)          # the attitude the propagation linearises at (before the temperatures)
+            C = nm.dcm(st.x.q_NB.tolist())   # C_NB the propagation linearises at (before the temperatures)
             if temp_every and k % temp_every == 0:
                 temp_update(st, ep, k)
             rec.store(k, st)

@@ -50,17 +50,22 @@ class ErrorDynamics:
         self.optional = (cfg.gyro_bias_gm_states or cfg.estimate_scale_factors or cfg.estimate_misalignments
                          or cfg.estimate_nonlinearity or cfg.estimate_thermal_terms)
 
-    def at(self, x: ins.NavState, f_B, w_B, C, thermal=None) -> np.ndarray:
-        """F at ``x`` (see :func:`error_dynamics`); the returned array is overwritten by the next call."""
+    def at(self, x: ins.NavState, f_B, w_B, C, thermal=None, rates=None) -> np.ndarray:
+        """F at ``x`` (see :func:`error_dynamics`; C a (3, 3) array or a row-major 9-tuple, ``rates``
+        :func:`imurig.flights.navmath.rates` at ``x`` if known); the returned array is overwritten by
+        the next call."""
         C9 = C.ravel().tolist() if isinstance(C, np.ndarray) else C
-        self.F[3:9, :18] = _base_rows(x.lat_rad, x.h_m, x.v_N.tolist(), ins._floats(f_B), C9, self._kT)
+        v = x.v_N.tolist()
+        if rates is None:
+            rates = nm.rates(x.lat_rad, x.h_m, v[0], v[1])
+        self.F[3:9, :18] = _base_rows(x.lat_rad, x.h_m, v, ins._floats(f_B), C9, self._kT, rates)
         if self.optional:
             _sensor_error_columns(self.F, self.cfg, np.asarray(f_B, float), np.asarray(w_B, float),
                                   np.asarray(C9).reshape(3, 3), thermal)
         return self.F
 
 
-def _base_rows(lat: float, h: float, v, f_B, C, kT) -> tuple:
+def _base_rows(lat: float, h: float, v, f_B, C, kT, rates) -> tuple:
     """Rows δv̇ and ψ̇ of F over the 18 base states (δr, δv, ψ, δb_a, δb_g, δT_a), in floats:
 
         F[δv, δr] = [v×] (2 ∂ω_IE/∂r + ∂ω_EN/∂r) (+ 2γ/R on δr_d → δv̇_d)   (only the δr_n column)
@@ -68,8 +73,9 @@ def _base_rows(lat: float, h: float, v, f_B, C, kT) -> tuple:
         F[δv, δT_a] = −C diag(k_T)
         F[ψ, δr] = ∂ω_IN/∂r,  F[ψ, δv] = ∂ω_EN/∂v,  F[ψ, ψ] = −[ω_IN×],  F[ψ, δb_g] = C
 
-    with ∂ω_IE/∂r_n = −Ω (sin φ, 0, cos φ)/(R_N+h), ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h)."""
-    w_ie, w_en, g, R_N, R_E = nm.rates(lat, h, v[0], v[1])
+    with ∂ω_IE/∂r_n = −Ω (sin φ, 0, cos φ)/(R_N+h), ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h);
+    ``rates`` = :func:`imurig.flights.navmath.rates` at (lat, h, v)."""
+    w_ie, w_en, g, R_N, R_E = rates
     v_n, v_e, v_d = v
     sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
     iN, iE = 1.0 / (R_N + h), 1.0 / (R_E + h)
@@ -307,7 +313,7 @@ def attitude_reset_jacobian(psi_hat) -> np.ndarray:
 def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
     """Advance the filter state ``st`` (:class:`imurig.flights.ekf_state.FilterState`) from epoch k to
     k+1 on the corrected increments of ``ep`` (:class:`imurig.flights.ekf_state.EpochData`), C = C_NB
-    at epoch k: the INS step (:func:`imurig.flights.ins.nav_step`) with
+    at epoch k ((3, 3) or a row-major 9-tuple): the INS step (:func:`imurig.flights.ins.nav_step`) with
 
         Δθ = (Δθ_in − b̂_g T)(1 − ŝ_g),   Δv = (Δv_in − (b̂_a + k_T (T̂_a − T_ref)) T)(1 − ŝ_a) − ...
 
@@ -316,8 +322,10 @@ def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
     P ← Φ (P + ½ Q T) Φᵀ + ½ Q T (Q diagonal)."""
     c, lay, T = st.cfg, st.lay, ep.T
     dth, dv, f_in, w_in, thermal = _corrected_increments(st, ep, k)
-    F = st.dynamics.at(st.x, f_in, w_in, C, thermal)
-    st.x = ins.nav_step(st.x, dth, dv, T)
+    x = st.x
+    r0 = nm.rates(x.lat_rad, x.h_m, *x.v_N.tolist()[:2])       # shared by F and the INS step
+    F = st.dynamics.at(x, f_in, w_in, C, thermal, rates=r0)
+    st.x = ins.nav_step(x, dth, dv, T, rates0=r0)
     if lay.G is not None:
         st.bgps = st.bgps * math.exp(-T / c.gps_pos_tau_s)
     if lay.GM is not None:          # the expected Gauss-Markov part decays with τ
@@ -329,16 +337,15 @@ def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
     np.matmul(FT, FT, out=Phi)
     Phi *= 0.5
     Phi += FT
-    Phi.reshape(-1)[:: lay.n + 1] += 1.0
+    st.work_diag += 1.0                 # the diagonal of Φ
     if lay.mag is not None:
-        _propagate_with_mag_state(st, Phi, np.asarray(dth), C, T)
+        _propagate_with_mag_state(st, Phi, np.asarray(dth), np.asarray(C, float).reshape(3, 3), T)
         return
     qh = st.qc * (0.5 * T)
-    P_ = st.P
-    P_.reshape(-1)[:: lay.n + 1] += qh
-    np.matmul(Phi, P_, out=tmp)
-    np.matmul(tmp, Phi.T, out=P_)
-    P_.reshape(-1)[:: lay.n + 1] += qh
+    st.P_diag += qh
+    np.matmul(Phi, st.P, out=tmp)
+    np.matmul(tmp, Phi.T, out=st.P)
+    st.P_diag += qh
 
 
 def _corrected_increments(st, ep, k: int):
@@ -383,4 +390,4 @@ def _propagate_with_mag_state(st, Phi: np.ndarray, dth: np.ndarray, C: np.ndarra
     Qd[:, im] = 0.0
     Qd[im, im] = c.mag_error_sigma_rad ** 2 * (1.0 - phm ** 2)
     st.emag *= phm
-    st.P = Phi @ st.P @ Phi.T + Qd
+    st.P[...] = Phi @ st.P @ Phi.T + Qd

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from imurig.flights import ins
+from imurig.flights import navmath as nm
 from imurig.flights.ekf_model import ErrorDynamics, attitude_reset_jacobian
 from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, ImuNoise, V
 
@@ -87,9 +88,13 @@ class FilterState:
         self.cfg = cfg
         self.lay = StateLayout(cfg)
         self.x = x0.copy()
-        self.P = np.array(P0, float, order="C")    # propagated in place
+        n = self.lay.n
+        # P lives in one buffer (updated in place; its diagonal and navigation block are views)
+        self.P = np.array(P0, float, order="C")
+        self.P_diag, self.P_nav = self.P.reshape(-1)[:: n + 1], self.P[:9, :9]
         self.dynamics = ErrorDynamics(cfg, ImuNoise() if noise is None else noise)
-        self.work = tuple(np.empty((self.lay.n, self.lay.n)) for _ in range(3))   # FT, Φ, scratch
+        self.work = tuple(np.empty((n, n)) for _ in range(3))     # F T, Φ, scratch of the propagation
+        self.work_diag = self.work[1].reshape(-1)[:: n + 1]
         self.qc = qc
         self.gps_gm_var = gps_gm_var
         self.gps_used = False
@@ -114,14 +119,14 @@ class FilterState:
         """Correct x̂ and the sensor-error estimates by the error estimate ``dx`` (n,) (estimate minus
         truth), and reset the attitude block of P (P ← G P Gᵀ)."""
         c, lay, x = self.cfg, self.lay, self.x
-        _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
-        lat = x.lat_rad - dx[0] / (R_N + x.h_m)
-        lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
-        h = x.h_m + dx[2]
+        d = dx[:9].tolist()
+        *_, R_N, R_E = nm.rates(x.lat_rad, x.h_m, 0.0, 0.0)
+        lat = x.lat_rad - d[0] / (R_N + x.h_m)
+        lon = x.lon_rad - d[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
+        h = x.h_m + d[2]
         v = x.v_N - dx[V]
-        q = ins._qmul(ins._qrot(dx[A]), x.q_NB)
-        q /= math.sqrt(float(q @ q))
-        self.x = ins.NavState(lat, lon, h, v, q)
+        q = nm.qnormalised(nm.qmul(nm.qrot(d[6:9]), x.q_NB.tolist()))
+        self.x = ins.NavState(lat, lon, h, v, np.array(q))
         Gr = attitude_reset_jacobian(dx[A])
         self.P[A, :] = Gr @ self.P[A, :]
         self.P[:, A] = self.P[:, A] @ Gr.T
@@ -160,12 +165,12 @@ class FilterState:
     def kalman_update(self, kind: str, tk: float, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
         """Linear update with innovation ``z`` = predicted − measured = H δx + noise (module doc)."""
         P = self.P
-        S = H @ P @ H.T + R
-        Sinv = np.linalg.inv(S)
-        Kg = P @ H.T @ Sinv
+        PHt = P @ H.T
+        Sinv = nm.inv_small(H @ PHt + R)
+        Kg = PHt @ Sinv
         dx = Kg @ z
         IKH = self.I_n - Kg @ H
-        self.P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
+        self.P[...] = IKH @ P @ IKH.T + Kg @ R @ Kg.T
         self.record(kind, tk, float(z @ Sinv @ z), int(z.size), z)
         self.inject(dx)
 
@@ -197,8 +202,8 @@ class SolutionRecord:
         x = st.x
         self.lat[k], self.lon[k], self.h[k], self.v[k], self.q[k] = x.lat_rad, x.lon_rad, x.h_m, x.v_N, x.q_NB
         self.ba[k], self.bg[k], self.T[k], self.sa[k], self.sg[k] = st.ba, st.bg, st.Ta, st.sa, st.sg
-        self.P_diag[k] = np.diag(st.P)
-        self.P_nav[k] = st.P[:9, :9]
+        self.P_diag[k] = st.P_diag
+        self.P_nav[k] = st.P_nav
 
     def history(self, k: int, s: float, x: ins.NavState):
         """(lat, lon, h, v_N) of the INS at fractional epoch ``s`` (≤ k) by linear interpolation between

@@ -171,16 +171,18 @@ def _floats(a):
     return a.tolist() if isinstance(a, np.ndarray) else [float(e) for e in a]
 
 
-def nav_step(x: NavState, dtheta_B, dv_B, T: float) -> NavState:
+def nav_step(x: NavState, dtheta_B, dv_B, T: float, rates0=None) -> NavState:
     """One navigation update over T seconds with body increments ``dtheta_B``, ``dv_B`` (3,)
-    (module doc; plain-float arithmetic, :mod:`imurig.flights.navmath`)."""
+    (module doc; plain-float arithmetic, :mod:`imurig.flights.navmath`); ``rates0`` the
+    :func:`imurig.flights.navmath.rates` at ``x`` if the caller has them."""
     q0 = x.q_NB.tolist()
     v0 = x.v_N.tolist()
     dv_N0 = nm.mat_vec(nm.dcm(q0), _floats(dv_B))
     lat0, h0 = x.lat_rad, x.h_m
     lat_m, h_m, v_m = lat0, h0, v0
-    for _ in range(2):                          # predictor, then corrector at the mid-point
-        w_ie, w_en, g, R_N, R_E = nm.rates(lat_m, h_m, v_m[0], v_m[1])
+    for it in range(2):                          # predictor, then corrector at the mid-point
+        w_ie, w_en, g, R_N, R_E = (rates0 if it == 0 and rates0 is not None
+                                   else nm.rates(lat_m, h_m, v_m[0], v_m[1]))
         zeta = ((w_ie[0] + w_en[0]) * T, (w_ie[1] + w_en[1]) * T, (w_ie[2] + w_en[2]) * T)
         cz = nm.cross(zeta, dv_N0)
         cc = nm.cross((2.0 * w_ie[0] + w_en[0], 2.0 * w_ie[1] + w_en[1], 2.0 * w_ie[2] + w_en[2]), v_m)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from imurig.flights import earth as E
 
 _OMEGA = E.OMEGA_E_RAD_S
@@ -69,3 +70,19 @@ def qnormalised(q) -> tuple:
     """q / |q|."""
     s = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] / s, q[1] / s, q[2] / s, q[3] / s)
+
+
+def inv_small(S: np.ndarray) -> np.ndarray:
+    """S⁻¹ of a (1, 1) or (3, 3) innovation covariance by the adjugate, S⁻¹ = adj(S)/det(S) (a
+    LAPACK call costs ~10x more at this size); larger S by :func:`numpy.linalg.inv`."""
+    m = S.shape[0]
+    if m == 1:
+        return 1.0 / S
+    if m != 3:
+        return np.linalg.inv(S)
+    a, b, c, d, e, f, g, h, i = S.ravel().tolist()
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g     # cofactors of the first row
+    det = a * A + b * B + c * C
+    return np.array([[A, c * h - b * i, b * f - c * e],
+                     [B, a * i - c * g, c * d - a * f],
+                     [C, b * g - a * h, a * e - b * d]]) / det
