@@ -36,7 +36,7 @@ from imurig.flights.truth import static_tests_truth
 EXTENDED = {"estimate_scale_factors": True, "estimate_misalignments": True, "estimate_nonlinearity": True,
             "estimate_thermal_terms": True, "sigma0_acc_thermal": (1e-4, 1e-4, 1e-3, 1e-3),
             "gyro_bias_gm_states": True, "mag_error_state": True, "mag_error_sigma_rad": 0.08,
-            "gps_pos_tau_s": 100.0, "gps_pos_sigma_white_N_m": (0.1, 0.1, 0.2)}
+            "gps_pos_states": True, "gps_pos_tau_s": 100.0, "gps_pos_sigma_white_N_m": (0.1, 0.1, 0.2)}
 
 
 def peak_rss_mb() -> float:

@@ -73,8 +73,8 @@ def _base_rows(lat: float, h: float, v, f_B, C, kT, rates) -> tuple:
         F[δv, δT_a] = −C diag(k_T)
         F[ψ, δr] = ∂ω_IN/∂r,  F[ψ, δv] = ∂ω_EN/∂v,  F[ψ, ψ] = −[ω_IN×],  F[ψ, δb_g] = C
 
-    with ∂ω_IE/∂r_n = −Ω (sin φ, 0, cos φ)/(R_N+h), ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h);
-    ``rates`` = :func:`imurig.flights.navmath.rates` at (lat, h, v)."""
+    with ∂ω_IE/∂r_n = −Ω (sin φ, 0, cos φ)/(R_N+h),
+    ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h); ``rates`` = :func:`imurig.flights.navmath.rates` at (lat, h, v)."""
     w_ie, w_en, g, R_N, R_E = rates
     v_n, v_e, v_d = v
     sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
@@ -354,7 +354,8 @@ def _corrected_increments(st, ep, k: int):
     c, T = st.cfg, ep.T
     bg, sg, sa = st.bg.tolist(), st.sg.tolist(), st.sa.tolist()
     f_corr = (st.ba + st.dynamics.kT * (st.Ta - c.reference_temperature_K)).tolist()
-    th_in, v_in, f_B, w_B = ep.dtheta_l[k], ep.dv_l[k], ep.f_l[k], ep.w_l[k]
+    i = 3 * k
+    th_in, v_in, f_B, w_B = ep.dtheta_l[i:i + 3], ep.dv_l[i:i + 3], ep.f_l[i:i + 3], ep.w_l[i:i + 3]
     dth = [(th_in[i] - bg[i] * T) * (1.0 - sg[i]) for i in range(3)]
     dv = [(v_in[i] - f_corr[i] * T) * (1.0 - sa[i]) for i in range(3)]
     f_in = [(f_B[i] - f_corr[i]) * (1 - sa[i]) for i in range(3)]

@@ -69,9 +69,10 @@ class EpochData:
     fs: float
 
     def __post_init__(self):
-        # the per-epoch vectors as lists of Python floats, for the plain-float propagation
-        self.dtheta_l, self.dv_l = self.dtheta_B.tolist(), self.dv_B.tolist()
-        self.f_l, self.w_l = np.asarray(self.f_B, float).tolist(), np.asarray(self.w_B, float).tolist()
+        # the per-epoch vectors as flat lists of Python floats (epoch k at [3k, 3k+3)) for the
+        # plain-float propagation; flat, so that the garbage collector has no containers to scan
+        self.dtheta_l, self.dv_l = self.dtheta_B.ravel().tolist(), self.dv_B.ravel().tolist()
+        self.f_l, self.w_l = (np.asarray(a, float).ravel().tolist() for a in (self.f_B, self.w_B))
 
     @property
     def M(self) -> int:
