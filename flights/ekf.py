@@ -236,6 +236,7 @@ class LooseEKF(Estimator):
                          None if ep.T_acc_K is None else ep.T_acc_K[0], noise)
         rec = SolutionRecord(ep.M, n)
         self._run(st, rec, ep, gps, sched, noise, progress)
+        rec.finish()
         self.solution_ = FilterResult(
             ep.t_s, rec.lat, rec.lon, rec.h, rec.v, rec.q, rec.ba, rec.bg, rec.T, rec.sa, rec.sg, rec.P_diag,
             rec.P_nav, c.state_names(), st.update_record(),

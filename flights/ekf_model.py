@@ -74,7 +74,8 @@ def _base_rows(lat: float, h: float, v, f_B, C, kT, rates) -> tuple:
         F[ψ, δr] = ∂ω_IN/∂r,  F[ψ, δv] = ∂ω_EN/∂v,  F[ψ, ψ] = −[ω_IN×],  F[ψ, δb_g] = C
 
     with ∂ω_IE/∂r_n = −Ω (sin φ, 0, cos φ)/(R_N+h),
-    ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h); ``rates`` = :func:`imurig.flights.navmath.rates` at (lat, h, v)."""
+    ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h); ``rates`` = :func:`imurig.flights.navmath.rates`
+    at (lat, h, v)."""
     w_ie, w_en, g, R_N, R_E = rates
     v_n, v_e, v_d = v
     sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
@@ -307,7 +308,8 @@ def attitude_reset_jacobian(psi_hat) -> np.ndarray:
     Without it a large heading correction (the uncalibrated compass's ~4 deg, resolved by the
     first GPS velocities) leaves the tilt's correlation with the accelerometer biases rotated by
     the heading error: the biases' tilt then leaks into the final attitude (1.5 mrad on one IMU)."""
-    return np.eye(3) + 0.5 * ins._skew(np.asarray(psi_hat, float))
+    x, y, z = (0.5 * float(p) for p in psi_hat)
+    return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
 
 
 def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
@@ -332,6 +334,7 @@ def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
         phi_bgm = math.exp(-T / noise.gyro_bias_tau_s)
         st.bg = st.bg - st.bgm * (1.0 - phi_bgm)
         st.bgm = st.bgm * phi_bgm
+        st.version += 1
     FT, Phi, tmp = st.work
     np.multiply(F, T, out=FT)
     np.matmul(FT, FT, out=Phi)
@@ -352,8 +355,7 @@ def _corrected_increments(st, ep, k: int):
     """(Δθ, Δv, f, ω, thermal) of step k corrected by the sensor-error estimates (:func:`propagate`):
     the increments for the INS and the specific force and rate at epoch k for F."""
     c, T = st.cfg, ep.T
-    bg, sg, sa = st.bg.tolist(), st.sg.tolist(), st.sa.tolist()
-    f_corr = (st.ba + st.dynamics.kT * (st.Ta - c.reference_temperature_K)).tolist()
+    bg, sg, sa, f_corr = st.corrections()
     i = 3 * k
     th_in, v_in, f_B, w_B = ep.dtheta_l[i:i + 3], ep.dv_l[i:i + 3], ep.f_l[i:i + 3], ep.w_l[i:i + 3]
     dth = [(th_in[i] - bg[i] * T) * (1.0 - sg[i]) for i in range(3)]

@@ -115,6 +115,19 @@ class FilterState:
         self.emag = 0.0                # the compass's systematic heading error estimate, rad
         self.theta_m = np.zeros(12)    # the magnetometer's installation errors [b (T), ΔA]
         self.updates = {k: {"time_s": [], "nis": [], "dof": [], "innovation": []} for k in UPDATE_KINDS}
+        # the estimates above are replaced, never changed in place; ``version`` counts the changes of
+        # b̂_a, b̂_g, T̂_a, ŝ_a, ŝ_g (injections, the Gauss-Markov decay), which the cached corrections
+        # and the record follow
+        self.version = 0
+        self._corrections = (-1, None)
+
+    def corrections(self) -> tuple:
+        """(b̂_g, ŝ_g, ŝ_a, f̂_corr) as lists of floats, f̂_corr = b̂_a + k_T (T̂_a − T_ref) the
+        accelerometers' bias correction, recomputed only when ``version`` has changed."""
+        if self._corrections[0] != self.version:
+            f_corr = self.ba + self.dynamics.kT * (self.Ta - self.cfg.reference_temperature_K)
+            self._corrections = (self.version, (self.bg.tolist(), self.sg.tolist(), self.sa.tolist(), f_corr.tolist()))
+        return self._corrections[1]
 
     def inject(self, dx: np.ndarray) -> None:
         """Correct x̂ and the sensor-error estimates by the error estimate ``dx`` (n,) (estimate minus
@@ -155,6 +168,7 @@ class FilterState:
             self.emag = self.emag - dx[lay.mag]
         if lay.MI is not None:
             self.theta_m = self.theta_m - dx[lay.MI]
+        self.version += 1
 
     def record(self, kind: str, tk: float, nis: float, dof: int, z: np.ndarray) -> None:
         u = self.updates[kind]
@@ -198,13 +212,26 @@ class SolutionRecord:
         self.sg = np.empty((M + 1, 3))
         self.P_diag = np.empty((M + 1, n))
         self.P_nav = np.empty((M + 1, 9, 9))
+        self._sensor = []      # (epoch, b̂_a, b̂_g, T̂_a, ŝ_a, ŝ_g) from each change on (see finish)
+        self._version = None
 
     def store(self, k: int, st: FilterState) -> None:
         x = st.x
         self.lat[k], self.lon[k], self.h[k], self.v[k], self.q[k] = x.lat_rad, x.lon_rad, x.h_m, x.v_N, x.q_NB
-        self.ba[k], self.bg[k], self.T[k], self.sa[k], self.sg[k] = st.ba, st.bg, st.Ta, st.sa, st.sg
+        if st.version != self._version:         # the sensor-error estimates: only when they changed
+            self._sensor.append((k, st.ba, st.bg, st.Ta, st.sa, st.sg))
+            self._version = st.version
         self.P_diag[k] = st.P_diag
         self.P_nav[k] = st.P_nav
+
+    def finish(self) -> SolutionRecord:
+        """Fill the sensor-error estimates' records (``ba``, ``bg``, ``T``, ``sa``, ``sg``) from the
+        values stored at each change, each held until the next; returns self."""
+        ends = [e[0] for e in self._sensor[1:]] + [self.lat.size]
+        for (k0, *vals), k1 in zip(self._sensor, ends):
+            for arr, v in zip((self.ba, self.bg, self.T, self.sa, self.sg), vals):
+                arr[k0:k1] = v
+        return self
 
     def history(self, k: int, s: float, x: ins.NavState):
         """(lat, lon, h, v_N) of the INS at fractional epoch ``s`` (≤ k) by linear interpolation between

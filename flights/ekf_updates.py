@@ -68,8 +68,9 @@ def _gps_position_update(st, rec, ep, gps, sched, k: int, i: int, lever_gps_B) -
     lat_t, lon_t, h_t, v_t = rec.history(k, (tg - ep.t_s[0]) / ep.T, st.x)
     dv_hist = v_t - st.x.v_N          # history offset, kept across the position update
     Cl = ins._dcm(st.x.q_NB) @ lever_gps_B
-    r_ant = E.ned_from_geodetic(lat_t, lon_t, h_t, gps.lat_rad[i], gps.lon_rad[i], gps.h_m[i])
-    z = np.asarray(r_ant, float) + Cl
+    r_ant = nm.ned_offset(float(lat_t), float(lon_t), float(h_t), float(gps.lat_rad[i]), float(gps.lon_rad[i]),
+                          float(gps.h_m[i]))
+    z = np.array(r_ant) + Cl
     H = np.zeros((3, st.lay.n))
     H[:, P] = np.eye(3)
     H[:, V] = -lag * np.eye(3)

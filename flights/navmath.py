@@ -72,6 +72,23 @@ def qnormalised(q) -> tuple:
     return (q[0] / s, q[1] / s, q[2] / s, q[3] / s)
 
 
+def ecef(lat: float, lon: float, h: float) -> tuple:
+    """WGS-84 ECEF position (m) of one geodetic point (as :func:`imurig.flights.earth.ecef_from_geodetic`)."""
+    s, c = math.sin(lat), math.cos(lat)
+    R_E = E.A_M / math.sqrt(1.0 - E.E2 * s ** 2)
+    return ((R_E + h) * c * math.cos(lon), (R_E + h) * c * math.sin(lon), (R_E * (1.0 - E.E2) + h) * s)
+
+
+def ned_offset(lat: float, lon: float, h: float, lat0: float, lon0: float, h0: float) -> tuple:
+    """NED offset (m) of a point from a reference point on the reference's NED axes,
+    C_EN(φ0, λ0)ᵀ (r_E − r_E0) (as :func:`imurig.flights.earth.ned_from_geodetic`)."""
+    x, y, z = ecef(lat, lon, h)
+    x0, y0, z0 = ecef(lat0, lon0, h0)
+    dx, dy, dz = x - x0, y - y0, z - z0
+    sl, cl, so, co = math.sin(lat0), math.cos(lat0), math.sin(lon0), math.cos(lon0)
+    return (-sl * co * dx - sl * so * dy + cl * dz, -so * dx + co * dy, -cl * co * dx - cl * so * dy - sl * dz)
+
+
 def inv_small(S: np.ndarray) -> np.ndarray:
     """S⁻¹ of a (1, 1) or (3, 3) innovation covariance by the adjugate, S⁻¹ = adj(S)/det(S) (a
     LAPACK call costs ~10x more at this size); larger S by :func:`numpy.linalg.inv`."""
