@@ -327,7 +327,7 @@ def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
     x = st.x
     r0 = nm.rates(x.lat_rad, x.h_m, *x.v_N.tolist()[:2])       # shared by F and the INS step
     F = st.dynamics.at(x, f_in, w_in, C, thermal, rates=r0)
-    st.x = ins.nav_step(x, dth, dv, T, rates0=r0)
+    st.x = ins.nav_step(x, dth, dv, T, rates0=r0)      # (C is before the temperature update: not x's)
     if lay.G is not None:
         st.bgps = st.bgps * math.exp(-T / c.gps_pos_tau_s)
     if lay.GM is not None:          # the expected Gauss-Markov part decays with τ
@@ -358,10 +358,10 @@ def _corrected_increments(st, ep, k: int):
     bg, sg, sa, f_corr = st.corrections()
     i = 3 * k
     th_in, v_in, f_B, w_B = ep.dtheta_l[i:i + 3], ep.dv_l[i:i + 3], ep.f_l[i:i + 3], ep.w_l[i:i + 3]
-    dth = [(th_in[i] - bg[i] * T) * (1.0 - sg[i]) for i in range(3)]
-    dv = [(v_in[i] - f_corr[i] * T) * (1.0 - sa[i]) for i in range(3)]
-    f_in = [(f_B[i] - f_corr[i]) * (1 - sa[i]) for i in range(3)]
-    w_in = [(w_B[i] - bg[i]) * (1 - sg[i]) for i in range(3)]
+    dth = [(a - b * T) * (1.0 - s) for a, b, s in zip(th_in, bg, sg)]
+    dv = [(a - b * T) * (1.0 - s) for a, b, s in zip(v_in, f_corr, sa)]
+    f_in = [(a - b) * (1 - s) for a, b, s in zip(f_B, f_corr, sa)]
+    w_in = [(a - b) * (1 - s) for a, b, s in zip(w_B, bg, sg)]
     thermal = None
     if c.estimate_nonlinearity or c.estimate_thermal_terms or c.estimate_misalignments:
         dth, dv = np.array(dth), np.array(dv)
