@@ -335,9 +335,9 @@ def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
         st.bg = st.bg - st.bgm * (1.0 - phi_bgm)
         st.bgm = st.bgm * phi_bgm
         st.version += 1
-    FT, Phi, tmp = st.work
+    FT, Phi, tmp = st.work              # (np.dot: less call overhead than matmul at this size)
     np.multiply(F, T, out=FT)
-    np.matmul(FT, FT, out=Phi)
+    np.dot(FT, FT, out=Phi)
     Phi *= 0.5
     Phi += FT
     st.work_diag += 1.0                 # the diagonal of Φ
@@ -346,8 +346,8 @@ def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
         return
     qh = st.qc * (0.5 * T)
     st.P_diag += qh
-    np.matmul(Phi, st.P, out=tmp)
-    np.matmul(tmp, Phi.T, out=st.P)
+    np.dot(Phi, st.P, out=tmp)
+    np.dot(tmp, Phi.T, out=st.P)
     st.P_diag += qh
 
 
