@@ -141,9 +141,9 @@ class FilterState:
         v = x.v_N - dx[V]
         q = nm.qnormalised(nm.qmul(nm.qrot(d[6:9]), x.q_NB.tolist()))
         self.x = ins.NavState(lat, lon, h, v, np.array(q))
-        Gr = attitude_reset_jacobian(dx[A])
-        self.P[A, :] = Gr @ self.P[A, :]
-        self.P[:, A] = self.P[:, A] @ Gr.T
+        Gr = attitude_reset_jacobian(d[6:9])
+        self.P[A, :] = np.dot(Gr, self.P[A, :])
+        self.P[:, A] = np.dot(self.P[:, A], Gr.T)
         self.ba = self.ba - dx[BA]
         self.bg = self.bg - dx[BG]
         if lay.GM is not None:
@@ -179,14 +179,14 @@ class FilterState:
 
     def kalman_update(self, kind: str, tk: float, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
         """Linear update with innovation ``z`` = predicted − measured = H δx + noise (module doc)."""
-        P = self.P
-        PHt = P @ H.T
-        Sinv = nm.inv_small(H @ PHt + R)
-        Kg = PHt @ Sinv
-        dx = Kg @ z
-        IKH = self.I_n - Kg @ H
-        self.P[...] = IKH @ P @ IKH.T + Kg @ R @ Kg.T
-        self.record(kind, tk, float(z @ Sinv @ z), int(z.size), z)
+        P, dot = self.P, np.dot          # (np.dot: less call overhead than @ at these sizes)
+        PHt = dot(P, H.T)
+        Sinv = nm.inv_small(dot(H, PHt) + R)
+        Kg = dot(PHt, Sinv)
+        dx = dot(Kg, z)
+        IKH = self.I_n - dot(Kg, H)
+        np.add(dot(dot(IKH, P), IKH.T), dot(dot(Kg, R), Kg.T), out=P)
+        self.record(kind, tk, float(dot(z, dot(Sinv, z))), int(z.size), z)
         self.inject(dx)
 
     def update_record(self) -> dict:
