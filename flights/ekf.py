@@ -30,6 +30,7 @@ from typing import Self
 
 import numpy as np
 from imurig.flights import ins
+from imurig.flights import navmath as nm
 from imurig.flights.compass import (IgrfDeclination, declination_rad, mag_corrected_field, mag_heading,
                                     mag_heading_jacobian, mag_iron_hessian, mag_iron_jacobian, mag_iron_prior_cov)
 from imurig.flights.ekf_model import (alignment_covariance, attitude_reset_jacobian, error_dynamics,
@@ -232,9 +233,10 @@ class LooseEKF(Estimator):
         if Pm.shape != (n, n):
             raise ConfigError(f"P0 has shape {Pm.shape}, the filter has {n} states ({', '.join(c.state_names())})")
         st = FilterState(c, x0, Pm, process_noise(c, noise, gps_gm_var), gps_gm_var,
-                         None if ep.T_acc_K is None else ep.T_acc_K[0])
+                         None if ep.T_acc_K is None else ep.T_acc_K[0], noise)
         rec = SolutionRecord(ep.M, n)
         self._run(st, rec, ep, gps, sched, noise, progress)
+        rec.finish()
         self.solution_ = FilterResult(
             ep.t_s, rec.lat, rec.lon, rec.h, rec.v, rec.q, rec.ba, rec.bg, rec.T, rec.sa, rec.sg, rec.P_diag,
             rec.P_nav, c.state_names(), st.update_record(),
@@ -258,7 +260,7 @@ class LooseEKF(Estimator):
                 gps_updates(st, rec, ep, gps, sched, k, lever)
             if mag_every and k % mag_every == 0:
                 mag_update(st, ep, k, self._declination(st.x), consider)
-            C = ins._dcm(st.x.q_NB)          # the attitude the propagation linearises at (before the temperatures)
+            C = nm.dcm(st.x.q_NB.tolist())   # C_NB the propagation linearises at (before the temperatures)
             if temp_every and k % temp_every == 0:
                 temp_update(st, ep, k)
             rec.store(k, st)

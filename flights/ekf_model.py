@@ -23,6 +23,7 @@ import math
 import numpy as np
 from imurig.flights import earth as E
 from imurig.flights import ins
+from imurig.flights import navmath as nm
 from imurig.flights.compass import mag_heading_jacobian, mag_iron_hessian, mag_iron_jacobian
 from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, ImuNoise, P, V
 
@@ -30,48 +31,94 @@ from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, Filte
 def error_dynamics(cfg: FilterConfig, noise: ImuNoise, x: ins.NavState, f_B, w_B, C, thermal=None) -> np.ndarray:
     """F (n, n) of the linearised error dynamics ẋ = F x + noise at the navigation state ``x`` with the
     corrected specific force ``f_B`` (3,) m/s², rate ``w_B`` (3,) rad/s, C = C_NB and, with the
-    thermal-term states, ``thermal`` = (ΔT, Δh) of the step (equations in :mod:`imurig.flights.ekf`)."""
-    n = cfg.n_states
-    F = np.zeros((n, n))
-    lat, h, v = x.lat_rad, x.h_m, x.v_N
-    w_ie, w_en, g, R_N, R_E = ins._rates(lat, h, v)
-    w_in = w_ie + w_en
-    f_N = C @ f_B
+    thermal-term states, ``thermal`` = (ΔT, Δh) of the step (equations in the module doc)."""
+    return ErrorDynamics(cfg, noise).at(x, f_B, w_B, C, thermal)
+
+
+class ErrorDynamics:
+    """F (n, n) kept between epochs: the constant entries (δṙ = δv, the Gauss-Markov decays) are
+    written once, and :meth:`at` rewrites the rows of δv̇ and ψ̇ (one block assignment for the
+    18 base states, :func:`_base_rows`) and the optional sensor-error columns."""
+
+    def __init__(self, cfg: FilterConfig, noise: ImuNoise):
+        self.cfg, self.noise = cfg, noise
+        self.F = np.zeros((cfg.n_states, cfg.n_states))
+        self.F[P, V] = np.eye(3)
+        _sensor_error_decays(self.F, cfg, noise)
+        self.kT = np.broadcast_to(np.asarray(cfg.thermal_slope_m_s2_per_K, float), (3,)).copy()   # m/s²/K
+        self._kT = self.kT.tolist()
+        self.optional = (cfg.gyro_bias_gm_states or cfg.estimate_scale_factors or cfg.estimate_misalignments
+                         or cfg.estimate_nonlinearity or cfg.estimate_thermal_terms)
+
+    def at(self, x: ins.NavState, f_B, w_B, C, thermal=None, rates=None) -> np.ndarray:
+        """F at ``x`` (see :func:`error_dynamics`; C a (3, 3) array or a row-major 9-tuple, ``rates``
+        :func:`imurig.flights.navmath.rates` at ``x`` if known); the returned array is overwritten by
+        the next call."""
+        C9 = C.ravel().tolist() if isinstance(C, np.ndarray) else C
+        v = x.v_N.tolist()
+        if rates is None:
+            rates = nm.rates(x.lat_rad, x.h_m, v[0], v[1])
+        self.F[3:9, :18] = _base_rows(x.lat_rad, x.h_m, v, ins._floats(f_B), C9, self._kT, rates)
+        if self.optional:
+            _sensor_error_columns(self.F, self.cfg, np.asarray(f_B, float), np.asarray(w_B, float),
+                                  np.asarray(C9).reshape(3, 3), thermal)
+        return self.F
+
+
+def _base_rows(lat: float, h: float, v, f_B, C, kT, rates) -> tuple:
+    """Rows δv̇ and ψ̇ of F over the 18 base states (δr, δv, ψ, δb_a, δb_g, δT_a), in floats:
+
+        F[δv, δr] = [v×] (2 ∂ω_IE/∂r + ∂ω_EN/∂r) (+ 2γ/R on δr_d → δv̇_d)   (only the δr_n column)
+        F[δv, δv] = −[(2ω_IE + ω_EN)×] + [v×] ∂ω_EN/∂v,   F[δv, ψ] = [f_N×],  F[δv, δb_a] = −C,
+        F[δv, δT_a] = −C diag(k_T)
+        F[ψ, δr] = ∂ω_IN/∂r,  F[ψ, δv] = ∂ω_EN/∂v,  F[ψ, ψ] = −[ω_IN×],  F[ψ, δb_g] = C
+
+    with ∂ω_IE/∂r_n = −Ω (sin φ, 0, cos φ)/(R_N+h),
+    ∂ω_IN/∂r_n = that − (0, 0, v_e/((R_E+h) cos²φ))/(R_N+h); ``rates`` = :func:`imurig.flights.navmath.rates`
+    at (lat, h, v)."""
+    w_ie, w_en, g, R_N, R_E = rates
+    v_n, v_e, v_d = v
     sl, cl, tl = math.sin(lat), math.cos(lat), math.tan(lat)
-    # δω_IE, δω_EN as functions of δr (via δlat = δr_n/(R_N+h)) and δv
-    dwin_dr = np.zeros((3, 3))
-    dwin_dr[:, 0] = np.array([-E.OMEGA_E_RAD_S * sl, 0.0,
-                              -E.OMEGA_E_RAD_S * cl - v[1] / (R_E + h) / cl ** 2]) / (R_N + h)
-    dwie_dr = np.zeros((3, 3))
-    dwie_dr[:, 0] = np.array([-E.OMEGA_E_RAD_S * sl, 0.0, -E.OMEGA_E_RAD_S * cl]) / (R_N + h)
-    dwen_dv = np.array([[0.0, 1.0 / (R_E + h), 0.0],
-                        [-1.0 / (R_N + h), 0.0, 0.0],
-                        [0.0, -tl / (R_E + h), 0.0]])
-    F[P, V] = np.eye(3)
-    Sv = ins._skew(v)
-    F[V, A] = ins._skew(f_N)
-    F[V, BA] = -C
-    F[V, TA] = -C * cfg.thermal_slope_m_s2_per_K
-    F[V, V] = -ins._skew(2 * w_ie + w_en) + Sv @ dwen_dv
-    F[V, P] = Sv @ (2 * dwie_dr + (dwin_dr - dwie_dr))
-    F[V.start + 2, P.start + 2] += 2.0 * g[2] / (math.sqrt(R_N * R_E) + h)
-    F[A, A] = -ins._skew(w_in)
-    F[A, P] = dwin_dr
-    F[A, V] = dwen_dv
-    F[A, BG] = C
-    _sensor_error_columns(F, cfg, noise, f_B, w_B, C, thermal)
-    return F
+    iN, iE = 1.0 / (R_N + h), 1.0 / (R_E + h)
+    # ∂ω/∂δr_n (the other position columns are zero)
+    din0, din2 = -E.OMEGA_E_RAD_S * sl / (R_N + h), (-E.OMEGA_E_RAD_S * cl - v_e / (R_E + h) / cl ** 2) / (R_N + h)
+    die0, die2 = -E.OMEGA_E_RAD_S * sl / (R_N + h), -E.OMEGA_E_RAD_S * cl / (R_N + h)
+    d0, d2 = 2 * die0 + (din0 - die0), 2 * die2 + (din2 - die2)     # 2 ∂ω_IE + ∂ω_EN
+    u_n, u_e, u_d = 2 * w_ie[0] + w_en[0], 2 * w_ie[1] + w_en[1], 2 * w_ie[2] + w_en[2]
+    wn, we, wd = w_ie[0] + w_en[0], w_ie[1] + w_en[1], w_ie[2] + w_en[2]
+    fn, fe, fd = nm.mat_vec(C, f_B)
+    gz = 2.0 * g / (math.sqrt(R_N * R_E) + h)
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = C
+    k0, k1, k2 = kT
+    return (  # δr                          δv                                        ψ
+        (v_e * d2, 0.0, 0.0, v_d * iN, u_d - v_e * tl * iE, -u_e, 0.0, -fd, fe,
+         -c0, -c1, -c2, 0.0, 0.0, 0.0, -c0 * k0, -c1 * k1, -c2 * k2),             # δb_a, δb_g, δT_a
+        (v_d * d0 - v_n * d2, 0.0, 0.0, -u_d, v_d * iE + v_n * tl * iE, u_n, fd, 0.0, -fn,
+         -c3, -c4, -c5, 0.0, 0.0, 0.0, -c3 * k0, -c4 * k1, -c5 * k2),
+        (-v_e * d0, 0.0, gz, u_e - v_n * iN, -u_n - v_e * iE, 0.0, -fe, fn, 0.0,
+         -c6, -c7, -c8, 0.0, 0.0, 0.0, -c6 * k0, -c7 * k1, -c8 * k2),
+        (din0, 0.0, 0.0, 0.0, iE, 0.0, 0.0, wd, -we, 0.0, 0.0, 0.0, c0, c1, c2, 0.0, 0.0, 0.0),
+        (0.0, 0.0, 0.0, -iN, 0.0, 0.0, -wd, 0.0, wn, 0.0, 0.0, 0.0, c3, c4, c5, 0.0, 0.0, 0.0),
+        (din2, 0.0, 0.0, 0.0, -tl * iE, 0.0, we, -wn, 0.0, 0.0, 0.0, 0.0, c6, c7, c8, 0.0, 0.0, 0.0))
 
 
-def _sensor_error_columns(F: np.ndarray, cfg: FilterConfig, noise: ImuNoise, f_B, w_B, C, thermal) -> None:
-    """The columns of F that couple the optional sensor-error states into δv and ψ, and their own
-    dynamics (Gauss-Markov decay of the gyro instability and of the receiver's error)."""
+def _sensor_error_decays(F: np.ndarray, cfg: FilterConfig, noise: ImuNoise) -> None:
+    """The constant entries of F: the Gauss-Markov decay of the gyro bias (or of its instability
+    part, which then drives ψ through C, written by :meth:`ErrorDynamics.at`) and of the receiver's error."""
     if cfg.gyro_bias_gm_states:
         GM = cfg.gyro_gm_slice()
-        F[A, GM] = C
         F[GM, GM] = -np.eye(3) / noise.gyro_bias_tau_s
     else:
         F[BG, BG] = -np.eye(3) / noise.gyro_bias_tau_s
+    if cfg.augment_gps:
+        G = cfg.gps_slice()
+        F[G, G] = -np.eye(3) / cfg.gps_pos_tau_s
+
+
+def _sensor_error_columns(F: np.ndarray, cfg: FilterConfig, f_B, w_B, C, thermal) -> None:
+    """The columns of F that couple the optional sensor-error states into δv and ψ."""
+    if cfg.gyro_bias_gm_states:
+        F[A, cfg.gyro_gm_slice()] = C
     if cfg.estimate_scale_factors:
         F[V, SA] = -C * f_B
         F[A, SG] = C * w_B
@@ -87,10 +134,6 @@ def _sensor_error_columns(F: np.ndarray, cfg: FilterConfig, noise: ImuNoise, f_B
         TH = cfg.thermal_slice()
         for p_, reg in enumerate((dT, f_B * dT, dh, f_B * dh)):
             F[V, TH.start + 3 * p_: TH.start + 3 * p_ + 3] = -C * reg
-    if cfg.augment_gps:
-        G = cfg.gps_slice()
-        F[G, G] = -np.eye(3) / cfg.gps_pos_tau_s
-
 
 
 def process_noise(cfg: FilterConfig, noise: ImuNoise, gps_gm_var) -> np.ndarray:
@@ -265,56 +308,89 @@ def attitude_reset_jacobian(psi_hat) -> np.ndarray:
     Without it a large heading correction (the uncalibrated compass's ~4 deg, resolved by the
     first GPS velocities) leaves the tilt's correlation with the accelerometer biases rotated by
     the heading error: the biases' tilt then leaks into the final attitude (1.5 mrad on one IMU)."""
-    return np.eye(3) + 0.5 * ins._skew(np.asarray(psi_hat, float))
+    x, y, z = (0.5 * float(p) for p in psi_hat)
+    return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
 
 
 def propagate(st, ep, k: int, C: np.ndarray, noise: ImuNoise) -> None:
     """Advance the filter state ``st`` (:class:`imurig.flights.ekf_state.FilterState`) from epoch k to
     k+1 on the corrected increments of ``ep`` (:class:`imurig.flights.ekf_state.EpochData`), C = C_NB
-    at epoch k: the INS step (:func:`imurig.flights.ins.nav_step`) with
+    at epoch k ((3, 3) or a row-major 9-tuple): the INS step (:func:`imurig.flights.ins.nav_step`) with
 
         Δθ = (Δθ_in − b̂_g T)(1 − ŝ_g),   Δv = (Δv_in − (b̂_a + k_T (T̂_a − T_ref)) T)(1 − ŝ_a) − ...
 
     (misalignments, nonlinearity and thermal terms removed likewise), and the covariance
-    P ← Φ P Φᵀ + Q_d, Φ = I + F T + ½ (F T)², Q_d = ½(Φ Q Φᵀ + Q) T."""
+    P ← Φ P Φᵀ + Q_d, Φ = I + F T + ½ (F T)², Q_d = ½(Φ Q Φᵀ + Q) T, computed in place as
+    P ← Φ (P + ½ Q T) Φᵀ + ½ Q T (Q diagonal)."""
     c, lay, T = st.cfg, st.lay, ep.T
-    fB, wB = ep.f_B[k], ep.w_B[k]
-    dth = (ep.dtheta_B[k] - st.bg * T) * (1.0 - st.sg)
-    f_corr = st.ba + np.asarray(c.thermal_slope_m_s2_per_K, float) * (st.Ta - c.reference_temperature_K)
-    dv = (ep.dv_B[k] - f_corr * T) * (1.0 - st.sa)
-    if c.estimate_nonlinearity:
-        dv = dv - st.k2 * ep.f2_B[k] * T
-    thermal = None
-    if c.estimate_thermal_terms:
-        f_st = ep.dv_B[k] / T
-        thermal = (ep.dT[k], ep.dh[k])
-        th = st.th
-        dv = dv - (th[0:3] * ep.dT[k] + th[3:6] * f_st * ep.dT[k] + th[6:9] * ep.dh[k]
-                   + th[9:12] * f_st * ep.dh[k]) * T
-    if c.estimate_misalignments:
-        dth = dth - st.Mg @ dth
-        dv = dv - st.Ma @ dv
-    F = error_dynamics(c, noise, st.x, (fB - f_corr) * (1 - st.sa), (wB - st.bg) * (1 - st.sg), C, thermal)
-    st.x = ins.nav_step(st.x, dth, dv, T)
+    dth, dv, f_in, w_in, thermal = _corrected_increments(st, ep, k)
+    x = st.x
+    r0 = nm.rates(x.lat_rad, x.h_m, *x.v_N.tolist()[:2])       # shared by F and the INS step
+    F = st.dynamics.at(x, f_in, w_in, C, thermal, rates=r0)
+    st.x = ins.nav_step(x, dth, dv, T, rates0=r0)      # (C is before the temperature update: not x's)
     if lay.G is not None:
         st.bgps = st.bgps * math.exp(-T / c.gps_pos_tau_s)
     if lay.GM is not None:          # the expected Gauss-Markov part decays with τ
         phi_bgm = math.exp(-T / noise.gyro_bias_tau_s)
         st.bg = st.bg - st.bgm * (1.0 - phi_bgm)
         st.bgm = st.bgm * phi_bgm
-    FT = F * T
-    Phi = st.I_n + FT + 0.5 * FT @ FT
-    Qd = 0.5 * (Phi * st.qc) @ Phi.T * T + 0.5 * np.diag(st.qc) * T
+        st.version += 1
+    FT, Phi, tmp = st.work              # (np.dot: less call overhead than matmul at this size)
+    np.multiply(F, T, out=FT)
+    np.dot(FT, FT, out=Phi)
+    Phi *= 0.5
+    Phi += FT
+    st.work_diag += 1.0                 # the diagonal of Φ
     if lay.mag is not None:
-        # Gauss-Markov in the body's rotation angle relative to NED over the step
-        w_ie_, w_en_, *_ = ins._rates(st.x.lat_rad, st.x.h_m, st.x.v_N)
-        dang = float(np.linalg.norm(dth - C.T @ (w_ie_ + w_en_) * T))
-        phm = math.exp(-dang / c.mag_error_corr_rad)
-        im = lay.mag
-        Phi[im, :] = 0.0
-        Phi[im, im] = phm
-        Qd[im, :] = 0.0
-        Qd[:, im] = 0.0
-        Qd[im, im] = c.mag_error_sigma_rad ** 2 * (1.0 - phm ** 2)
-        st.emag *= phm
-    st.P = Phi @ st.P @ Phi.T + Qd
+        _propagate_with_mag_state(st, Phi, np.asarray(dth), np.asarray(C, float).reshape(3, 3), T)
+        return
+    qh = st.qc * (0.5 * T)
+    st.P_diag += qh
+    np.dot(Phi, st.P, out=tmp)
+    np.dot(tmp, Phi.T, out=st.P)
+    st.P_diag += qh
+
+
+def _corrected_increments(st, ep, k: int):
+    """(Δθ, Δv, f, ω, thermal) of step k corrected by the sensor-error estimates (:func:`propagate`):
+    the increments for the INS and the specific force and rate at epoch k for F."""
+    c, T = st.cfg, ep.T
+    bg, sg, sa, f_corr = st.corrections()
+    i = 3 * k
+    th_in, v_in, f_B, w_B = ep.dtheta_l[i:i + 3], ep.dv_l[i:i + 3], ep.f_l[i:i + 3], ep.w_l[i:i + 3]
+    dth = [(a - b * T) * (1.0 - s) for a, b, s in zip(th_in, bg, sg)]
+    dv = [(a - b * T) * (1.0 - s) for a, b, s in zip(v_in, f_corr, sa)]
+    f_in = [(a - b) * (1 - s) for a, b, s in zip(f_B, f_corr, sa)]
+    w_in = [(a - b) * (1 - s) for a, b, s in zip(w_B, bg, sg)]
+    thermal = None
+    if c.estimate_nonlinearity or c.estimate_thermal_terms or c.estimate_misalignments:
+        dth, dv = np.array(dth), np.array(dv)
+        if c.estimate_nonlinearity:
+            dv = dv - st.k2 * ep.f2_B[k] * T
+        if c.estimate_thermal_terms:
+            f_st = ep.dv_B[k] / T
+            thermal = (ep.dT[k], ep.dh[k])
+            th = st.th
+            dv = dv - (th[0:3] * ep.dT[k] + th[3:6] * f_st * ep.dT[k] + th[6:9] * ep.dh[k]
+                       + th[9:12] * f_st * ep.dh[k]) * T
+        if c.estimate_misalignments:
+            dth = dth - st.Mg @ dth
+            dv = dv - st.Ma @ dv
+    return dth, dv, f_in, w_in, thermal
+
+
+def _propagate_with_mag_state(st, Phi: np.ndarray, dth: np.ndarray, C: np.ndarray, T: float) -> None:
+    """P ← Φ P Φᵀ + Q_d with the compass's heading-error state e_m, a Gauss-Markov process in the
+    body's rotation angle relative to NED over the step (its row of Φ and Q_d replaced)."""
+    c, im = st.cfg, st.lay.mag
+    Qd = 0.5 * (Phi * st.qc) @ Phi.T * T + 0.5 * np.diag(st.qc) * T
+    w_ie_, w_en_, *_ = ins._rates(st.x.lat_rad, st.x.h_m, st.x.v_N)
+    dang = float(np.linalg.norm(dth - C.T @ (w_ie_ + w_en_) * T))
+    phm = math.exp(-dang / c.mag_error_corr_rad)
+    Phi[im, :] = 0.0
+    Phi[im, im] = phm
+    Qd[im, :] = 0.0
+    Qd[:, im] = 0.0
+    Qd[im, im] = c.mag_error_sigma_rad ** 2 * (1.0 - phm ** 2)
+    st.emag *= phm
+    st.P[...] = Phi @ st.P @ Phi.T + Qd

@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from imurig.flights import ins
-from imurig.flights.ekf_model import attitude_reset_jacobian
-from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, V
+from imurig.flights import navmath as nm
+from imurig.flights.ekf_model import ErrorDynamics, attitude_reset_jacobian
+from imurig.flights.filter_config import BA, BG, MIS_PAIRS, SA, SG, TA, A, FilterConfig, ImuNoise, V
 
 UPDATE_KINDS = ("gps_pos", "gps_vel", "mag", "temp")
 
@@ -67,6 +68,12 @@ class EpochData:
     B_B: np.ndarray | None
     fs: float
 
+    def __post_init__(self):
+        # the per-epoch vectors as flat lists of Python floats (epoch k at [3k, 3k+3)) for the
+        # plain-float propagation; flat, so that the garbage collector has no containers to scan
+        self.dtheta_l, self.dv_l = self.dtheta_B.ravel().tolist(), self.dv_B.ravel().tolist()
+        self.f_l, self.w_l = (np.asarray(a, float).ravel().tolist() for a in (self.f_B, self.w_B))
+
     @property
     def M(self) -> int:
         return int(self.dtheta_B.shape[0])
@@ -78,11 +85,17 @@ class FilterState:
     the receiver's Gauss-Markov error, ``gps_used`` whether a fix has been used."""
 
     def __init__(self, cfg: FilterConfig, x0: ins.NavState, P0: np.ndarray, qc: np.ndarray, gps_gm_var,
-                 T_acc0_K: np.ndarray | None):
+                 T_acc0_K: np.ndarray | None, noise: ImuNoise | None = None):
         self.cfg = cfg
         self.lay = StateLayout(cfg)
         self.x = x0.copy()
-        self.P = P0
+        n = self.lay.n
+        # P lives in one buffer (updated in place; its diagonal and navigation block are views)
+        self.P = np.array(P0, float, order="C")
+        self.P_diag, self.P_nav = self.P.reshape(-1)[:: n + 1], self.P[:9, :9]
+        self.dynamics = ErrorDynamics(cfg, ImuNoise() if noise is None else noise)
+        self.work = tuple(np.empty((n, n)) for _ in range(3))     # F T, Φ, scratch of the propagation
+        self.work_diag = self.work[1].reshape(-1)[:: n + 1]
         self.qc = qc
         self.gps_gm_var = gps_gm_var
         self.gps_used = False
@@ -102,22 +115,35 @@ class FilterState:
         self.emag = 0.0                # the compass's systematic heading error estimate, rad
         self.theta_m = np.zeros(12)    # the magnetometer's installation errors [b (T), ΔA]
         self.updates = {k: {"time_s": [], "nis": [], "dof": [], "innovation": []} for k in UPDATE_KINDS}
+        # the estimates above are replaced, never changed in place; ``version`` counts the changes of
+        # b̂_a, b̂_g, T̂_a, ŝ_a, ŝ_g (injections, the Gauss-Markov decay), which the cached corrections
+        # and the record follow
+        self.version = 0
+        self._corrections = (-1, None)
+
+    def corrections(self) -> tuple:
+        """(b̂_g, ŝ_g, ŝ_a, f̂_corr) as lists of floats, f̂_corr = b̂_a + k_T (T̂_a − T_ref) the
+        accelerometers' bias correction, recomputed only when ``version`` has changed."""
+        if self._corrections[0] != self.version:
+            f_corr = self.ba + self.dynamics.kT * (self.Ta - self.cfg.reference_temperature_K)
+            self._corrections = (self.version, (self.bg.tolist(), self.sg.tolist(), self.sa.tolist(), f_corr.tolist()))
+        return self._corrections[1]
 
     def inject(self, dx: np.ndarray) -> None:
         """Correct x̂ and the sensor-error estimates by the error estimate ``dx`` (n,) (estimate minus
         truth), and reset the attitude block of P (P ← G P Gᵀ)."""
         c, lay, x = self.cfg, self.lay, self.x
-        _w_ie, _w_en, _g, R_N, R_E = ins._rates(x.lat_rad, x.h_m, x.v_N)
-        lat = x.lat_rad - dx[0] / (R_N + x.h_m)
-        lon = x.lon_rad - dx[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
-        h = x.h_m + dx[2]
+        d = dx[:9].tolist()
+        *_, R_N, R_E = nm.rates(x.lat_rad, x.h_m, 0.0, 0.0)
+        lat = x.lat_rad - d[0] / (R_N + x.h_m)
+        lon = x.lon_rad - d[1] / ((R_E + x.h_m) * math.cos(x.lat_rad))
+        h = x.h_m + d[2]
         v = x.v_N - dx[V]
-        q = ins._qmul(ins._qrot(dx[A]), x.q_NB)
-        q /= math.sqrt(float(q @ q))
-        self.x = ins.NavState(lat, lon, h, v, q)
-        Gr = attitude_reset_jacobian(dx[A])
-        self.P[A, :] = Gr @ self.P[A, :]
-        self.P[:, A] = self.P[:, A] @ Gr.T
+        q = nm.qnormalised(nm.qmul(nm.qrot(d[6:9]), x.q_NB.tolist()))
+        self.x = ins.NavState(lat, lon, h, v, np.array(q))
+        Gr = attitude_reset_jacobian(d[6:9])
+        self.P[A, :] = np.dot(Gr, self.P[A, :])
+        self.P[:, A] = np.dot(self.P[:, A], Gr.T)
         self.ba = self.ba - dx[BA]
         self.bg = self.bg - dx[BG]
         if lay.GM is not None:
@@ -142,6 +168,7 @@ class FilterState:
             self.emag = self.emag - dx[lay.mag]
         if lay.MI is not None:
             self.theta_m = self.theta_m - dx[lay.MI]
+        self.version += 1
 
     def record(self, kind: str, tk: float, nis: float, dof: int, z: np.ndarray) -> None:
         u = self.updates[kind]
@@ -152,14 +179,14 @@ class FilterState:
 
     def kalman_update(self, kind: str, tk: float, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
         """Linear update with innovation ``z`` = predicted − measured = H δx + noise (module doc)."""
-        P = self.P
-        S = H @ P @ H.T + R
-        Sinv = np.linalg.inv(S)
-        Kg = P @ H.T @ Sinv
-        dx = Kg @ z
-        IKH = self.I_n - Kg @ H
-        self.P = IKH @ P @ IKH.T + Kg @ R @ Kg.T
-        self.record(kind, tk, float(z @ Sinv @ z), int(z.size), z)
+        P, dot = self.P, np.dot          # (np.dot: less call overhead than @ at these sizes)
+        PHt = dot(P, H.T)
+        Sinv = nm.inv_small(dot(H, PHt) + R)
+        Kg = dot(PHt, Sinv)
+        dx = dot(Kg, z)
+        IKH = self.I_n - dot(Kg, H)
+        np.add(dot(dot(IKH, P), IKH.T), dot(dot(Kg, R), Kg.T), out=P)
+        self.record(kind, tk, float(dot(z, dot(Sinv, z))), int(z.size), z)
         self.inject(dx)
 
     def update_record(self) -> dict:
@@ -185,13 +212,26 @@ class SolutionRecord:
         self.sg = np.empty((M + 1, 3))
         self.P_diag = np.empty((M + 1, n))
         self.P_nav = np.empty((M + 1, 9, 9))
+        self._sensor = []      # (epoch, b̂_a, b̂_g, T̂_a, ŝ_a, ŝ_g) from each change on (see finish)
+        self._version = None
 
     def store(self, k: int, st: FilterState) -> None:
         x = st.x
         self.lat[k], self.lon[k], self.h[k], self.v[k], self.q[k] = x.lat_rad, x.lon_rad, x.h_m, x.v_N, x.q_NB
-        self.ba[k], self.bg[k], self.T[k], self.sa[k], self.sg[k] = st.ba, st.bg, st.Ta, st.sa, st.sg
-        self.P_diag[k] = np.diag(st.P)
-        self.P_nav[k] = st.P[:9, :9]
+        if st.version != self._version:         # the sensor-error estimates: only when they changed
+            self._sensor.append((k, st.ba, st.bg, st.Ta, st.sa, st.sg))
+            self._version = st.version
+        self.P_diag[k] = st.P_diag
+        self.P_nav[k] = st.P_nav
+
+    def finish(self) -> SolutionRecord:
+        """Fill the sensor-error estimates' records (``ba``, ``bg``, ``T``, ``sa``, ``sg``) from the
+        values stored at each change, each held until the next; returns self."""
+        ends = [e[0] for e in self._sensor[1:]] + [self.lat.size]
+        for (k0, *vals), k1 in zip(self._sensor, ends):
+            for arr, v in zip((self.ba, self.bg, self.T, self.sa, self.sg), vals):
+                arr[k0:k1] = v
+        return self
 
     def history(self, k: int, s: float, x: ins.NavState):
         """(lat, lon, h, v_N) of the INS at fractional epoch ``s`` (≤ k) by linear interpolation between

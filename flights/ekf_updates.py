@@ -22,6 +22,7 @@ import math
 import numpy as np
 from imurig.flights import earth as E
 from imurig.flights import ins
+from imurig.flights import navmath as nm
 from imurig.flights.compass import (mag_corrected_field, mag_heading, mag_heading_jacobian, mag_iron_hessian,
                                     mag_iron_jacobian)
 from imurig.flights.filter_config import BG, TA, A, P, V
@@ -67,8 +68,9 @@ def _gps_position_update(st, rec, ep, gps, sched, k: int, i: int, lever_gps_B) -
     lat_t, lon_t, h_t, v_t = rec.history(k, (tg - ep.t_s[0]) / ep.T, st.x)
     dv_hist = v_t - st.x.v_N          # history offset, kept across the position update
     Cl = ins._dcm(st.x.q_NB) @ lever_gps_B
-    r_ant = E.ned_from_geodetic(lat_t, lon_t, h_t, gps.lat_rad[i], gps.lon_rad[i], gps.h_m[i])
-    z = np.asarray(r_ant, float) + Cl
+    r_ant = nm.ned_offset(float(lat_t), float(lon_t), float(h_t), float(gps.lat_rad[i]), float(gps.lon_rad[i]),
+                          float(gps.h_m[i]))
+    z = np.array(r_ant) + Cl
     H = np.zeros((3, st.lay.n))
     H[:, P] = np.eye(3)
     H[:, V] = -lag * np.eye(3)
@@ -102,7 +104,7 @@ def _gps_velocity_update(st, ep, gps, k: int, i: int, lever_gps_B, dv_hist, tk: 
     C = ins._dcm(x.q_NB)
     w_ie, w_en, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
     w_nb = (ep.w_B[k] - st.bg) - C.T @ (w_ie + w_en)
-    lv = C @ np.cross(w_nb, lever_gps_B)
+    lv = C @ np.array(nm.cross(w_nb.tolist(), ins._floats(lever_gps_B)))
     z = x.v_N + dv_hist + lv - np.asarray(gps.v_N[i], float)
     H = np.zeros((3, st.lay.n))
     H[:, V] = np.eye(3)
@@ -114,7 +116,7 @@ def _gps_velocity_update(st, ep, gps, k: int, i: int, lever_gps_B, dv_hist, tk: 
     if c.gps_time_sigma_s > 0:
         # time-of-validity error δt: the fix's velocity is off by a_N δt
         w_ie_, w_en_, g_n, *_ = ins._rates(x.lat_rad, x.h_m, x.v_N)
-        a_n = C @ ep.f_B[k] + g_n - np.cross(2.0 * w_ie_ + w_en_, x.v_N)
+        a_n = C @ ep.f_B[k] + g_n - np.array(nm.cross((2.0 * w_ie_ + w_en_).tolist(), x.v_N.tolist()))
         R = R + c.gps_time_sigma_s ** 2 * np.outer(a_n, a_n)
     st.kalman_update("gps_vel", tk, z, H, R)
 
@@ -186,7 +188,7 @@ def mag_update(st, ep, k: int, decl: float, consider: np.ndarray | None) -> None
         qi = qi / math.sqrt(float(qi @ qi))
         zi, Hi, Ri = _mag_model(st, qi, st.theta_m - e[MI], B_m, decl, P_prior, emag)
     IKH = st.I_n - Kg @ Hi
-    st.P = IKH @ Pm @ IKH.T + Kg @ Ri @ Kg.T
+    st.P[...] = IKH @ Pm @ IKH.T + Kg @ Ri @ Kg.T
     st.record("mag", tk, nis0, 1, z)
     st.inject(e)
 

@@ -49,6 +49,19 @@ P, V, A, BA, BG, TA, SA, SG = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 1
                                slice(15, 18), slice(18, 21), slice(21, 24))
 
 
+#: the settings that add states to the paper's 18 (each False in the paper's filter)
+STATE_BLOCK_FLAGS = ("estimate_scale_factors", "estimate_misalignments", "estimate_nonlinearity",
+                     "estimate_thermal_terms", "gps_pos_states", "gyro_bias_gm_states", "mag_error_state",
+                     "mag_iron_states")
+
+
+def paper18_settings(settings: dict) -> dict:
+    """``settings`` (keyword arguments of :class:`FilterConfig`) with every state block beyond the
+    paper's 18 switched off (:data:`STATE_BLOCK_FLAGS`): the paper's filter, section 4.2."""
+    out = {k: v for k, v in settings.items() if k not in STATE_BLOCK_FLAGS}
+    return {**out, **{k: False for k in STATE_BLOCK_FLAGS}}
+
+
 @dataclass
 class ImuNoise:
     """Stochastic sensor model of the filter (SI).
@@ -116,7 +129,11 @@ class FilterConfig:
         R = σ_w² + σ_GM² (1+φ)/(1−φ)            [m², per NED axis]
 
     (≈ σ_GM² 2τ/Δt for τ ≫ Δt). This keeps the filter consistent on averages over ≳ τ; over
-    shorter spans it under-weights the fixes (conservative).
+    shorter spans it under-weights the fixes (conservative). With ``gps_pos_states`` (off by
+    default: the paper's 18 states) the correlated part is carried as 3 states instead.
+
+    The defaults are the paper's 18-state filter (``paper18``, section 4.2); every optional block
+    of states is switched on by its own flag (:data:`STATE_BLOCK_FLAGS`, :func:`paper18_settings`).
 
     GPS times: ``gps.time_s`` is the fix's time of validity, used at the first epoch at or after
     ``time_s + gps_latency_s``. A residual error of the time of validity (σ ``gps_time_sigma_s``,
@@ -177,7 +194,7 @@ class FilterConfig:
     gps_pos_tau_s: float | None = None
     gps_time_sigma_s: float = 0.0
     gps_pos_sigma_white_N_m: tuple = (0.0, 0.0, 0.0)
-    gps_pos_states: bool = True
+    gps_pos_states: bool = False
     gyro_bias_gm_states: bool = False
     estimate_misalignments: bool = False
     mag_error_state: bool = False

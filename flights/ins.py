@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from imurig.flights import earth as E
+from imurig.flights import navmath as nm
 from scipy.integrate import solve_ivp
 
 from imurig.kernel.errors import ConfigError, RecordingError
@@ -138,7 +139,7 @@ class NavState:
 
 
 def _cross(a, b):
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    return np.array(nm.cross(a, b))
 
 
 def _skew(v):
@@ -148,56 +149,56 @@ def _skew(v):
 
 def _dcm(q):
     """C(q) of one quaternion (4,) (scalar fast path of :func:`earth.C_from_q`)."""
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(nm.dcm(q.tolist() if isinstance(q, np.ndarray) else q)).reshape(3, 3)
 
 
 def _qmul(p, q):
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return np.array([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw])
+    return np.array(nm.qmul(p, q))
 
 
 def _qrot(phi):
-    a = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    k = 0.5 - a * a / 48.0 if a < 1e-4 else math.sin(0.5 * a) / a
-    return np.array([math.cos(0.5 * a), k * phi[0], k * phi[1], k * phi[2]])
+    return np.array(nm.qrot(phi))
 
 
 def _rates(lat, h, v):
     """(ω_IE_N, ω_EN_N, g_N) as (3,) arrays at one point (scalar fast path of :mod:`earth`)."""
-    s, c = math.sin(lat), math.cos(lat)
-    w = 1.0 - E.E2 * s * s
-    R_N, R_E = E.A_M * (1.0 - E.E2) / w ** 1.5, E.A_M / math.sqrt(w)
-    w_ie = np.array([E.OMEGA_E_RAD_S * c, 0.0, -E.OMEGA_E_RAD_S * s])
-    w_en = np.array([v[1] / (R_E + h), -v[0] / (R_N + h), -v[1] * s / c / (R_E + h)])
-    g0 = E.GAMMA_E_M_S2 * (1.0 + E.K_SOMIGLIANA * s * s) / math.sqrt(w)
-    g = g0 * (1.0 - 2.0 / E.A_M * (1.0 + E.F + E.M_GEODETIC - 2.0 * E.F * s * s) * h + 3.0 * h * h / E.A_M ** 2)
-    return w_ie, w_en, np.array([0.0, 0.0, g]), R_N, R_E
+    w_ie, w_en, g, R_N, R_E = nm.rates(lat, h, float(v[0]), float(v[1]))
+    return np.array(w_ie), np.array(w_en), np.array([0.0, 0.0, g]), R_N, R_E
 
 
-def nav_step(x: NavState, dtheta_B, dv_B, T: float) -> NavState:
-    """One navigation update over T seconds with body increments ``dtheta_B``, ``dv_B`` (3,)."""
-    C = _dcm(x.q_NB)
-    dv_N0 = C @ dv_B
-    lat_m, h_m, v_m = x.lat_rad, x.h_m, x.v_N
-    for _ in range(2):                          # predictor, then corrector at the mid-point
-        w_ie, w_en, g, R_N, R_E = _rates(lat_m, h_m, v_m)
-        zeta = (w_ie + w_en) * T
-        v_new = x.v_N + dv_N0 - 0.5 * _cross(zeta, dv_N0) + (g - _cross(2.0 * w_ie + w_en, v_m)) * T
-        v_m = 0.5 * (x.v_N + v_new)
-        h_new = x.h_m - v_m[2] * T
-        h_m = 0.5 * (x.h_m + h_new)
-        lat_new = x.lat_rad + v_m[0] / (R_N + h_m) * T
-        lat_m = 0.5 * (x.lat_rad + lat_new)
-    w_ie, w_en, g, R_N, R_E = _rates(lat_m, h_m, v_m)
+def _floats(a):
+    """A vector as a list of Python floats (numpy scalars are slower in scalar arithmetic)."""
+    return a.tolist() if isinstance(a, np.ndarray) else [float(e) for e in a]
+
+
+def nav_step(x: NavState, dtheta_B, dv_B, T: float, rates0=None) -> NavState:
+    """One navigation update over T seconds with body increments ``dtheta_B``, ``dv_B`` (3,)
+    (module doc; plain-float arithmetic, :mod:`imurig.flights.navmath`); ``rates0`` the
+    :func:`imurig.flights.navmath.rates` at ``x`` if the caller has them."""
+    q0 = x.q_NB.tolist()
+    vn0, ve0, vd0 = x.v_N.tolist()
+    dn, de, dd = nm.mat_vec(nm.dcm(q0), _floats(dv_B))      # C Δv_B
+    lat0, h0 = x.lat_rad, x.h_m
+    lat_m, h_m, vn, ve, vd = lat0, h0, vn0, ve0, vd0
+    for it in range(2):                          # predictor, then corrector at the mid-point
+        w_ie, w_en, g, R_N, R_E = (rates0 if it == 0 and rates0 is not None else nm.rates(lat_m, h_m, vn, ve))
+        zn, ze, zd = (w_ie[0] + w_en[0]) * T, (w_ie[1] + w_en[1]) * T, (w_ie[2] + w_en[2]) * T      # ζ
+        an, ae, ad = 2.0 * w_ie[0] + w_en[0], 2.0 * w_ie[1] + w_en[1], 2.0 * w_ie[2] + w_en[2]   # 2ω_IE + ω_EN
+        # v_new = v + C Δv − ½ ζ × C Δv + (g_N − (2ω_IE + ω_EN) × v_mid) T
+        vn1 = vn0 + dn - 0.5 * (ze * dd - zd * de) + (0.0 - (ae * vd - ad * ve)) * T
+        ve1 = ve0 + de - 0.5 * (zd * dn - zn * dd) + (0.0 - (ad * vn - an * vd)) * T
+        vd1 = vd0 + dd - 0.5 * (zn * de - ze * dn) + (g - (an * ve - ae * vn)) * T
+        vn, ve, vd = 0.5 * (vn0 + vn1), 0.5 * (ve0 + ve1), 0.5 * (vd0 + vd1)
+        h_new = h0 - vd * T
+        h_m = 0.5 * (h0 + h_new)
+        lat_new = lat0 + vn / (R_N + h_m) * T
+        lat_m = 0.5 * (lat0 + lat_new)
+    v_new, v_m = (vn1, ve1, vd1), (vn, ve, vd)
+    w_ie, w_en, g, R_N, R_E = nm.rates(lat_m, h_m, vn, ve)
     lon_new = x.lon_rad + v_m[1] / ((R_E + h_m) * math.cos(lat_m)) * T
-    q = _qmul(_qmul(_qrot(-(w_ie + w_en) * T), x.q_NB), _qrot(dtheta_B))
-    q /= math.sqrt(float(q @ q))
-    return NavState(lat_new, lon_new, h_new, v_new, q)
+    zeta = (-(w_ie[0] + w_en[0]) * T, -(w_ie[1] + w_en[1]) * T, -(w_ie[2] + w_en[2]) * T)
+    q = nm.qnormalised(nm.qmul(nm.qmul(nm.qrot(zeta), q0), nm.qrot(_floats(dtheta_B))))
+    return NavState(lat_new, lon_new, h_new, np.array(v_new), np.array(q))
 
 
 @dataclass

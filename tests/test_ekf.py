@@ -203,7 +203,7 @@ def _perfect_imu_real_gps(tr, seed, acc_bias_prior=1e-3):
     H = float(np.median(np.hypot(tr.B_B[:, 0], tr.B_B[:, 1])))
     cfg = ekf.FilterConfig(nav_rate_hz=25.0, gps_latency_s=opt.gps_latency_s, gps_time_sigma_s=opt.gps_time_sigma_s,
                            mag_heading_sigma_rad=lab.magnetometer.noise_T_rms / H, sigma0_acc_bias_m_s2=acc_bias_prior,
-                           **R.gps_error_model(gps))
+                           gps_pos_states=True, **R.gps_error_model(gps))
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=tr.lever_gps_B, declination=R.declination_model(tr))
     x0 = R.align(tr, imu, gps, R.declination_model(tr))
     f_m, B_m = R.alignment_means(tr, imu)

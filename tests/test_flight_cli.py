@@ -12,7 +12,8 @@ from imurig.kernel.errors import ConfigError, OutputExistsError
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [2005, 7])
 def test_calibrated_beats_uncalibrated_on_attitude(tmp_path, seed):
-    """The static tests (paper 4.2) flown with the same IMU, uncalibrated vs corrected by the
+    """The static tests (paper 4.2) flown with the same IMU and the paper's 18-state filter (the
+    default), uncalibrated vs corrected by the
     tilt- and turn-table calibrations of that IMU: roll and pitch RMS errors fall by at least
     a factor of 2 (datasheet scale-factor and misalignment errors of 1-2 % and 2 mrad against
     calibrated residuals of ~1e-4); heading RMS falls by at least a factor of 2 with the
@@ -27,7 +28,13 @@ def test_calibrated_beats_uncalibrated_on_attitude(tmp_path, seed):
     for f in ("report.md", "summary.json", "flight.rrd", "fig6_static_roll_pitch.png", "fig7_bias_estimates.png",
               "fig8_heading_vs_track.png"):
         assert (tmp_path / "f" / f).exists()
-    assert json.loads((tmp_path / "f" / "summary.json").read_text())["seed"] == seed
+    summary = json.loads((tmp_path / "f" / "summary.json").read_text())
+    assert summary["seed"] == seed
+    # the default is the paper's 18-state filter, and the summary and the report say so for each run
+    assert summary["filter"] == "paper18"
+    assert summary["n_states"] == {"uncalibrated": 18, "calibrated": 18}
+    assert all(len(summary["states"][k]) == summary["n_states"][k] for k in summary["n_states"])
+    assert "Filter states, both runs (18):" in (tmp_path / "f" / "report.md").read_text()
 
 
 def test_refusals(tmp_path):
@@ -46,8 +53,8 @@ SEEDS = (2005, 7, 1, 2)
 
 @pytest.fixture(scope="module")
 def real_chain_runs():
-    """The default flight through the project's sensor chain for 4 IMUs (seeds), each flown
-    uncalibrated (datasheet priors, scale/misalignment states, the fluxgate's installation errors as
+    """The default flight through the project's sensor chain for 4 IMUs (seeds), with the ``extended``
+    filter, each flown uncalibrated (datasheet priors, scale/misalignment states, the fluxgate's installation errors as
     states), calibrated (tilt/turn-table, thermal-chamber and magnetometer-rig calibrations of that
     IMU), and uncalibrated with one Gauss-Markov compass heading-error state instead (``-gm``)."""
     import dataclasses
@@ -59,7 +66,7 @@ def real_chain_runs():
     tr = simulate_flight(progress_bar=False)
     out = {}
     for s in SEEDS:
-        opt = FlightOptions(seed=s)
+        opt = FlightOptions(seed=s, filter="extended")    # the consistency needs the sensor-error states
         lab = R.flight_lab(s)
         volts = R.measure_volts(tr, lab, s)
         gps = R.gps_fixes(tr, opt, s)
@@ -119,3 +126,34 @@ def test_compass_iron_states_beat_the_gauss_markov_heading_state(real_chain_runs
     for s in SEEDS:
         i, g = real_chain_runs[(s, "uncalibrated")][2], real_chain_runs[(s, "uncalibrated-gm")][2]
         assert i["heading_rms_deg"] < g["heading_rms_deg"], (s, i["heading_rms_deg"], g["heading_rms_deg"])
+
+
+def test_default_filter_is_the_papers_18_states():
+    """The paper's filter (section 4.2) has 18 states: 3 position, 3 velocity, 3 attitude, 3
+    accelerometer and 3 gyro biases, 3 accelerometer temperatures. It is the default of the filter's
+    settings, of the flight study and of ``imurig flight``; ``extended`` adds a state for each sensor
+    error the run's calibration leaves uncertain (uncalibrated: 69 with the iron compass states, 58
+    with the Gauss-Markov heading state), and any other name is refused."""
+    import argparse
+
+    from imurig.campaigns import flight as R
+    from imurig.cli.flight import add_flight_parser
+    from imurig.flights import ekf
+
+    assert ekf.FilterConfig().n_states == 18
+    assert ekf.FilterConfig().state_names() == ekf.BASE_STATES and len(ekf.BASE_STATES) == 18
+    assert FlightOptions().filter == "paper18"
+    sub = argparse.ArgumentParser().add_subparsers()
+    add_flight_parser(sub)
+    p = sub.choices["flight"]
+    assert p.parse_args([]).filter == "paper18"
+    assert tuple(next(a for a in p._actions if a.dest == "filter").choices) == tuple(R.FILTER_VARIANTS)
+    opt = FlightOptions(flight="static")
+    tr = R.flight_truth(opt)
+    gps, lab = R.gps_fixes(tr, opt, opt.seed), R.flight_lab(opt.seed)
+    noise = R.imu_noise(lab, tr.rate_hz)
+    n = {(v, iron): ekf.FilterConfig(**R.filter_settings(v, tr, gps, noise, None, iron)).n_states
+         for v in R.FILTER_VARIANTS for iron in (True, False)}
+    assert n == {("paper18", True): 18, ("paper18", False): 18, ("extended", True): 69, ("extended", False): 58}
+    with pytest.raises(ConfigError, match="unknown filter"):
+        FlightOptions(filter="paper27").validate()

@@ -47,12 +47,14 @@ from imurig.campaigns.flight_filter import (
     summarise,
 )
 from imurig.campaigns.flight_priors import (
+    FILTER_VARIANTS,
     MAG_SENSITIVITY_SPREAD,
     calibrated_priors,
     datasheet_priors,
     datasheet_values,
     declination_model,
     flight_declination,
+    filter_settings,
     gps_error_model,
     imu_noise,
     mag_heading_error_model_datasheet,
@@ -71,9 +73,10 @@ from imurig.kernel.progress import progress
 from imurig.sensors.chain import ImuLab
 
 __all__ = [
-    "ALIGN_WINDOW_S", "MAG_SENSITIVITY_SPREAD", "FlightOptions", "FlightStudy", "align", "alignment_means",
-    "calibrate", "calibrated_priors", "calibrations", "datasheet_priors", "datasheet_values", "declination_model",
-    "errors", "flight_declination", "flight_lab", "flight_truth", "fly", "gimbal_field_C", "gps_error_model",
+    "ALIGN_WINDOW_S", "FILTER_VARIANTS", "MAG_SENSITIVITY_SPREAD", "FlightOptions", "FlightStudy", "align",
+    "alignment_means", "calibrate", "calibrated_priors", "calibrations", "datasheet_priors", "datasheet_values",
+    "declination_model", "errors", "filter_settings", "flight_declination", "flight_lab", "flight_truth", "fly",
+    "gimbal_field_C", "gps_error_model",
     "gps_fixes", "imu_noise", "imu_stream", "mag_calibration", "mag_heading_error_model_datasheet",
     "mag_heading_error_rms_deg", "mag_iron_prior_datasheet", "measure_volts", "receiver_fixes", "run_filter",
     "run_filters", "study_summary", "summarise", "thermal_calibration", "thermal_terms",
@@ -95,10 +98,14 @@ class FlightOptions:
     # (ekf.FilterConfig.mag_iron_states, compass updating heading, gyro biases and iron only);
     # False: one Gauss-Markov heading-error state instead (consistent but far too cautious, NIS 0.05)
     mag_iron_states: bool = True
+    # the filter's states (FILTER_VARIANTS): the paper's 18, or the extended sets of each run
+    filter: str = "paper18"
 
     def validate(self):
         if self.flight not in ("default", "static", "van"):
             raise ConfigError(f"unknown flight {self.flight!r}; choose 'default', 'static' or 'van'")
+        if self.filter not in FILTER_VARIANTS:
+            raise ConfigError(f"unknown filter {self.filter!r}; choose one of {', '.join(FILTER_VARIANTS)}")
         if self.gps_rate_hz > self.imu_rate_hz:
             raise ConfigError(f"GPS rate {self.gps_rate_hz:g} Hz above the IMU rate {self.imu_rate_hz:g} Hz")
         if not (0 < self.nav_rate_hz <= self.imu_rate_hz):
@@ -211,7 +218,9 @@ def study_summary(opt: FlightOptions, truth, gps, runs: dict, cals: dict, t_filt
     duration = float(truth.time_s[-1] - truth.time_s[0])
     summary = {"flight": opt.flight, "seed": opt.seed, "duration_s": duration, "vehicle": truth.vehicle,
                "imu_rate_hz": truth.rate_hz, "nav_rate_hz": opt.nav_rate_hz, "gps_mode": getattr(gps, "mode", ""),
-               "states": list(runs["calibrated"][0].state_names),
+               "filter": opt.filter,
+               "n_states": {k: len(r.state_names) for k, (r, _e, _s) in runs.items()},
+               "states": {k: list(r.state_names) for k, (r, _e, _s) in runs.items()},
                "runs": {k: summarise(e, r) for k, (r, e, _) in runs.items()},
                "filter_wall_s": t_filter, "real_time_factor": 2 * duration / t_filter}
     decl = declination_model(truth)

@@ -7,13 +7,7 @@ import math
 
 import numpy as np
 
-from imurig.campaigns.flight_priors import (
-    calibrated_priors,
-    datasheet_priors,
-    declination_model,
-    gps_error_model,
-    imu_noise,
-)
+from imurig.campaigns.flight_priors import declination_model, filter_settings, imu_noise
 from imurig.flights import earth as E
 from imurig.flights import ekf, ins
 from imurig.sensors.chain import ImuLab
@@ -23,17 +17,19 @@ ALIGN_WINDOW_S = 5.0   # s of levelling and compass averaging for the initial at
 
 
 def run_filter(truth, stream, gps, opt, lab: ImuLab, pbar=None, cals: dict | None = None):
-    """The filter as ``imurig flight`` runs it: priors from the datasheet (``cals`` None: with the
-    scale-factor and misalignment states, which the nominal conversions leave at 1-2 % and 2 mrad) or
-    from the calibrations' standard errors; P0 from the alignment's own error propagation
-    (:meth:`ekf.LooseEKF.alignment_covariance`). ``opt`` (a :class:`imurig.campaigns.flight.FlightOptions`)
-    gives the navigation rate, the GPS time of validity (``gps_latency_s``, ``gps_time_sigma_s``) and,
-    in ``mag_iron_states``, the uncalibrated compass's error model (iron states instead of the
-    Gauss-Markov heading error)."""
+    """The filter as ``imurig flight`` runs it: priors from the datasheet (``cals`` None) or from the
+    calibrations' standard errors, the states of the variant ``opt.filter``
+    (:func:`imurig.campaigns.flight_priors.filter_settings`: ``paper18``, the paper's 18, or
+    ``extended``, which adds the scale-factor and misalignment states the nominal conversions need at
+    1-2 % and 2 mrad, and the other sensor-error states); P0 from the alignment's own error
+    propagation (:meth:`ekf.LooseEKF.alignment_covariance`). ``opt`` (a
+    :class:`imurig.campaigns.flight.FlightOptions`) gives the navigation rate, the GPS time of validity
+    (``gps_latency_s``, ``gps_time_sigma_s``) and, with ``extended``, in ``mag_iron_states`` the
+    uncalibrated compass's error model (iron states instead of the Gauss-Markov heading error)."""
     noise = imu_noise(lab, truth.rate_hz)
-    pri = datasheet_priors(truth, opt.mag_iron_states) if cals is None else calibrated_priors(cals, noise)
-    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s, **pri,
-                           gps_time_sigma_s=opt.gps_time_sigma_s, **gps_error_model(gps))
+    settings = filter_settings(opt.filter, truth, gps, noise, cals, opt.mag_iron_states)
+    cfg = ekf.FilterConfig(nav_rate_hz=opt.nav_rate_hz, gps_latency_s=opt.gps_latency_s,
+                           gps_time_sigma_s=opt.gps_time_sigma_s, **settings)
     decl = declination_model(truth)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
     x0 = align(truth, stream, gps, decl)

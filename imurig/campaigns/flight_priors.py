@@ -13,7 +13,9 @@ import numpy as np
 import pyIGRF
 
 from imurig.flights import ekf
+from imurig.flights.filter_config import paper18_settings
 from imurig.flights.imu import flight_lab as acquisition_lab
+from imurig.kernel.errors import ConfigError
 from imurig.kernel.site import decimal_year, parse_time
 from imurig.kernel.units import G_STANDARD
 from imurig.sensors.accelerometer import QFlexTriad
@@ -140,10 +142,44 @@ def datasheet_priors(truth, mag_iron_states: bool = True) -> dict:
             # the Gauss-Markov part, carried as its own states (σ, τ of the sensor model)
             "sigma0_gyro_bias_rad_s": datasheet_values(G, "bias_repeatability_dps") * DEG,
             "gyro_bias_gm_states": True,
+            # the compass's systematic heading error: σ_m, θ_c also without its state (paper18 folds σ_m into R)
+            "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c,
             **({"mag_iron_states": True, "mag_iron_prior_cov": mag_iron_prior_datasheet(), "mag_consider_states": True}
-               if mag_iron_states else
-               {"mag_error_state": True, "mag_error_sigma_rad": s_m, "mag_error_corr_rad": th_c}),
+               if mag_iron_states else {"mag_error_state": True}),
             "mag_heading_sigma_rad": datasheet_values(F, "noise_nT_rms") * 1e-9 / (H_nT * 1e-9)}
+
+
+#: the flight filter's named state sets (``imurig flight --filter``, ``FlightOptions.filter``)
+FILTER_VARIANTS = {
+    "paper18": "the paper's 18 states (section 4.2): position, velocity, attitude, accelerometer and gyro biases, "
+               "accelerometer temperatures, in both runs; what has no state is in R (uncalibrated compass: its "
+               "systematic heading error as white noise; the receiver's correlated error: R inflated)",
+    "extended": "the 18 and a state for each sensor error the run's calibration leaves uncertain: uncalibrated 69 "
+                "(scale factors, misalignments, nonlinearity, thermal terms, gyro instability, the receiver's "
+                "correlated error, the compass's 12 installation errors; 58 with --compass-model gauss-markov), "
+                "calibrated 27 (nonlinearity, gyro instability, the receiver's error)",
+}
+
+
+def filter_settings(variant: str, truth, gps, noise: ekf.ImuNoise, cals: dict | None,
+                    mag_iron_states: bool = True) -> dict:
+    """:class:`ekf.FilterConfig` keyword arguments (priors and states) of one flight run: the datasheet
+    priors (``cals`` None: the uncalibrated IMU) or the calibrated ones, the receiver's error model,
+    and the states of the named ``variant`` (:data:`FILTER_VARIANTS`). ``paper18`` keeps the paper's
+    18 states: the uncalibrated compass's systematic heading error σ_m (the datasheet's, which
+    ``extended`` carries as states) is added to the white heading σ in quadrature, and the single
+    gyro-bias state (Gauss-Markov, σ_GM, τ) starts at √(σ_turn-on² + σ_GM²)."""
+    if variant not in FILTER_VARIANTS:
+        raise ConfigError(f"unknown filter {variant!r}; choose one of {', '.join(FILTER_VARIANTS)}")
+    pri = datasheet_priors(truth, mag_iron_states) if cals is None else calibrated_priors(cals, noise)
+    settings = {**pri, **gps_error_model(gps)}
+    if variant == "extended":
+        return {**settings, "gps_pos_states": True}
+    out = paper18_settings(settings)
+    if cals is None:
+        out["mag_heading_sigma_rad"] = math.hypot(pri["mag_heading_sigma_rad"], pri["mag_error_sigma_rad"])
+        out["sigma0_gyro_bias_rad_s"] = math.hypot(pri["sigma0_gyro_bias_rad_s"], noise.gyro_bias_sigma)
+    return out
 
 
 def calibrated_priors(cals: dict | None, noise: ekf.ImuNoise) -> dict:

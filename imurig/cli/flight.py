@@ -15,8 +15,14 @@ def add_flight_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=2005, help="the IMU (same seed as the calibration campaigns)")
     p.add_argument("--nav-rate", type=float, default=25.0, help="navigation/filter rate, Hz")
     p.add_argument("--gps-rate", type=float, default=1.0, help="GPS fix rate, Hz")
+    p.add_argument("--filter", default="paper18", choices=["paper18", "extended"],
+                   help="the filter's states: 'paper18' = the paper's 18 (position, velocity, attitude, "
+                        "accelerometer and gyro biases, accelerometer temperatures) in both runs; 'extended' = "
+                        "those and a state for each sensor error the run's calibration leaves uncertain "
+                        "(uncalibrated 69, calibrated 27; the report and summary.json list them)")
     p.add_argument("--compass-model", default="iron", choices=["iron", "gauss-markov"],
-                   help="uncalibrated fluxgate in the filter: 'iron' = hard/soft iron as 12 random-constant "
+                   help="with --filter extended, the uncalibrated fluxgate in the filter: "
+                        "'iron' = hard/soft iron as 12 random-constant "
                         "states (compass updates heading, gyro biases, iron); 'gauss-markov' = one heading-error "
                         "state, Gauss-Markov in the rotation angle (consistent, but far too cautious)")
     p.add_argument("--full-calibration", action="store_true", help="full campaign protocols instead of reduced ones")
@@ -32,7 +38,7 @@ def _run(args) -> int:
 
     opt = FlightOptions(flight=args.flight, seed=args.seed, duration_s=args.duration, nav_rate_hz=args.nav_rate,
                         gps_rate_hz=args.gps_rate, quick_calibration=not args.full_calibration,
-                        mag_iron_states=args.compass_model == "iron").validate()
+                        mag_iron_states=args.compass_model == "iron", filter=args.filter).validate()
     with open_folder(args.out, overwrite=args.overwrite) as folder:   # refuses an existing --out before flying
         s = write_report(folder, fly(opt))
     u, c = s["runs"]["uncalibrated"], s["runs"]["calibrated"]

@@ -295,7 +295,7 @@ def navigate(truth, stream, gps, opt, lab: ImuLab, p: dict) -> dict:
                            sigma0_acc_bias_m_s2=max(s_ab, 1e-6),
                            sigma0_gyro_bias_rad_s=math.hypot(s_gb, noise.gyro_bias_sigma),
                            mag_heading_sigma_rad=max(float(sig["magnetometer"]["heading_rad"]), 0.05 * DEG),
-                           **gps_error_model(gps))
+                           **gps_error_model(gps), gps_pos_states=True)
     decl = flight_declination(truth)
     f = ekf.LooseEKF(cfg, noise, lever_gps_B=truth.lever_gps_B, declination=decl)
     res = f.fit(stream, gps, align(truth, stream, gps, decl)).solution_

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.campaigns.flight import FlightOptions, FlightStudy, fly
+from imurig.campaigns.flight import FILTER_VARIANTS, FlightOptions, FlightStudy, fly
 from imurig.flights import earth as E
 from imurig.kernel.outputs import OutputFolder
 from imurig.reports.common import md_table, published_figures
@@ -158,6 +158,15 @@ def fig_errors_consistency(folder, runs):
     plt.close(fig)
 
 
+def filter_states_text(summary: dict) -> str:
+    """The report's sentence on the filter: its variant and, per run, the number and names of its states."""
+    n, names = summary["n_states"], summary["states"]
+    head = f"Filter `{summary['filter']}` ({FILTER_VARIANTS[summary['filter']]})."
+    if names["uncalibrated"] == names["calibrated"]:
+        return f"{head}\nFilter states, both runs ({n['calibrated']}): {', '.join(names['calibrated'])}."
+    return "\n".join([head] + [f"Filter states, {k} run ({n[k]}): {', '.join(names[k])}." for k in names])
+
+
 def report_text(summary: dict) -> str:
     """report.md of the flight study."""
     pub = published_figures().get("magnetometer", {}).get("heading_bias_corrected_deg", 10)
@@ -167,8 +176,8 @@ def report_text(summary: dict) -> str:
     text = f"""# imurig flight — loosely coupled GPS/INS, uncalibrated vs calibrated IMU
 
 Flight: `{summary['flight']}` ({summary['vehicle']}), {summary['duration_s']:.0f} s, IMU {summary['imu_rate_hz']:g} Hz,
-navigation {summary['nav_rate_hz']:g} Hz, GPS: {summary['gps_mode']}. Filter states ({len(summary['states'])}):
-{', '.join(summary['states'])}.
+navigation {summary['nav_rate_hz']:g} Hz, GPS: {summary['gps_mode']}.
+{filter_states_text(summary)}
 Errors are RMS against truth after the first 60 s.
 
 {md_table(['quantity', 'uncalibrated', 'calibrated'], rows)}

@@ -229,7 +229,8 @@ def assert_nav_meets(score: dict, max_rms_norm: dict | None = None, *, consisten
 
 # ------------------------------------------------------------------------------------ baseline
 class ProjectEKF(Estimator):
-    """The project's loosely coupled 18-state EKF (:class:`imurig.flights.ekf.LooseEKF`), set up
+    """The project's loosely coupled EKF (:class:`imurig.flights.ekf.LooseEKF`): the paper's 18 states and,
+    when the stream names the receiver's Gauss-Markov error, its 3 error states (21), set up
     as ``imurig flight`` sets it up (25 Hz, magnetic heading σ 2 deg, IGRF declination along the route,
     GPS latency and Gauss-Markov error states, accelerometer-levelling + compass alignment over the
     first 5 s), behind the
@@ -268,7 +269,7 @@ class ProjectEKF(Estimator):
                        sigma_pos_N=g.sigma_pos_N, sigma_vel_N=g.sigma_vel_N, mode=m.get("gps_mode", ""))
         extra = {}
         if m.get("gps_pos_tau_s"):
-            extra = {"gps_pos_tau_s": float(m["gps_pos_tau_s"]),
+            extra = {"gps_pos_tau_s": float(m["gps_pos_tau_s"]), "gps_pos_states": True,
                      "gps_pos_sigma_white_N_m": tuple(m["gps_pos_sigma_white_N_m"])}
         cfg = ekf.FilterConfig(nav_rate_hz=self.nav_rate_hz or m.get("nav_rate_hz", 25.0),
                                mag_heading_sigma_rad=2 * DEG, gps_latency_s=m["gps_latency_s"],
