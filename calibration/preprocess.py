@@ -23,8 +23,8 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     The rate reached is in ``meta['sample_rate_hz']`` and the preprocessing log. ``zero_phase`` runs the filter forwards and backwards
     (scipy ``sosfiltfilt``), which keeps the per-position windows aligned in time.
     Truth signals are filtered the same way so that they stay comparable.
-    ``windows_only`` (zero phase only) filters just the segments' acquisition windows, one signal
-    at a time, and decimates the rest unfiltered (:mod:`imurig.calibration.window_filter`): the
+    ``windows_only`` (zero phase only) filters just the segments' acquisition windows, one
+    window at a time, and decimates the rest unfiltered (:mod:`imurig.calibration.window_filter`): the
     same values in the windows, in bounded memory.
     """
     fs = rec.sample_rate_hz
