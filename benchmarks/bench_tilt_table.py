@@ -7,7 +7,7 @@ Each repeat runs, one after the other in fresh processes,
   per-position statistics, the report's seven fits), optionally with the output folder.
 Per process: wall time, CPU time (user + system) and peak resident memory; samples per second
 (1 kHz samples of the campaign, each 12 channels; the peer's IMU samples, each 9 axes) and
-the ratio imurig / peer of samples per wall second. Medians over the repeats; the load average
+the ratio imurig / peer of samples per wall second (and per CPU second). Medians over the repeats; the load average
 (``os.getloadavg``) before and after, since the machine may be shared.
 
     python benchmarks/bench_tilt_table.py                # full seed protocol (240 positions, 15 s each)
@@ -146,6 +146,9 @@ def main(argv=None) -> dict:
             summary[f"peer_{k}"] = med([r["peer"][k] for r in runs])
         summary["ratio_samples_per_s"] = med([r["imurig"]["samples_per_s"] / r["peer"]["samples_per_s"]
                                               for r in runs])
+        # per CPU second (less sensitive to the load; the peer's CPU includes its interpreter and imports)
+        summary["ratio_samples_per_cpu_s"] = med([(r["imurig"]["samples_1kHz"] / r["imurig"]["campaign_cpu_s"])
+                                                  / (r["peer"]["samples"] / r["peer"]["cpu_s"]) for r in runs])
     summary = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in summary.items()}
     for k, v in summary.items():
         print(f"{k:34s} {v}")
