@@ -213,7 +213,8 @@ class TiltTable:
         return segments, {"start_s": "s", "stop_s": "s", "run": "1", "theta": "rad", "phi": "rad", "mount": ""}
 
     def simulate(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
-        """Run the protocol in MuJoCo; return a Recording with set-points and truth, no sensors yet.
+        """Run the protocol (MuJoCo for the moves, the closed form at rest unless ``dwell_truth`` is
+        "mujoco", :mod:`imurig.rigs.tilt_truth`); return a Recording with set-points and truth, no sensors yet.
 
         Channels: ``theta``, ``phi`` (commanded set-points, rad). Truth signals at the IMU
         case frame C, 1/sample: ``f_C_x/y/z`` specific force (m/s^2), ``w_C_x/y/z`` angular
