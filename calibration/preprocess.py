@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from imurig.calibration.window_filter import lowpass_windows
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 
 
 def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,
-                       zero_phase: bool = True) -> Recording:
+                       zero_phase: bool = True, windows_only: bool = False) -> Recording:
     """Digital low-pass then keep every k-th sample, per contiguous block (seed C.1.1).
 
     The seed filters 1 kHz data with a 5th-order Butterworth, Wn = 50 / (1000 / 2), then
@@ -22,6 +23,9 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     The rate reached is in ``meta['sample_rate_hz']`` and the preprocessing log. ``zero_phase`` runs the filter forwards and backwards
     (scipy ``sosfiltfilt``), which keeps the per-position windows aligned in time.
     Truth signals are filtered the same way so that they stay comparable.
+    ``windows_only`` (zero phase only) filters just the segments' acquisition windows, one
+    window at a time, and decimates the rest unfiltered (:mod:`imurig.calibration.window_filter`): the
+    same values in the windows, in bounded memory.
     """
     fs = rec.sample_rate_hz
     if not (np.isfinite(rate_hz) and rate_hz > 0 and cutoff_hz > 0):
@@ -39,6 +43,12 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     # truth signals: filter the measured quantities the same way; decimate the rest unfiltered
     tnames = [n for n in rec.truth_signals if rec.truth_units.get(n) in ("m/s^2", "rad/s", "T")]
     others = [n for n in rec.truth_signals if n not in tnames]
+    setpoints = set(rec.meta.get("setpoints", []))
+    log = {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
+           "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}
+    if windows_only and zero_phase and rec.n_segments:
+        idx, channels, tsig = lowpass_windows(rec, sos, k, [n for n in names if n not in setpoints], tnames)
+        return _decimated(rec, idx, channels, tsig, rate_hz, {**log, "where": "segment windows"})
     x = rec.stack(names) if names else np.zeros((rec.n, 0))
     xt = np.stack([rec.truth_signals[n] for n in tnames], 1) if tnames else np.zeros((rec.n, 0))
     out_x, out_t = [], []
@@ -60,17 +70,19 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     fx = np.concatenate(out_x)
     ft = np.concatenate(out_t)
     # set-point channels are step functions: decimate them without filtering
-    setpoints = set(rec.meta.get("setpoints", []))
     channels = {n: (rec.channels[n][idx] if n in setpoints else fx[:, i]) for i, n in enumerate(names)}
+    return _decimated(rec, idx, channels, {**{n: ft[:, i] for i, n in enumerate(tnames)},
+                                           **{n: rec.truth_signals[n][idx] for n in others}}, rate_hz, log)
+
+
+def _decimated(rec: Recording, idx, channels: dict, truth_signals: dict, rate_hz: float, log: dict) -> Recording:
+    """The downsampled Recording (samples ``idx`` of ``rec``) with its preprocessing log entry."""
     meta = dict(rec.meta)
     meta["sample_rate_hz"] = rate_hz
-    meta["preprocessing"] = list(meta.get("preprocessing", [])) + [
-        {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
-         "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}]
+    meta["preprocessing"] = list(meta.get("preprocessing", [])) + [log]
     return Recording(time_s=rec.time_s[idx], channels=channels, units=dict(rec.units),
                      segments=dict(rec.segments), segment_units=dict(rec.segment_units), meta=meta,
-                     truth=rec.truth, truth_signals={**{n: ft[:, i] for i, n in enumerate(tnames)},
-                                                     **{n: rec.truth_signals[n][idx] for n in others}},
+                     truth=rec.truth, truth_signals=truth_signals,
                      truth_units=dict(rec.truth_units))
 
 

@@ -24,15 +24,16 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from imurig.kernel.errors import ScheduleError
+from imurig.kernel.errors import ConfigError, ScheduleError
 from imurig.kernel.recording import Recording
-from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
+from imurig.rigs.mujoco_rig import load_model, sensor_slices
 from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCMIN, DEG
 from imurig.sensors.effects.table_backlash import TableBacklash
 from imurig.rigs.tilt_kinematics import (MOUNTS, TableSurvey, reference_specific_force,  # noqa: F401 (re-exported)
                                          reference_with_jacobian, rot_x, rot_y, rot_z, rotate_to_body,
                                          setting_error_covariance, specific_force_C)
+from imurig.rigs.tilt_truth import full_truth, stitched_truth
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     import mujoco
@@ -155,6 +156,9 @@ class TiltTable:
     azimuth_deg: float = 0.0  # heading of the base x axis, from east towards north
     #: the adjusting wheels' gear clearance (effect ``table_backlash``; none by default)
     backlash: TableBacklash = field(default_factory=TableBacklash)
+    #: the truth in the acquisition windows: "closed_form" (MuJoCo steps only the moves, module
+    #: :mod:`imurig.rigs.tilt_truth`) or "mujoco" (MuJoCo steps every sample; same truth to 1e-11 g)
+    dwell_truth: str = "closed_form"
 
     def _backlash_offsets(self, set_theta, set_phi, runs) -> dict | None:
         """Per mounting, the (m, 2) rad shift of the true from the read (theta, phi) by the gear
@@ -209,7 +213,8 @@ class TiltTable:
         return segments, {"start_s": "s", "stop_s": "s", "run": "1", "theta": "rad", "phi": "rad", "mount": ""}
 
     def simulate(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
-        """Run the protocol in MuJoCo; return a Recording with set-points and truth, no sensors yet.
+        """Run the protocol (MuJoCo for the moves, the closed form at rest unless ``dwell_truth`` is
+        "mujoco", :mod:`imurig.rigs.tilt_truth`); return a Recording with set-points and truth, no sensors yet.
 
         Channels: ``theta``, ``phi`` (commanded set-points, rad). Truth signals at the IMU
         case frame C, 1/sample: ``f_C_x/y/z`` specific force (m/s^2), ``w_C_x/y/z`` angular
@@ -225,6 +230,8 @@ class TiltTable:
         missing = [r for r in runs if r not in self.errors.phi_zero_rad]
         if missing:
             raise ScheduleError(f"table errors define no phi-plane error for mounting(s) {missing}")
+        if self.dwell_truth not in ("closed_form", "mujoco"):
+            raise ConfigError(f"dwell_truth must be 'closed_form' or 'mujoco', got {self.dwell_truth!r}")
 
         base_model = load_model("tilt_table.xml")
         base_model.opt.timestep = dt
@@ -241,32 +248,24 @@ class TiltTable:
         backlash = self._backlash_offsets(set_theta, set_phi, runs)
         models, ctrl, qpos0, setting_err = self._run_commands(base_model, runs, R_WB, cmd_nom, windows,
                                                                set_theta.size, rng, backlash)
-        sd = rollout_servo(models, np.array(qpos0), np.array(ctrl), desc="tilt table (MuJoCo)")
         sl = sensor_slices(base_model)
+        ctrl = np.array(ctrl)
+        earth_W = self.site.earth_rate_W()
+        if self.dwell_truth == "mujoco":
+            truth_signals = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
+        else:
+            truth_signals = stitched_truth(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
+                                           earth_W, B_W)
+        units = {k: {"f": "m/s^2", "w": "rad/s", "B": "T"}.get(k[0], "rad") for k in truth_signals}
 
         # assemble the record: runs one after the other, with the remount time as a gap
-        n_total = nstep * len(runs)
         gap = protocol.remount_s
         t_run = np.arange(nstep) * dt
         time_s = np.concatenate([t_run + i * (nstep * dt + gap) for i in range(len(runs))])
-        f_C = sd[:, :, sl["f_C"]].reshape(n_total, 3)
-        w_C = sd[:, :, sl["w_C"]].reshape(n_total, 3)
-        B_C = sd[:, :, sl["B_C"]].reshape(n_total, 3)
-        q_WC = sd[:, :, sl["q_WC"]].reshape(n_total, 4)
-        w_C = w_C + rotate_to_body(q_WC, self.site.earth_rate_W())  # Earth rate, R_CW Omega_W
-
         segments, seg_units = self._segments(runs, windows, set_theta, set_phi, dt, nstep * dt + gap)
         pos_idx = _position_index(nstep, windows)
         theta_set = np.tile(set_theta[pos_idx], len(runs))
         phi_set = np.tile(set_phi[pos_idx], len(runs))
-
-        truth_signals = {"theta_true": sd[:, :, sl["theta_true"]].reshape(n_total),
-                         "phi_true": sd[:, :, sl["phi_true"]].reshape(n_total)}
-        units = {"theta_true": "rad", "phi_true": "rad"}
-        for name, arr, unit in (("f_C", f_C, "m/s^2"), ("w_C", w_C, "rad/s"), ("B_C", B_C, "T")):
-            for j, ax in enumerate("xyz"):
-                truth_signals[f"{name}_{ax}"] = arr[:, j]
-                units[f"{name}_{ax}"] = unit
 
         meta = {
             "rig": "tilt_table",

@@ -93,25 +93,24 @@ class DAQ6036E:
         return variance_V2(self.lsb_V, self.input_noise_lsb_rms, self.averaging)
 
     def convert(self, analog: dict[str, np.ndarray], time_s: np.ndarray, rng: np.random.Generator,
-                slope: dict[str, np.ndarray] | None = None) -> tuple[dict[str, np.ndarray], dict]:
+                slope: dict[str, np.ndarray] | None = None, consume: bool = False) -> tuple[dict[str, np.ndarray], dict]:
         """Digitise ``analog`` (name -> (n,) volts). Returns (volts per channel, report dict).
 
         ``slope`` (name -> (n,) V/s, the noise-free signal's time derivative) enables the
-        channel skew; channels without a slope are taken as constant over one scan.
+        channel skew; channels without a slope are taken as constant over one scan. ``consume``
+        drops each scanned line from ``analog`` and ``slope`` once converted (the caller's dicts),
+        so that memory holds the lines or their conversions, not both.
         """
         self.validate()
         missing = [c for c in self.scan_list if c not in analog]
         if missing:
             raise ConfigError(f"scan list names {missing} but no such analog signals exist")
-        n = time_s.size
         common = self.common_mode.common(time_s, rng)
         crosstalk, skew = self.crosstalk, self.skew
         c = crosstalk.coefficient(self.mux_frequency_hz)
-        q = self.lsb_V
-        lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
         out, saturated = {}, {}
         held = None  # the previous slot's input, u_{j-1}
-        # one channel at a time (vectorised over time) keeps memory at a few (n,) arrays
+        # one channel at a time (vectorised over time), in place: memory stays at a few (n,) arrays
         for j, name in enumerate(self.scan_list):
             u = analog[name] + common
             if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
@@ -121,23 +120,43 @@ class DAQ6036E:
                 if j == 0:  # the first slot follows the last slot of the previous scan
                     last = analog[self.scan_list[-1]] + common
                     prev = np.concatenate(([u[0]], last[:-1]))
+                    del last
                 else:
                     prev = held
                 u = crosstalk.inject(u, ScanSlot(j, self.mux_frequency_hz, prev))
             held = u_in
-            if self.averaging > 1:
-                # the mean of `averaging` dithered conversions: quantisation and input noise
-                # average down and the result is no longer on the grid
-                codes = np.clip((u + np.sqrt(self.sample_variance_V2()) * rng.standard_normal(n)) / q, lo, hi)
-            else:
-                u = u + self.input_noise_lsb_rms * q * rng.standard_normal(n)
-                codes = np.clip(np.round(u / q), lo, hi)
-            nsat = int(np.count_nonzero((codes == lo) | (codes == hi)))
-            if nsat:
-                saturated[name] = nsat
-            out[name] = codes * q
-        report = {"lsb_V": q, "crosstalk_coefficient": c, "saturated_samples": saturated}
+            if consume:
+                analog.pop(name, None)
+                if slope:
+                    slope.pop(name, None)
+            out[name] = self._quantise(u, rng, name, saturated)
+        report = {"lsb_V": self.lsb_V, "crosstalk_coefficient": c, "saturated_samples": saturated}
         return out, report
+
+    def _quantise(self, u: np.ndarray, rng: np.random.Generator, name: str, saturated: dict) -> np.ndarray:
+        """Add the converter noise to ``u`` (a scratch array, overwritten) and quantise: volts (n,)."""
+        q = self.lsb_V
+        lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
+        if self.averaging > 1:
+            # the mean of `averaging` dithered conversions: quantisation and input noise
+            # average down and the result is no longer on the grid
+            e = rng.standard_normal(u.size)
+            e *= np.sqrt(self.sample_variance_V2())
+            u += e
+            u /= q
+        else:
+            e = rng.standard_normal(u.size)
+            e *= self.input_noise_lsb_rms * q
+            u += e
+            u /= q
+            np.round(u, out=u)
+        del e
+        np.clip(u, lo, hi, out=u)
+        nsat = int(np.count_nonzero(u == lo) + np.count_nonzero(u == hi))
+        if nsat:
+            saturated[name] = nsat
+        u *= q
+        return u
 
     def settings(self) -> dict:
         d = asdict(self)

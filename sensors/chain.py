@@ -141,7 +141,8 @@ class ImuLab:
         for line in rig.meta.get("analog_lines", []):
             analog[line] = rig.truth_signals[line]
         self._analog(analog, ctx, seed)
-        volts, adc_report = self.adc.convert(analog, rig.time_s, child_rng(seed, "adc"), slope)
+        volts, adc_report = self.adc.convert(analog, rig.time_s, child_rng(seed, "adc"), slope, consume=True)
+        del analog, slope
         events = self._events(rig, seed)
         return self._recording(rig, seed, volts, adc_report, f_dist, temps, used, events)
 
@@ -197,8 +198,12 @@ class ImuLab:
         ts, t = rig.truth_signals, rig.time_s
         acc = self.accelerometers
         f_C = acc.lever_arm().inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
-        v = acc.ideal_voltage(f_C + f_dist, temps.acc, temps.h_acc)
-        d = np.gradient(v, t, axis=0)
+        f_C += f_dist
+        v = np.empty_like(f_C)
+        for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces, no full-length temporaries
+            v[a:b] = acc.ideal_voltage(f_C[a:b], _rows(temps.acc, a, b), _rows(temps.h_acc, a, b))
+        del f_C
+        d = _gradient_rows(v, t)
         v += acc.noise_current(t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"),
                                averaged=bool(rig.meta.get("averaged_logging"))) * acc.load_resistor_ohm
         return v, d
@@ -206,7 +211,7 @@ class ImuLab:
     def _magnetometer_volts(self, rig, ctx, f_dist, temps, seed):
         B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
         v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"), temps.box)
-        return v, np.gradient(v, rig.time_s, axis=0)  # fluxgate noise is small: no separate noise-free path
+        return v, _gradient_rows(v, rig.time_s)  # fluxgate noise is small: no separate noise-free path
 
     def _gyro_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t, g = rig.truth_signals, rig.time_s, self.gyros
@@ -214,7 +219,7 @@ class ImuLab:
         f_gyro = (np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1) + f_dist
                   if np.any(g.g_sensitivity_rad_s_per_m_s2) else None)
         v = g.ideal_voltage(w_C, temps.gyro, f_gyro)
-        d = np.gradient(v, t, axis=0)
+        d = _gradient_rows(v, t)
         grng = child_rng(seed, "gyros")
         for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
             v[blk] += g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng) * g.scale_V_per_rad_s
@@ -287,3 +292,30 @@ class ImuLab:
             truth["chain"]["effects"] = {e.name: e.settings() for e in self.effects}
         truth["seed"] = {"entropy": str(seed.entropy), "spawn_key": list(seed.spawn_key)}
         return truth
+
+
+#: rows per piece of the pointwise stages (bounded temporaries; results do not depend on it)
+ROW_CHUNK = 1 << 18
+
+
+def _row_chunks(n: int, chunk: int = ROW_CHUNK):
+    """(start, stop) row ranges covering n rows."""
+    return [(a, min(n, a + chunk)) for a in range(0, n, chunk)]
+
+
+def _rows(x, a: int, b: int):
+    """Rows a:b of a per-sample array; a scalar (or 0-d array) as it is."""
+    return x[a:b] if np.ndim(x) >= 1 else x
+
+
+def _gradient_rows(v: np.ndarray, t: np.ndarray, chunk: int = ROW_CHUNK) -> np.ndarray:
+    """np.gradient(v, t, axis=0) computed in row pieces with one row of overlap: the same values
+    (each interior row uses its two neighbours, the end rows one-sided differences)."""
+    n = v.shape[0]
+    if n <= chunk:
+        return np.gradient(v, t, axis=0)
+    out = np.empty_like(v)
+    for a, b in _row_chunks(n, chunk):
+        lo, hi = max(a - 1, 0), min(b + 1, n)
+        out[a:b] = np.gradient(v[lo:hi], t[lo:hi], axis=0)[a - lo:a - lo + (b - a)]
+    return out

@@ -15,7 +15,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.recording import Recording
 from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
-from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
+from imurig.sensors.chain import DEFAULT_SCAN, ImuLab, _gradient_rows
 from imurig.sensors.effects import AdcCrosstalk, Effect
 from imurig.sensors.noise import band_noise, band_power_gain, sampled_bands, window_mean_variance
 from imurig.kernel.units import G_STANDARD
@@ -220,3 +220,31 @@ def test_chain_stages_compose_the_labs_effects():
         assert np.array_equal(a.channels[k], b.channels[k]) == (k != "mag_x"), k
     with pytest.raises(ConfigError, match="converter"):
         ImuLab(effects=(AdcCrosstalk(),))
+
+
+def test_converter_consuming_its_lines_gives_the_same_codes_and_frees_them():
+    """``consume=True`` (the chain's bounded-memory mode) converts to the same volts, bit for bit,
+    and leaves none of the scanned lines (nor their slopes) in the caller's dicts."""
+    n = 3000
+    t = np.arange(n) / FS
+    rng = np.random.default_rng(5)
+    lines = {k: rng.normal(0, 1, n) for k in ("a", "b", "c")}
+    slope = {k: rng.normal(0, 50, n) for k in ("a", "c")}
+    adc = DAQ6036E(scan_list=("a", "b", "c"))
+    ref, rep_ref = adc.convert(dict(lines), t, np.random.default_rng(9), dict(slope))
+    an, sl = dict(lines), dict(slope)
+    out, rep = adc.convert(an, t, np.random.default_rng(9), sl, consume=True)
+    assert an == {} and sl == {}
+    assert rep == rep_ref
+    for k in ref:
+        np.testing.assert_array_equal(out[k], ref[k])
+
+
+def test_sensor_slopes_in_pieces_equal_the_whole_gradient():
+    """The chain's piecewise time derivative equals numpy's over the whole record, bit for bit,
+    on an uneven clock and for pieces of any size."""
+    rng = np.random.default_rng(1)
+    t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, 5003))
+    v = rng.standard_normal((t.size, 3))
+    for chunk in (2, 7, 1000, 5002):
+        np.testing.assert_array_equal(_gradient_rows(v, t, chunk), np.gradient(v, t, axis=0))

@@ -26,7 +26,7 @@ def test_mujoco_static_truth_matches_closed_form():
     proto = TiltTableProtocol(theta_deg=(0, 35, 90), phi_deg=(0, 120, 250), runs=("z_down", "z_up"), dwell_s=0.5,
                               settle_s=2.0, slew_rate_deg_s=30)
     errors = TiltTableErrors(setting_resolution_rad=0.0)
-    table = TiltTable(errors=errors, survey=TableSurvey(), site=Site())
+    table = TiltTable(errors=errors, survey=TableSurvey(), site=Site(), dwell_truth="mujoco")
     rec = table.simulate(proto, "2005-06-14T18:00:00+02:00", np.random.default_rng(0))
     f = np.stack([rec.truth_signals[f"f_C_{a}"] for a in "xyz"], 1)
     w = np.stack([rec.truth_signals[f"w_C_{a}"] for a in "xyz"], 1)
@@ -38,6 +38,27 @@ def test_mujoco_static_truth_matches_closed_form():
         np.testing.assert_allclose(f[s], np.broadcast_to(expect, f[s].shape), rtol=0, atol=1e-11 * G)
         # residual servo motion after settling is below 1e-12 rad/s (Earth rate is 7.3e-5 rad/s)
         np.testing.assert_allclose(np.linalg.norm(w[s], axis=1), EARTH_RATE_RAD_S, rtol=0, atol=1e-12)
+
+
+def test_stitched_truth_equals_full_mujoco_run():
+    """MuJoCo for the moves and the closed form at rest (the default) give the truth of a MuJoCo run
+    that steps every sample: specific force to 1e-11 g, rates to 1e-12 rad/s, field to 1e-11 of
+    its size, joint angles to 1e-11 rad; the set-points, segments and times are identical."""
+    proto = TiltTableProtocol(theta_deg=(0, 40, 90), phi_deg=(0, 90, 300), dwell_s=0.5, slew_rate_deg_s=30)
+    recs = [TiltTable(errors=TiltTableErrors(), site=Site(), dwell_truth=m).simulate(
+        proto, "2005-06-14T18:00:00+02:00", np.random.default_rng(3)) for m in ("mujoco", "closed_form")]
+    full, fast = recs
+    np.testing.assert_array_equal(full.time_s, fast.time_s)
+    assert list(full.truth_signals) == list(fast.truth_signals)
+    B = np.linalg.norm([full.truth_signals[f"B_C_{a}"][0] for a in "xyz"])
+    for k, tol in (("f_C", 1e-11 * G), ("w_C", 1e-12), ("B_C", 1e-11 * B), ("theta_true", 1e-11),
+                   ("phi_true", 1e-11)):
+        for name in [n for n in full.truth_signals if n.startswith(k)]:
+            np.testing.assert_allclose(fast.truth_signals[name], full.truth_signals[name], rtol=0, atol=tol,
+                                       err_msg=name)
+    for name in full.channels:
+        np.testing.assert_array_equal(fast.channels[name], full.channels[name])
+    assert fast.truth == full.truth
 
 
 def test_perfect_table_reproduces_seed_equations():
@@ -256,3 +277,29 @@ def test_noise_free_triad_recovers_forward_parameters():
         assert abs(est[f"nonlinearity_{a}"] / k2[i] - 1) < 2e-3, a
     for i, j in [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)]:
         assert abs(est[f"misalignment_{'xyz'[i]}{'xyz'[j]}"] - M[i, j]) < 1e-8
+
+
+def test_lowpass_in_windows_only_equals_whole_record(small_recording):
+    """Filtering only the padded acquisition windows gives the whole-record filter's values there
+    (the Butterworth's transient decays by e^-100 over the 1 s pad, far below one ADC step, 1.5e-4 V),
+    the same decimated time grid, and the raw samples elsewhere."""
+    keep = ("theta", "phi", "acc_x", "acc_z", "temp_box")
+    rec = small_recording.replace(channels={k: small_recording.channels[k] for k in keep},
+                                  truth_signals={k: small_recording.truth_signals[k] for k in ("f_C_x", "theta_true")})
+    full, win = lowpass_downsample(rec), lowpass_downsample(rec, windows_only=True)
+    np.testing.assert_array_equal(win.time_s, full.time_s)
+    inside = np.zeros(win.n, bool)
+    for s in win.segment_slices():
+        inside[s] = True
+    lsb = rec.meta["adc"]["lsb_V"]
+    for name in rec.channels:
+        np.testing.assert_allclose(win.channels[name][inside], full.channels[name][inside], rtol=0,
+                                   atol=1e-9 * lsb, err_msg=name)
+    for name in rec.truth_signals:
+        scale = np.max(np.abs(full.truth_signals[name])) or 1.0
+        np.testing.assert_allclose(win.truth_signals[name][inside], full.truth_signals[name][inside], rtol=0,
+                                   atol=1e-12 * scale, err_msg=name)
+    idx = np.searchsorted(rec.time_s, win.time_s[~inside])
+    np.testing.assert_array_equal(win.channels["acc_x"][~inside], rec.channels["acc_x"][idx])
+    np.testing.assert_allclose(segment_statistic(win, ["acc_x", "acc_z"]), segment_statistic(full, ["acc_x", "acc_z"]),
+                               rtol=0, atol=1e-9 * lsb)

@@ -172,7 +172,8 @@ def _write_group(grp, arrays: Mapping[str, np.ndarray], units: Mapping[str, str]
         if q:
             codes = np.round(x / q)
             if np.all(np.abs(codes) < 2**31) and np.array_equal(codes * q, x):
-                stored = codes.astype(np.int32)
+                # the narrowest integer that holds the codes (a 16-bit converter's fit in int16)
+                stored = codes.astype(np.int16 if np.all(np.abs(codes) < 2**15) else np.int32)
             else:
                 q = None
         kw = dict(compression="gzip", compression_opts=1, shuffle=True) if x.size > 4096 else {}
@@ -257,7 +258,8 @@ def save_h5(rec: Recording, path, overwrite: bool = False) -> Path:
     datasets ``/time_s``, ``/channels/<name>``, ``/segments/<col>``, ``/truth_signals/<name>``,
     ``/events/<name>`` (time stamps),
     each with an attribute ``unit``. ADC channels whose values are exact multiples of their
-    quantum (one LSB, attribute ``quantum``) are stored as integer codes, which is lossless.
+    quantum (one LSB, attribute ``quantum``) are stored as integer codes (int16 when they fit,
+    else int32), which is lossless; large datasets are chunked and gzip-compressed.
     """
     import h5py  # heavy: loaded when a file is written, not when the CLI starts
 
