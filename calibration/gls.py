@@ -64,9 +64,9 @@ def fit_jointly(results: dict, axes, inputs: dict, y_all: np.ndarray, segment_co
     regressions, module doc): a position's setting error and the survey errors reach all three axes
     at once, so the other axes' readings tell each axis how far its reference is off. ``white`` (3,)
     the white part w_a of each axis from its own fit, or (3, 3) with the white covariance between
-    axes (noise the channels share, e.g. the converter's common mode) off the diagonal. Returns ({axis: RegressionResult} with the
-    joint coefficients and the diagonal blocks of their covariance, the covariance's cross-axis
-    blocks (its diagonal blocks zero))."""
+    axes (noise the channels share, e.g. the converter's common mode) off the diagonal. Returns
+    ({axis: RegressionResult} with the joint coefficients and the diagonal blocks of their
+    covariance, the covariance's cross-axis blocks (its diagonal blocks zero))."""
     n = y_all.shape[0]
     white = np.asarray(white, float)
     white = np.diag(white) if white.ndim == 1 else white
