@@ -79,8 +79,9 @@ def test_spikes_move_the_estimate_by_the_closed_form_bias_only():
 def test_level_off_an_adc_grid_is_resolved():
     """Codes of a level off the grid with 0.4 q noise: the MAD is 0 or one step, so the scale is
     floored at q and the codes within 1.345 q are averaged: error within 4 standard errors of the
-    codes' mean plus the dithered quantiser's bias q / pi exp(-2 pi^2 sigma^2 / q^2) (codes beyond
-    1.345 q, P < 0.3 %, are clipped by < 0.5 q: < 0.0015 q more); the median stays on the grid."""
+    codes' mean plus the dithered quantiser's bias q / pi exp(-2 pi^2 sigma^2 / q^2), plus the
+    clipping at 1.345 q: code 2 (P < 0.3 %) by < 0.6 q and code -1 (P < 1.3 %) by < 0.06 q, together
+    < 0.0015 q. The median stays on the grid."""
     rng = np.random.default_rng(3)
     q, sigma, n = 1.0, 0.4, 4000
     mu = rng.uniform(0.1, 0.4, 3)
