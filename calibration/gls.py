@@ -8,9 +8,11 @@ Model of one axis a (n segments, p terms)::
 
 and of the three axes together::
 
-    y = blockdiag(X_x, X_y, X_z) beta + e,   cov(e)_(a,b) = K_ab + delta_ab w_a I     [(3n, 3n)]
+    y = blockdiag(X_x, X_y, X_z) beta + e,   cov(e)_(a,b) = K_ab + W_ab I     [(3n, 3n)]
 
-with beta = (X' V^-1 X)^-1 X' V^-1 y and cov(beta) = (X' V^-1 X)^-1.
+W: the white covariance between the axes (each axis' own w_a on the diagonal; noise the channels
+share, e.g. the converter's common mode, off it), with beta = (X' V^-1 X)^-1 X' V^-1 y and
+cov(beta) = (X' V^-1 X)^-1.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import dataclasses
 import numpy as np
 import scipy.linalg
 import scipy.optimize
+import scipy.stats
 
 from imurig.calibration.regression import RegressionResult
 from imurig.calibration.terms import TermLibrary
@@ -60,10 +63,13 @@ def fit_jointly(results: dict, axes, inputs: dict, y_all: np.ndarray, segment_co
     """Refit the three axes as one generalised least-squares problem (seemingly unrelated
     regressions, module doc): a position's setting error and the survey errors reach all three axes
     at once, so the other axes' readings tell each axis how far its reference is off. ``white`` (3,)
-    the white part w_a of each axis from its own fit. Returns ({axis: RegressionResult} with the
-    joint coefficients and the diagonal blocks of their covariance, the covariance's cross-axis
-    blocks (its diagonal blocks zero))."""
+    the white part w_a of each axis from its own fit, or (3, 3) with the white covariance between
+    axes (noise the channels share, e.g. the converter's common mode) off the diagonal. Returns
+    ({axis: RegressionResult} with the joint coefficients and the diagonal blocks of their
+    covariance, the covariance's cross-axis blocks (its diagonal blocks zero))."""
     n = y_all.shape[0]
+    white = np.asarray(white, float)
+    white = np.diag(white) if white.ndim == 1 else white
     Xs = [TermLibrary.from_names(results[a].names).design(inputs) for a in axes]
     off = np.concatenate([[0], np.cumsum([X.shape[1] for X in Xs])])
     V = np.zeros((3 * n, 3 * n))
@@ -72,7 +78,7 @@ def fit_jointly(results: dict, axes, inputs: dict, y_all: np.ndarray, segment_co
         Xf[i * n:(i + 1) * n, off[i]:off[i + 1]] = Xs[i]
         for j in range(3):
             V[i * n:(i + 1) * n, j * n:(j + 1) * n] = (reference_error_cov(segment_cov, survey, i, j)
-                                                       + (white[i] * np.eye(n) if i == j else 0.0))
+                                                       + white[i, j] * np.eye(n))
     L = np.linalg.cholesky(V)
     Xw = scipy.linalg.solve_triangular(L, Xf, lower=True)
     yw = scipy.linalg.solve_triangular(L, y_all.T.reshape(-1), lower=True)
@@ -89,13 +95,19 @@ def fit_jointly(results: dict, axes, inputs: dict, y_all: np.ndarray, segment_co
     return out, cross
 
 
-def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray) -> float:
+def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray, level: float | None = None) -> float:
     """REML estimate of s^2 in y = X b + e, cov(e) = K + s^2 I, K (n, n) known.
 
     Minimises  1/2 [log det V + log det(X' V^-1 X) + r' V^-1 r],  V = K + s^2 I, r the GLS
     residual, over log s^2 (bounded scalar search between 1e-12 and 1 times 10 x the data's
     OLS residual variance). One eigendecomposition K = U diag(lam) U' makes each evaluation
     O(n p^2): V^-1 = U diag(1 / (lam + s^2)) U'.
+
+    With ``level``, s^2 is kept only where the data show it: the restricted likelihood ratio
+    LR = 2 (nll(0) - nll(s^2)) against s^2 = 0 must exceed the chi2_1 quantile at 2 level (s^2 = 0
+    lies on the boundary, where LR is the 50:50 mixture of 0 and chi2_1; Self & Liang 1987),
+    else 0 is returned. Where K holds all the noise, a free s^2 is positive in half of the data
+    sets and then only adds its own estimation noise to the weights and standard errors.
     """
     ols = np.linalg.lstsq(X, y, rcond=None)[0]
     top = max(float(np.var(y - X @ ols)), 1e-300) * 10
@@ -113,6 +125,8 @@ def white_variance_reml(X: np.ndarray, y: np.ndarray, K: np.ndarray) -> float:
 
     lo, hi = np.log(top * 1e-12), np.log(top)
     res = scipy.optimize.minimize_scalar(nll, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+    if level is not None and 2 * (nll(lo) - res.fun) < scipy.stats.chi2.isf(2 * level, 1):
+        return 0.0
     return float(np.exp(res.x))
 
 

@@ -45,9 +45,11 @@ def reference_inputs(rec: Recording):
     return segs, g, survey
 
 
-def calibrate(rec: Recording, model: str = "physical", statistic: str = "median",
+def calibrate(rec: Recording, model: str = "physical", statistic: str = "huber",
               processed: Recording | None = None) -> AccelerometerCalibration:
-    """Low-pass/downsample (if not given) and fit the inverse model with the reference's uncertainty."""
+    """Low-pass/downsample (if not given) and fit the inverse model with the reference's uncertainty,
+    on the per-position ``statistic``: 'huber' (robust M-estimate, 95 % Gaussian efficiency; default),
+    'median' (the seed's), 'mean', or 'raw' (every sample)."""
     rec100 = processed if processed is not None else lowpass_downsample(rec)
     ref, J, sigma = tilt_table_reference(rec100)
     cal = AccelerometerCalibration(model=model, statistic=statistic)

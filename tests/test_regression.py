@@ -406,3 +406,30 @@ def test_exact_fit_recovers_coefficients_within_conditioning(seed, p, extra, spr
     err = np.linalg.norm(res.coef_ - b) / np.linalg.norm(b)
     # backward-stable QR: error <= c * (p + sqrt(n)) * kappa * eps (normal equations: ~kappa^2 * eps)
     assert err <= 8 * (p + math.sqrt(n)) * kappa * EPS
+
+
+def test_reml_extra_white_variance_kept_only_where_significant():
+    """white_variance_reml(level=...): with no extra white noise (cov = K), the likelihood-ratio test
+    keeps s^2 > 0 in at most a fraction ``level`` of data sets (binomial bound at 1e-3), where the
+    free REML estimate is positive in about half (boundary mixture 50:50); an extra white part five
+    times K's diagonal (LR of order n = 80, against the threshold 5.4) is kept every time."""
+    from scipy.stats import binom
+
+    from imurig.calibration.gls import white_variance_reml
+
+    rng = np.random.default_rng(12)
+    n, reps, level = 80, 100, 0.01
+    x = np.linspace(0, np.pi, n)
+    X = np.column_stack([np.ones(n), np.cos(x), np.sin(x)])
+    K = np.diag(1e-8 * (1 + np.sin(2 * x) ** 2))
+    L0 = np.linalg.cholesky(K)
+    L1 = np.linalg.cholesky(K + 1e-7 * np.eye(n))
+    free, tested, strong = 0, 0, 0
+    for _ in range(reps):
+        y = X @ [0.1, 1.0, -0.5] + L0 @ rng.standard_normal(n)
+        free += white_variance_reml(X, y, K) > 1e-12
+        tested += white_variance_reml(X, y, K, level=level) > 0
+        strong += white_variance_reml(X, X @ [0.1, 1.0, -0.5] + L1 @ rng.standard_normal(n), K, level=level) > 0
+    assert tested <= binom.isf(1e-3, reps, level)
+    assert binom.ppf(1e-3, reps, 0.4) <= free <= binom.isf(1e-3, reps, 0.6)
+    assert strong == reps

@@ -82,6 +82,9 @@ def _tilt_table_args(p):
     p.add_argument("--model", default="physical", choices=["physical", "linear", "cross", "seed_final", "paper_eq2", "stepwise",
                                                                "backward"],
                    help="main calibration model (paper_eq2: the EUCASS paper's eq. 2, own axis to a^4)")
+    p.add_argument("--statistic", default="huber", choices=["huber", "median", "mean"],
+                   help="per-position statistic: huber (robust M-estimate, 95 %% Gaussian efficiency), median "
+                        "(the seed's, for its tables) or mean")
     p.add_argument("--mux-khz", type=float, default=20.0, help="ADC multiplexing frequency, kHz")
     p.add_argument("--grounding", default="NRSE", choices=["GRSE", "NRSE", "DIFF"], help="ADC wiring")
     p.add_argument("--no-pump", action="store_true", help="switch the basement pump off entirely")
@@ -161,6 +164,7 @@ def _run_tilt_table(a):
     proto = TiltTableProtocol(theta_deg=a.theta, phi_deg=a.phi, runs=a.runs, dwell_s=a.dwell,
                               sample_rate_hz=a.rate)
     camp = TiltTableCampaign(protocol=proto, seed=a.seed, start_time=a.start_time, model=a.model,
+                             statistic=a.statistic,
                              mux_frequency_hz=a.mux_khz * 1e3, grounding=a.grounding, pump=not a.no_pump,
                              people=not a.no_people, loose_cable=a.loose_cable, crosstalk=not a.no_crosstalk,
                              draw_sensor_errors=not a.ideal_sensors)

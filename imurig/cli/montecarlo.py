@@ -62,7 +62,9 @@ def add_montecarlo_parser(sub) -> None:
                    help="static: closed-form rest windows; mujoco: the full MuJoCo table every run (slow)")
     s.add_argument("--model", default=None, help="calibration model (tilt table: physical, linear, cross; "
                                                   "turn table: physical)")
-    s.add_argument("--statistic", choices=["median", "mean"], default=None, help="per-position statistic")
+    s.add_argument("--statistic", choices=["huber", "median", "mean"], default=None,
+                   help="per-position statistic (default huber: a robust M-estimate at 95 %% Gaussian efficiency; "
+                        "median: the seed's)")
     s.add_argument("--setting-resolution-arcmin", type=float, default=None, help="table angle-setting resolution")
     s.add_argument("--survey-arcsec", type=float, default=None, help="inclinometer survey accuracy (1 sigma)")
     s.add_argument("--no-people", action="store_true", help="no door/chair transients")

@@ -32,6 +32,9 @@ def add_recording_parsers(sub) -> None:
                               "stepwise", "backward"],
                      help="default: the rig's (tilt and turn table: physical; six-face: auto, the linear model "
                           "plus the terms the faces identify)")
+    cal.add_argument("--statistic", default="huber", choices=["huber", "median", "mean"],
+                     help="tilt table: per-position statistic (huber: robust M-estimate at 95 %% Gaussian "
+                          "efficiency; median: the seed's)")
     cal.add_argument("--timer", default="auto", choices=["auto", "adc", "hp6700", "gps_mark"],
                      help="turn table: the timer of the once-per-round pulses (auto: the HP counter's events, "
                           "another timer's, else the ADC pulse channel)")
@@ -146,7 +149,7 @@ def _calibrate_tilt_table(a, rec, model):
     from imurig.reports.tilt_table import _report_md, analyse, make_figures, summary_dict
 
     with OutputFolder(a.out, overwrite=a.overwrite) as out:
-        res = analyse(rec, model)
+        res = analyse(rec, model, a.statistic)
         figs = make_figures(out, rec, res)
         files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                  **{f"figure_{k}": v for k, v in figs.items()}}

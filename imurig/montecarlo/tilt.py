@@ -6,7 +6,8 @@ One run, from its stream ``montecarlo/run`` (:mod:`imurig.kernel.random_streams`
     sensors (ImuLab.draw), apply user-set distributions
       -> rig truth at the IMU for every acquisition window
       -> ImuLab sensor chain -> Recording (100 Hz averaged logging by default)
-      -> per-position medians -> inverse-model least squares (imurig.campaigns.tilt_table.calibrate)
+      -> per-position statistics (Huber M-estimates by default; the seed's medians with
+         statistic="median") -> inverse-model least squares (imurig.campaigns.tilt_table.calibrate)
       -> parameter rows {name, unit, injected, estimate, std_error, z, within_bound, crlb}
 
 The Monte-Carlo schedule. The seed's campaign logs every channel at 1 kHz for 15 s per
@@ -32,6 +33,7 @@ import numpy as np
 from imurig.calibration.accelerometer import injected_parameters
 from imurig.calibration.preprocess import lowpass_downsample
 from imurig.campaigns.tilt_table import (
+    STATISTICS,
     Z_BOUND,
     TiltTableCampaign,
     calibrate,
@@ -85,7 +87,7 @@ class TiltTableMC:
     def default_params(self) -> dict:
         return {"theta_deg": list(THETA_SEED), "phi_deg": list(PHI_12), "mounts": ["z_down", "z_up"],
                 "dwell_s": 15.0, "settle_s": 2.0, "slew_rate_deg_s": 6.0, "remount_s": 900.0,
-                "sample_rate_hz": 100.0, "logging": "averaged", "model": "physical", "statistic": "median",
+                "sample_rate_hz": 100.0, "logging": "averaged", "model": "physical", "statistic": "huber",
                 "start_time": "2005-06-14T18:00:00+02:00", "survey_accuracy_arcsec": 2.0,
                 "setting_resolution_arcmin": 0.25, "mux_khz": 20.0, "grounding": "NRSE", "pump": True,
                 "people": True, "rig": "static"}
@@ -103,8 +105,9 @@ class TiltTableMC:
             raise ConfigError(f"logging must be 'averaged' or 'direct', got {p['logging']!r}")
         if p["rig"] not in ("static", "mujoco"):
             raise ConfigError(f"rig must be 'static' (closed-form rest windows) or 'mujoco', got {p['rig']!r}")
-        if p["statistic"] not in ("median", "mean"):
-            raise ConfigError(f"statistic must be 'median' or 'mean', got {p['statistic']!r}")
+        if p["statistic"] not in STATISTICS:
+            raise ConfigError(f"statistic must be one of {', '.join(STATISTICS)} (huber: the default, median: the "
+                              f"seed's), got {p['statistic']!r}")
         if p["model"] not in ("physical", "linear", "cross"):
             raise ConfigError(f"model must be physical, linear or cross (fixed term sets), got {p['model']!r}")
         rate = float(p["sample_rate_hz"])

@@ -65,7 +65,8 @@ def window_noise_cov(p: dict, lab: ImuLab, n_window: int, hour_of_day: np.ndarra
     - the lab's Gaussian disturbance effects (specific-force stage: the pump ...): each one's
       ``noise_variance`` of a window mean (m/s^2)^2 times the true sensitivity squared, at the
       schedule's hours ``hour_of_day`` (default: the start time's). Impulsive effects (people
-      transients, a loose cable: rare, non-Gaussian, the median rejects most) are left out.
+      transients, a loose cable: rare, non-Gaussian; the per-position Huber M-estimate, or the
+      seed's median, rejects most) are left out.
     """
     acc, adc = lab.accelerometers, lab.adc
     fs = float(p["sample_rate_hz"])
@@ -94,6 +95,13 @@ def crlb(p: dict, rec: Recording) -> dict[str, float]:
     model), and the survey's readings of the table errors (variance survey_accuracy^2).
     Parameters: the 15 sensor parameters and the 2 + n_mounts table errors (nuisance).
     F = sum_k J_k' C_k^-1 J_k + diag(0, 1/s_survey^2); bound = sqrt(diag((F^-1)[:15, :15])).
+
+    The bound is the data's, for any unbiased estimator whatever its per-position statistic. A
+    statistic of Gaussian efficiency eff (:func:`imurig.calibration.preprocess.statistic_efficiency`:
+    mean 1, Huber 0.950, median 2/pi) multiplies the window-noise part of C by 1/eff, so an
+    estimator built on it sits up to 1/sqrt(eff) above the bound where the window noise dominates
+    (Huber 1.026, median 1.25); its standard errors follow its statistic (batch means of that
+    statistic, :func:`imurig.calibration.preprocess.segment_statistic_covariance`).
     """
     t = rec.truth
     acc = t["sensors"]["accelerometers"]
