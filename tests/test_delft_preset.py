@@ -10,7 +10,7 @@ from imurig.campaigns.delft_2005 import Delft2005, fitted_sizes
 from imurig.campaigns.tilt_table import TiltTableCampaign
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.units import ARCMIN
-from imurig.montecarlo import delft_fit
+from imurig.montecarlo import delft_fit, delft_fit_42
 from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN
@@ -52,6 +52,7 @@ def test_the_preset_differs_from_the_quiet_lab_only_by_its_named_imperfections()
     assert a1["channel_settling_tau_s"] == {"acc_y": pre.settling_tau_y_s}
     assert [e.name for e in lab0.effects] == []
     assert sorted(e.name for e in lab1.effects) == sorted(e.name for e in pre.effects())
+    assert lab1.pump.rms_m_s2 == pre.pump_rms_m_s2 and lab0.pump.rms_m_s2 == type(lab0.pump)().rms_m_s2
     assert all(e.seed_says for e in lab1.effects)
     with pytest.raises(ConfigError, match="unknown lab"):
         TiltTableCampaign(protocol=proto, lab="delft").build()
@@ -63,6 +64,8 @@ def test_the_preset_constants_are_the_fit_record():
     assert pre.setting_error_rad == pytest.approx(rec["sizes"]["setting_error_arcmin"]["value"] * ARCMIN)
     assert pre.settling_tau_y_s == rec["sizes"]["settling_tau_y_s"]["value"]
     assert rec["dof"] == 12 and len(rec["z"]) == 5
+    s42 = rec["table_4_2"]["sizes"]
+    assert (pre.cable_offset_V, pre.pump_rms_m_s2) == (s42["cable_offset_V"]["value"], s42["pump_rms_m_s2"]["value"])
 
 
 def _synthetic_design():
@@ -102,3 +105,20 @@ def test_the_fit_recovers_sizes_from_simulator_output():
     assert abs(s["setting_error_arcmin"]["value"] - w) < 3 * s["setting_error_arcmin"]["se"]
     assert abs(s["c200_y"]["value"] - cy) < 3 * s["c200_y"]["se"]
     assert abs(s["c200"]["value"] - c) < 3 * s["c200"]["se"]
+
+
+def test_the_tab_4_2_fit_recovers_known_sizes_from_tables_made_with_them():
+    """As for Tab. 4.3, with the Tab. 4.2 terms of the record and its relative scatter 1/sqrt(2(240-4))."""
+    d = {k: np.array(v) for k, v in fitted_sizes()["table_4_2"]["design"].items()}
+    truth = np.array([3.0, 0.025, 0.08])
+    exact = delft_fit_42.model_sigmas(truth, d)
+    got = delft_fit_42.fit(exact, d)["sizes"]
+    assert [got[k]["value"] for k in ("setting_error_arcmin", "pump_rms_m_s2", "cable_offset_V")] == \
+        pytest.approx(truth, rel=1e-4)
+    rng = np.random.default_rng(5)
+    misses = 0
+    for _ in range(20):
+        s = delft_fit_42.fit(exact * (1 + delft_fit_42.REL_SE * rng.standard_normal(exact.shape)), d)["sizes"]
+        misses += sum(abs(s[k]["value"] - t) > 3 * s[k]["se"]
+                      for k, t in zip(("setting_error_arcmin", "pump_rms_m_s2", "cable_offset_V"), truth))
+    assert misses <= 1   # 60 comparisons at 3 SE: P(> 1 miss) < 0.02

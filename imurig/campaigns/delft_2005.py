@@ -14,7 +14,8 @@ sentence that supports it (``seed_says``):
   transient and vibration rectification at their datasheet bounds (no published table constrains
   them; they are listed with ``fitted: false``),
 * the persistent y-channel cable fault (``persistent_cable_fault``) for the campaigns before the
-  junction box was repaired (Tab. 4.2; ``cable_fault=True``).
+  junction box was repaired (Tab. 4.2; ``cable_fault=True``) and the basement pump's rms by day
+  (``building_vibration``), both fitted to Tab. 4.2.
 
 Fitted sizes come from ``delft_2005_fit.json`` (package assets), written by
 :func:`imurig.montecarlo.delft_fit.main` (weighted least squares of the simulator to Tab. 4.3,
@@ -33,6 +34,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.units import ARCMIN
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.air_conditioning import AirConditioningVibration
+from imurig.sensors.effects.building_vibration import PumpVibration
 from imurig.sensors.effects.persistent_cable_fault import PersistentCableFault
 from imurig.sensors.effects.ship_passages import ShipPassages
 from imurig.sensors.effects.transformer_hum import TransformerHum
@@ -71,14 +73,18 @@ class Delft2005:
     settling_tau_s: float
     settling_tau_y_s: float
     cable_offset_V: float
+    pump_rms_m_s2: float = 0.03
     cable_dwell_s: float = 60.0
 
     @classmethod
     def fitted(cls) -> "Delft2005":
-        s = fitted_sizes()["sizes"]
+        """The sizes of the fit record: setting error and settling from Tab. 4.3 (the final evening campaign's
+        conditions), the pump's rms and the y contact's offset from Tab. 4.2."""
+        rec = fitted_sizes()
+        s, s42 = rec["sizes"], rec["table_4_2"]["sizes"]
         return cls(setting_error_rad=s["setting_error_arcmin"]["value"] * ARCMIN,
                    settling_tau_s=s["settling_tau_s"]["value"], settling_tau_y_s=s["settling_tau_y_s"]["value"],
-                   cable_offset_V=s.get("cable_offset_V", {}).get("value", 0.0751))
+                   cable_offset_V=s42["cable_offset_V"]["value"], pump_rms_m_s2=s42["pump_rms_m_s2"]["value"])
 
     def channel_settling(self) -> dict:
         """Per-channel settling for :class:`imurig.sensors.adc.DAQ6036E` (the y line's own tau)."""
@@ -101,6 +107,9 @@ class Delft2005:
                 {"effect": AdcCrosstalk.name, "size": f"tau {self.settling_tau_s:.3g} s, y {self.settling_tau_y_s:.3g} s",
                  "fitted": True, "se": [rec["settling_tau_s"]["se"], rec["settling_tau_y_s"]["se"]],
                  "seed_says": AdcCrosstalk.seed_says}]
+        rows.append({"effect": "building_vibration", "size": f"pump rms {self.pump_rms_m_s2:.3g} m/s^2 by day",
+                     "fitted": True, "se": fitted_sizes()["table_4_2"]["sizes"]["pump_rms_m_s2"]["se"],
+                     "seed_says": PumpVibration.seed_says})
         for e in self.effects(cable_fault=True):
             rows.append({"effect": e.name, "size": "", "fitted": e.name == PersistentCableFault.name,
                          "se": None, "seed_says": e.seed_says})

@@ -90,7 +90,8 @@ class TiltTableCampaign:
             adc = replace(adc, settling_tau_s=preset.settling_tau_s, channel_settling_tau_s=preset.channel_settling())
             effects = effects + preset.effects()
         lab = replace(base, adc=adc,
-                      pump=PumpVibration(enabled=self.pump), people=PeopleTransients(enabled=self.people),
+                      pump=PumpVibration(enabled=self.pump, **({"rms_m_s2": preset.pump_rms_m_s2} if preset else {})),
+                      people=PeopleTransients(enabled=self.people),
                       cable=LooseCable(enabled=self.loose_cable), effects=effects)
         return table, lab, random_streams.seed_sequence("campaign/tilt-table/sensor-chain", self.seed)
 
