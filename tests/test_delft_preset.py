@@ -54,6 +54,7 @@ def test_the_preset_differs_from_the_quiet_lab_only_by_its_named_imperfections()
     assert sorted(e.name for e in lab1.effects) == sorted(e.name for e in pre.effects())
     assert lab1.pump.rms_m_s2 == pre.pump_rms_m_s2 and lab0.pump.rms_m_s2 == type(lab0.pump)().rms_m_s2
     assert all(e.seed_says for e in lab1.effects)
+    assert all(r["seed_says"] for r in pre.describe()) and sum(r["fitted"] for r in pre.describe()) == 4
     with pytest.raises(ConfigError, match="unknown lab"):
         TiltTableCampaign(protocol=proto, lab="delft").build()
 

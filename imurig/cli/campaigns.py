@@ -90,7 +90,7 @@ def _tilt_table_args(p):
     p.add_argument("--no-crosstalk", action="store_true", help="ideal multiplexer settling")
     p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
                    help="the virtual lab: quiet (default) or delft-2005 (the seed's imperfections, sizes fitted to "
-                        "Tab. 4.3)")
+                        "Tab. 4.2-4.3)")
     p.add_argument("--ideal-sensors", action="store_true", help="no drawn sensor errors (datasheet nominal)")
     p.add_argument("--no-rrd", action="store_true", help="skip the rerun file")
     p.add_argument("--no-recording", action="store_true", help="skip saving recording.h5")
