@@ -177,4 +177,6 @@ class DAQ6036E:
         d["scan_list"] = list(self.scan_list)
         d["lsb_V"] = self.lsb_V
         d["crosstalk_coefficient"] = self.crosstalk_coefficient()
+        d["crosstalk_coefficients"] = {k: self.channel_crosstalk(k).coefficient(self.mux_frequency_hz)
+                                       for k in self.scan_list}
         return d
