@@ -48,7 +48,8 @@ def test_the_preset_differs_from_the_quiet_lab_only_by_its_named_imperfections()
     assert {k for k in e0 if e0[k] != e1[k]} == {"setting_resolution_rad"}
     assert e1["setting_resolution_rad"] == pre.setting_error_rad
     a0, a1 = lab0.adc.settings(), lab1.adc.settings()
-    assert {k for k in a0 if a0[k] != a1[k]} <= {"settling_tau_s", "channel_settling_tau_s", "crosstalk_coefficient"}
+    assert {k for k in a0 if a0[k] != a1[k]} <= {"settling_tau_s", "channel_settling_tau_s", "crosstalk_coefficient",
+                                                 "crosstalk_coefficients"}
     assert a1["channel_settling_tau_s"] == {"acc_y": pre.settling_tau_y_s}
     assert [e.name for e in lab0.effects] == []
     assert sorted(e.name for e in lab1.effects) == sorted(e.name for e in pre.effects())
