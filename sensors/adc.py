@@ -18,6 +18,10 @@ g: 50 Hz ground-loop pickup, present only with ground-referenced single-ended wi
 (GRSE) of grounded sources (seed 3.4). c_mode: common-mode noise, rejected by the
 differential configuration (DIFF). e_adc: converter input noise. The crosstalk grows
 with f_mux because the amplifier has less time to settle (seed Table 4.3).
+
+Options of seed 4.3.4: ``ground_between`` converts a slot wired to the card's ground before every
+data slot (u_{j-1} = 0 V, so the leak is a pure scale factor c on u_j); ``channel_settling_tau_s``
+gives a channel its own tau (a higher source impedance, e.g. a faulty connector in its line).
 """
 from __future__ import annotations
 
@@ -51,19 +55,42 @@ class DAQ6036E:
     common_mode_noise_V_rms: float = 30e-6
     input_noise_lsb_rms: float = 0.6
     averaging: int = 1  # conversions averaged into one logged sample (slow averaged logging)
+    #: seed Table 4.3's "grounded channel between": a slot wired to the card's ground (0 V) is
+    #: converted before every data slot, so each data slot settles from 0 V (2 slots per channel)
+    ground_between: bool = False
+    #: per-channel settling time constants (s) where a channel's source impedance differs from the
+    #: card's (e.g. a faulty connector's series resistance); the others settle with settling_tau_s
+    channel_settling_tau_s: dict | None = None
 
     def validate(self):
         if self.grounding not in GROUNDINGS:
             raise ConfigError(f"grounding must be one of {GROUNDINGS}, got {self.grounding!r}")
         if self.range_V not in (10.0, 5.0, 0.5, 0.05):
             raise ConfigError(f"DAQ-6036E input ranges are +-10, 5, 0.5, 0.05 V; got {self.range_V}")
-        if len(self.scan_list) > 16 or (self.grounding == "DIFF" and len(self.scan_list) > 8):
-            raise ConfigError(f"{len(self.scan_list)} channels do not fit: 16 single-ended or 8 differential")
-        if len(self.scan_list) / self.mux_frequency_hz > 1 / self.sample_rate_hz:
-            raise ConfigError(f"scanning {len(self.scan_list)} channels at {self.mux_frequency_hz:g} Hz takes "
+        slots = self.slots_per_scan
+        if slots > 16 or (self.grounding == "DIFF" and slots > 8):
+            raise ConfigError(f"{slots} scan slots do not fit: 16 single-ended or 8 differential"
+                              + (" (a grounded slot before each channel doubles the slots)" if self.ground_between
+                                 else ""))
+        unknown = set(self.channel_settling_tau_s or {}) - set(self.scan_list)
+        if unknown:
+            raise ConfigError(f"channel_settling_tau_s names {sorted(unknown)}, which are not in the scan list "
+                              f"{list(self.scan_list)}")
+        if slots / self.mux_frequency_hz > 1 / self.sample_rate_hz:
+            raise ConfigError(f"scanning {slots} slots at {self.mux_frequency_hz:g} Hz takes "
                              f"longer than one sample period at {self.sample_rate_hz:g} Hz; raise f_mux or "
                              "lower the sample rate")
         return self
+
+    @property
+    def slots_per_scan(self) -> int:
+        """Converted slots per scan: the channels, plus a grounded slot before each with ``ground_between``."""
+        return len(self.scan_list) * (2 if self.ground_between else 1)
+
+    def channel_crosstalk(self, name: str) -> AdcCrosstalk:
+        """The settling crosstalk into channel ``name`` (its own time constant where one is given)."""
+        tau = (self.channel_settling_tau_s or {}).get(name, self.settling_tau_s)
+        return AdcCrosstalk(settling_tau_s=tau, enabled=self.crosstalk_enabled)
 
     @property
     def lsb_V(self) -> float:
@@ -106,31 +133,41 @@ class DAQ6036E:
         if missing:
             raise ConfigError(f"scan list names {missing} but no such analog signals exist")
         common = self.common_mode.common(time_s, rng)
-        crosstalk, skew = self.crosstalk, self.skew
-        c = crosstalk.coefficient(self.mux_frequency_hz)
+        skew = self.skew
+        c = self.crosstalk.coefficient(self.mux_frequency_hz)
         out, saturated = {}, {}
         held = None  # the previous slot's input, u_{j-1}
         # one channel at a time (vectorised over time), in place: memory stays at a few (n,) arrays
         for j, name in enumerate(self.scan_list):
+            slot = 2 * j + 1 if self.ground_between else j
             u = analog[name] + common
             if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
-                u = skew.inject(u, ScanSlot(j, self.mux_frequency_hz, slope_V_s=slope[name]))
+                u = skew.inject(u, ScanSlot(slot, self.mux_frequency_hz, slope_V_s=slope[name]))
             u_in = u
-            if c > 0:
-                if j == 0:  # the first slot follows the last slot of the previous scan
+            xtalk = self.channel_crosstalk(name)
+            if xtalk.coefficient(self.mux_frequency_hz) > 0:
+                if self.ground_between:  # the grounded slot before it: settles from 0 V
+                    prev = np.zeros_like(u)
+                elif j == 0:  # the first slot follows the last slot of the previous scan
                     last = analog[self.scan_list[-1]] + common
                     prev = np.concatenate(([u[0]], last[:-1]))
                     del last
                 else:
                     prev = held
-                u = crosstalk.inject(u, ScanSlot(j, self.mux_frequency_hz, prev))
+                u = xtalk.inject(u, ScanSlot(slot, self.mux_frequency_hz, prev))
             held = u_in
             if consume:
                 analog.pop(name, None)
                 if slope:
                     slope.pop(name, None)
+            nxt = self.scan_list[j + 1] if j + 1 < len(self.scan_list) else None
+            if u is u_in and nxt is not None and not self.ground_between and \
+                    self.channel_crosstalk(nxt).coefficient(self.mux_frequency_hz) > 0:
+                held = u_in.copy()  # the next slot settles from this input; _quantise overwrites u
             out[name] = self._quantise(u, rng, name, saturated)
-        report = {"lsb_V": self.lsb_V, "crosstalk_coefficient": c, "saturated_samples": saturated}
+        report = {"lsb_V": self.lsb_V, "crosstalk_coefficient": c, "saturated_samples": saturated,
+                  "crosstalk_coefficients": {k: self.channel_crosstalk(k).coefficient(self.mux_frequency_hz)
+                                             for k in self.scan_list}}
         return out, report
 
     def _quantise(self, u: np.ndarray, rng: np.random.Generator, name: str, saturated: dict) -> np.ndarray:
@@ -163,4 +200,6 @@ class DAQ6036E:
         d["scan_list"] = list(self.scan_list)
         d["lsb_V"] = self.lsb_V
         d["crosstalk_coefficient"] = self.crosstalk_coefficient()
+        d["crosstalk_coefficients"] = {k: self.channel_crosstalk(k).coefficient(self.mux_frequency_hz)
+                                       for k in self.scan_list}
         return d

@@ -16,6 +16,7 @@ from imurig.calibration.accelerometer import (AXES, INPUTS, MODELS, Acceleromete
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
+from imurig.campaigns.delft_2005 import Delft2005, check_lab
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
 from imurig.kernel import random_streams
@@ -60,6 +61,9 @@ class TiltTableCampaign:
     #: further lab disturbances (effect objects of stage specific_force or analog), e.g. a lab's own
     lab_effects: tuple = ()
     site: Site = field(default_factory=Site)
+    #: "quiet" (default) or "delft-2005": the seed's lab imperfections at sizes fitted to Tab. 4.3
+    #: (:mod:`imurig.campaigns.delft_2005`; the table's setting error, the y line's settling, the lab's sources)
+    lab: str = "quiet"
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -77,14 +81,23 @@ class TiltTableCampaign:
                                        level_x_rad=0.0))
         survey = TableSurvey.measure(errors, random_streams.generator("survey", self.seed),
                                      self.survey_accuracy_arcsec * ARCSEC)
+        check_lab(self.lab)
+        preset = Delft2005.fitted() if self.lab == "delft-2005" else None
+        if preset is not None:
+            errors = replace(errors, setting_resolution_rad=preset.setting_error_rad)
         table = TiltTable(errors=errors, survey=survey, site=self.site)
         sensor_rng = random_streams.generator("sensor_errors", self.seed)
         base = ImuLab.draw(sensor_rng) if self.draw_sensor_errors else ImuLab()
-        lab = replace(base,
-                      adc=DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,
-                                   grounding=self.grounding, crosstalk_enabled=self.crosstalk),
-                      pump=PumpVibration(enabled=self.pump), people=PeopleTransients(enabled=self.people),
-                      cable=LooseCable(enabled=self.loose_cable), effects=tuple(self.lab_effects))
+        adc = DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,
+                       grounding=self.grounding, crosstalk_enabled=self.crosstalk)
+        effects = tuple(self.lab_effects)
+        if preset is not None:
+            adc = replace(adc, settling_tau_s=preset.settling_tau_s, channel_settling_tau_s=preset.channel_settling())
+            effects = effects + preset.effects()
+        lab = replace(base, adc=adc,
+                      pump=PumpVibration(enabled=self.pump, **({"rms_m_s2": preset.pump_rms_m_s2} if preset else {})),
+                      people=PeopleTransients(enabled=self.people),
+                      cable=LooseCable(enabled=self.loose_cable), effects=effects)
         return table, lab, random_streams.seed_sequence("campaign/tilt-table/sensor-chain", self.seed)
 
     def check_identifiable(self) -> None:

@@ -91,6 +91,9 @@ def _tilt_table_args(p):
     p.add_argument("--no-people", action="store_true", help="no door/chair transients")
     p.add_argument("--loose-cable", action="store_true", help="the faulty y-channel connector of seed 4.3.3")
     p.add_argument("--no-crosstalk", action="store_true", help="ideal multiplexer settling")
+    p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
+                   help="the virtual lab: quiet (default) or delft-2005 (the seed's imperfections, sizes fitted to "
+                        "Tab. 4.2-4.3)")
     p.add_argument("--ideal-sensors", action="store_true", help="no drawn sensor errors (datasheet nominal)")
     p.add_argument("--no-rrd", action="store_true", help="skip the rerun file")
     p.add_argument("--no-recording", action="store_true", help="skip saving recording.h5")
@@ -167,7 +170,7 @@ def _run_tilt_table(a):
                              statistic=a.statistic,
                              mux_frequency_hz=a.mux_khz * 1e3, grounding=a.grounding, pump=not a.no_pump,
                              people=not a.no_people, loose_cable=a.loose_cable, crosstalk=not a.no_crosstalk,
-                             draw_sensor_errors=not a.ideal_sensors)
+                             draw_sensor_errors=not a.ideal_sensors, lab=a.lab)
     print(f"imurig: tilt-table campaign, {proto.n_positions} positions, seed {a.seed} -> {a.out}", file=sys.stderr)
     s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording)
     print_summary(s, a.out)

@@ -87,8 +87,10 @@ class AdcCrosstalk(Effect):
                           ("c",), lambda k, cols=cols: cols[k], scan=tuple(cols), scan_name="source_channel")]
 
     def fitted(self, truth, channel: str | None = None) -> dict[str, float]:
-        """-c / (s (1 - c)) on accelerometer ``channel`` ("acc_x" ...), c from the recorded converter."""
-        c = float(truth["chain"]["adc"]["crosstalk_coefficient"])
+        """-c / (s (1 - c)) on accelerometer ``channel`` ("acc_x" ...), c from the recorded converter (the
+        channel's own where its line settles with its own tau)."""
+        adc = truth["chain"]["adc"]
+        c = float((adc.get("crosstalk_coefficients") or {}).get(channel, adc["crosstalk_coefficient"]))
         j = "xyz".index(channel[-1])
         s = float(truth["sensors"]["accelerometers"]["sensitivity_V_per_m_s2"][j])
         return {"c": -c / (s * (1.0 - c))}

@@ -1,0 +1,126 @@
+"""The Delft 2005 lab preset (issue 17): the converter's options, the preset against the quiet lab,
+and the Tab. 4.3 fit (truth tests: sizes recovered within their standard errors)."""
+import math
+from dataclasses import asdict
+
+import numpy as np
+import pytest
+
+from imurig.campaigns.delft_2005 import Delft2005, fitted_sizes
+from imurig.campaigns.tilt_table import TiltTableCampaign
+from imurig.kernel.errors import ConfigError
+from imurig.kernel.units import ARCMIN
+from imurig.montecarlo import delft_fit, delft_fit_42
+from imurig.rigs.tilt_table import TiltTableProtocol
+from imurig.sensors.adc import DAQ6036E
+from imurig.sensors.chain import DEFAULT_SCAN
+
+
+def test_a_grounded_slot_leaks_zero_volts_as_a_scale_factor_and_a_line_settles_with_its_own_tau():
+    """u_j <- u_j + c (u_{j-1} - u_j): after a grounded slot u_{j-1} = 0, so u_j (1 - c); channel y has its tau."""
+    n = 4000
+    analog = {"a": np.full(n, 1.0), "b": np.full(n, -2.0), "y": np.full(n, 3.0)}
+    t = np.arange(n) / 1000.0
+    tau, tau_y = 0.8e-6, 1.2e-6
+    c, cy = math.exp(-1 / (200e3 * tau)), math.exp(-1 / (200e3 * tau_y))
+    kw = dict(mux_frequency_hz=200e3, settling_tau_s=tau, skew_enabled=False, common_mode_noise_V_rms=0.0,
+              channel_settling_tau_s={"y": tau_y})
+    rng = np.random.default_rng(3)
+    g, rep = DAQ6036E(scan_list=("a", "b", "y"), ground_between=True, **kw).convert(analog, t, rng)
+    p, _ = DAQ6036E(scan_list=("a", "b", "y"), **kw).convert(analog, t, rng)
+    noise_se = DAQ6036E(scan_list=("a",)).lsb_V * 0.8 / math.sqrt(n)   # rounding + input noise per mean
+    assert abs(g["b"].mean() - (-2.0) * (1 - c)) < 5 * noise_se
+    assert abs(g["y"].mean() - 3.0 * (1 - cy)) < 5 * noise_se
+    assert abs(p["y"].mean() - (3.0 + cy * (-2.0 - 3.0))) < 5 * noise_se   # the previous data slot leaks
+    assert rep["crosstalk_coefficients"]["y"] == pytest.approx(cy)
+    with pytest.raises(ConfigError, match="grounded slot"):
+        DAQ6036E(scan_list=DEFAULT_SCAN, ground_between=True).validate()   # 20 slots > 16
+    with pytest.raises(ConfigError, match="not in the scan list"):
+        DAQ6036E(scan_list=("a",), channel_settling_tau_s={"z": 1e-6}).validate()
+
+
+def test_the_preset_differs_from_the_quiet_lab_only_by_its_named_imperfections():
+    proto = TiltTableProtocol(theta_deg=(0.0, 90.0), phi_deg=(0.0, 90.0, 180.0, 270.0), runs=("z_down",))
+    t0, lab0, _ = TiltTableCampaign(protocol=proto).build()
+    t1, lab1, _ = TiltTableCampaign(protocol=proto, lab="delft-2005").build()
+    pre = Delft2005.fitted()
+    e0, e1 = asdict(t0.errors), asdict(t1.errors)
+    assert {k for k in e0 if e0[k] != e1[k]} == {"setting_resolution_rad"}
+    assert e1["setting_resolution_rad"] == pre.setting_error_rad
+    a0, a1 = lab0.adc.settings(), lab1.adc.settings()
+    assert {k for k in a0 if a0[k] != a1[k]} <= {"settling_tau_s", "channel_settling_tau_s", "crosstalk_coefficient",
+                                                 "crosstalk_coefficients"}
+    assert a1["channel_settling_tau_s"] == {"acc_y": pre.settling_tau_y_s}
+    assert [e.name for e in lab0.effects] == []
+    assert sorted(e.name for e in lab1.effects) == sorted(e.name for e in pre.effects())
+    assert lab1.pump.rms_m_s2 == pre.pump_rms_m_s2 and lab0.pump.rms_m_s2 == type(lab0.pump)().rms_m_s2
+    assert all(e.seed_says for e in lab1.effects)
+    assert all(r["seed_says"] for r in pre.describe()) and sum(r["fitted"] for r in pre.describe()) == 4
+    with pytest.raises(ConfigError, match="unknown lab"):
+        TiltTableCampaign(protocol=proto, lab="delft").build()
+
+
+def test_the_preset_constants_are_the_fit_record():
+    rec = fitted_sizes()
+    pre = Delft2005.fitted()
+    assert pre.setting_error_rad == pytest.approx(rec["sizes"]["setting_error_arcmin"]["value"] * ARCMIN)
+    assert pre.settling_tau_y_s == rec["sizes"]["settling_tau_y_s"]["value"]
+    assert rec["dof"] == 12 and len(rec["z"]) == 5
+    s42 = rec["table_4_2"]["sizes"]
+    assert (pre.cable_offset_V, pre.pump_rms_m_s2) == (s42["cable_offset_V"]["value"], s42["pump_rms_m_s2"]["value"])
+
+
+def _synthetic_design():
+    """F, S, K of the size the simulator gives (assets record), for the estimator's own truth test."""
+    d = fitted_sizes()["design"]
+    return {"F": np.array(d["F"]), "S": np.array(d["S"]), "K": np.array(d["K"])}
+
+
+def test_the_fit_recovers_known_sizes_from_tables_made_with_them():
+    """Tables drawn from the model with the seed's relative scatter 1/8: the WLS estimate lies within
+    3 SE of the truth in each of 20 draws for w and c_y (c of the card is at its bound 0 in some)."""
+    d = _synthetic_design()
+    truth = np.array([2.5, 4e-4, 2e-3])
+    exact = delft_fit.model_sigmas(truth, d)
+    res = delft_fit.fit(exact, d)
+    assert res["sizes"]["setting_error_arcmin"]["value"] == pytest.approx(2.5, rel=1e-5)
+    assert res["sizes"]["c200_y"]["value"] == pytest.approx(2e-3, rel=1e-5)
+    rng = np.random.default_rng(17)
+    misses = 0
+    for _ in range(20):
+        table = exact * (1 + delft_fit.REL_SE * rng.standard_normal(exact.shape))
+        s = delft_fit.fit(table, d)["sizes"]
+        for key, k in (("setting_error_arcmin", 0), ("c200_y", 2)):
+            misses += abs(s[key]["value"] - truth[k]) > 3 * s[key]["se"]
+    assert misses <= 1   # 40 comparisons at 3 SE: P(> 1 miss) < 0.01
+
+
+@pytest.mark.slow
+def test_the_fit_recovers_sizes_from_simulator_output():
+    """Tab. 4.3 made by the simulator with known sizes (own seeds), fitted with a design on other seeds."""
+    w, c, cy = 2.0, 5e-4, 2.5e-3
+    tau, tau_y = delft_fit.tau_for(c), delft_fit.tau_for(cy)
+    table = np.array([delft_fit.simulate_sigmas(w, tau, tau_y, f, g, 900 + i)
+                      for i, (f, g) in enumerate(delft_fit.SETTINGS)])
+    res = delft_fit.fit(table, delft_fit.design(seeds=(11, 12, 13)))
+    s = res["sizes"]
+    assert abs(s["setting_error_arcmin"]["value"] - w) < 3 * s["setting_error_arcmin"]["se"]
+    assert abs(s["c200_y"]["value"] - cy) < 3 * s["c200_y"]["se"]
+    assert abs(s["c200"]["value"] - c) < 3 * s["c200"]["se"]
+
+
+def test_the_tab_4_2_fit_recovers_known_sizes_from_tables_made_with_them():
+    """As for Tab. 4.3, with the Tab. 4.2 terms of the record and its relative scatter 1/sqrt(2(240-4))."""
+    d = {k: np.array(v) for k, v in fitted_sizes()["table_4_2"]["design"].items()}
+    truth = np.array([3.0, 0.025, 0.08])
+    exact = delft_fit_42.model_sigmas(truth, d)
+    got = delft_fit_42.fit(exact, d)["sizes"]
+    assert [got[k]["value"] for k in ("setting_error_arcmin", "pump_rms_m_s2", "cable_offset_V")] == \
+        pytest.approx(truth, rel=1e-4)
+    rng = np.random.default_rng(5)
+    misses = 0
+    for _ in range(20):
+        s = delft_fit_42.fit(exact * (1 + delft_fit_42.REL_SE * rng.standard_normal(exact.shape)), d)["sizes"]
+        misses += sum(abs(s[k]["value"] - t) > 3 * s[k]["se"]
+                      for k, t in zip(("setting_error_arcmin", "pump_rms_m_s2", "cable_offset_V"), truth))
+    assert misses <= 1   # 60 comparisons at 3 SE: P(> 1 miss) < 0.02
