@@ -190,7 +190,9 @@ def _param(d, axis, effect, k=0):
 
 CASES = [
     Case("adc_crosstalk", "tilt_table", {("y", "adc_crosstalk"), ("z", "adc_crosstalk")}, crosstalk_recording, 2e-4,
-         sizes=(1e-5, 2e-5, 5e-5, 1e-4, 2e-4), size_unit="settling residual c (V/V)",
+         sizes=(1e-5, 2e-5, 5e-5, 1e-4, 2e-4),
+         size_unit="settling residual c (V/V); the diagnosis reports the inverse-model coefficient -c/(s (1 - c)) "
+                   "in m/s^2 per V, negative for a positive leak",
          truth_param=lambda rec: AdcCrosstalk().fitted(rec.truth, "acc_y")["c"],
          found_param=lambda d: _param(d, "y", "adc_crosstalk")),
     Case("building_vibration", "tilt_table", {(a, "building_vibration") for a in "xyz"}, pump_recording, 0.03,

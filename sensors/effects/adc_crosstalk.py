@@ -41,7 +41,8 @@ class AdcCrosstalk(Effect):
     seed_says: ClassVar[str] = ("coupling of an ADC channel to the next one; a lower multiplexing frequency "
                                 "cured it")
     params: ClassVar[tuple] = (Param("settling_tau_s", "s", note="c = exp(-1/(f_mux tau)); fitted as c"),
-                               Param("c", "m/s^2/V", note="inverse-model coefficient on the previous channel"))
+                               Param("c", "m/s^2/V", note="inverse-model coefficient on the previous channel, "
+                                                          "-c/(s (1 - c)): negative for a positive leak c (V/V)"))
     views: ClassVar[tuple] = ("positions",)
     order: ClassVar[int] = 10
 
