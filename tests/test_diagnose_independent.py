@@ -5,7 +5,12 @@ effect each, at its realistic (seed-level) size, or none; every file goes throug
 (load, then dispatch.diagnose) in a capped child process (benchmarks/bench_diagnosis_independent.py).
 A refused or crashed file is a miss. Asserted, per effect and per rig's nulls:
 
-- named right (every expected channel and effect, nothing else) in >= 90 % of the recordings;
+- named right (every expected channel and effect, nothing else) in >= 90 % of the recordings where
+  the effect is detectable at all: a mean-level tilt effect (drift, nonlinearity, misalignment,
+  crosstalk) is scored only where its expected non-centrality, computed from the lab's manifest
+  (effect size, noise, ADC step, positions and samples: benchmarks/independent_detectability.py),
+  reaches the 90 % power point of its test; the others are listed in the report with their figures,
+  and at least half of each effect's recordings must be detectable (so the criterion cannot empty);
 - false discoveries on nulls at or below the nominal family-wise rate per record (the rate's
   95 % Clopper-Pearson lower bound must not exceed it, the project's convention in
   benchmarks/bench_diagnose.py);
@@ -44,8 +49,10 @@ def test_diagnosis_holds_on_the_independent_lab(tmp_path):
     report = b.table(res, None) + "\nerrors: " + "; ".join(f"{len(v)} x {k}" for k, v in res["errors"].items())
     bad = []
     for effect, v in res["effects"].items():
-        if v["named_right"] < 0.9:
-            bad.append(f"{effect}: named right {v['named_right']:.0%} < 90 %")
+        if v["n_detectable"] < v["n"] / 2:
+            bad.append(f"{effect}: only {v['n_detectable']} of {v['n']} recordings detectable")
+        elif v["named_right"] < 0.9:
+            bad.append(f"{effect}: named right {v['named_right']:.0%} of {v['n_detectable']} detectable < 90 %")
         if v["z_rms"] is None or v["z_rms"] > 1.5:
             bad.append(f"{effect}: parameter z RMS {v['z_rms']} (over {v['n_z']} records) > 1.5")
     for rig, v in res["nulls"].items():

@@ -10,7 +10,17 @@ over the positions (the temperature, which rises with time, and time runs theta 
 the few independent level errors. A white-noise threshold then gives false discoveries.
 
 The model used for the engine's simulated threshold (:func:`imurig.diagnose.engine.select_effects`,
-its ``noise``): per position i in level group G(i),
+its ``noise``) is, by default, the **rounding phase** model (:func:`_phase_noise`): the covariance of
+two positions' rounding errors follows from the difference of their readings modulo q, each
+harmonic h of the smoothed sawtooth contributing a_h cos(2 pi h (v_i - v_k) / q), with the
+independent part each position's own sampling variance from its samples. It needs no groups, and
+an effect the twin lacks that moves the readings of one reference level apart (a misalignment
+moves them by a fifth of a 12-bit step) no longer counts as one shared error; nor does an accepted
+effect inflate the independent part (the group model below took it from the residuals' within-group
+variance, which holds the effect: on a 12-bit misalignment record the noise then looked white once
+the misalignment was accepted, and the shared errors passed as a temperature drift on z).
+
+The earlier **level-group** model (``phase=False``): per position i in level group G(i),
 
     e_i = sigma_r z_i + sigma_g w_G(i),        z, w ~ N(0, 1) independent
 
@@ -55,11 +65,12 @@ def level_groups(ref: np.ndarray, median_V: np.ndarray, q: float) -> np.ndarray:
 
 def position_noise(y: np.ndarray, X0: np.ndarray, ref: np.ndarray, median_V: np.ndarray, quantum_V: float,
                    sensitivity: float, sd_V: np.ndarray, n_samples: np.ndarray,
-                   decimated: bool = False) -> tuple[Callable | None, dict]:
+                   decimated: bool = False, phase: bool = True) -> tuple[Callable | None, dict]:
     """(noise generator for the engine or None for white noise, the model's figures) of one axis
     (module doc). ``sd_V``, ``n_samples``: the samples' sd (V) and number per position, of the
     record the medians were taken from (``decimated``: of the raw record, the medians' being
-    low-passed)."""
+    low-passed). ``phase``: the rounding errors' covariance from the positions' readings
+    (:func:`_phase_noise`), else the level groups (the module doc's first model)."""
     q = float(quantum_V or 0.0)
     if q <= 0 or not sensitivity:
         return None, {"shared_level_errors": False, "why": "the ADC step is unknown"}
@@ -69,6 +80,8 @@ def position_noise(y: np.ndarray, X0: np.ndarray, ref: np.ndarray, median_V: np.
     else:
         s_d = float(np.sqrt(np.pi / 2 * np.mean(sd ** 2 / np.maximum(np.asarray(n_samples, float), 1))))
     sg2 = shared_rounding_variance(q, s_d) / sensitivity ** 2
+    if phase:
+        return _phase_noise(median_V, q, s_d, sensitivity, sd, n_samples, decimated)
     groups = level_groups(ref, median_V, q)
     r = y - X0 @ np.linalg.lstsq(X0, y, rcond=None)[0]
     G = groups.max() + 1
@@ -86,4 +99,42 @@ def position_noise(y: np.ndarray, X0: np.ndarray, ref: np.ndarray, median_V: np.
 
     def draw(rng: np.random.Generator, m: int) -> np.ndarray:
         return (np.sqrt(sr2) * rng.standard_normal(m) + np.sqrt(sg2) * rng.standard_normal(G)[groups]) / scale
+    return draw, info
+
+
+def _phase_noise(v_V: np.ndarray, q: float, s_d: float, sensitivity: float, sd_V: np.ndarray,
+                 n_samples: np.ndarray, decimated: bool) -> tuple[Callable | None, dict]:
+    """The rounding errors' covariance from the positions' own readings v (V), the offset of the
+    converter's grid taken as uniform: the smoothed sawtooth's harmonics give
+
+        cov(e_i, e_k) = sum_h a_h cos(2 pi h (v_i - v_k) / q) / K^2,
+        a_h = q^2 / (2 pi^2 h^2) exp(-4 pi^2 h^2 s_d^2 / q^2),
+
+    so positions whose readings differ by a whole number of steps share their error, and positions
+    half a step apart have opposite ones, whatever the reference says (an effect the twin lacks
+    moves the readings of one reference level apart: a 1 mrad misalignment on a 12-bit converter
+    moves them by up to 0.2 q, which the level groups counted as one shared error). The
+    independent part is each position statistic's own sampling variance, from its samples
+    (mean of s^2 / N for averaged codes, the median's s_d^2), not the residuals (which hold every
+    effect the twin lacks). Draws: e_i = sigma_r z_i + sum_h sqrt(a_h) (cos(2 pi h v_i / q) w_h
+    + sin(2 pi h v_i / q) w'_h) / K, scaled to unit variance."""
+    v = np.asarray(v_V, float)
+    h = np.arange(1, 51)
+    a = q * q / (2 * np.pi ** 2 * h ** 2) * np.exp(-4 * np.pi ** 2 * h ** 2 * s_d ** 2 / q ** 2)
+    keep = a > 1e-6 * a[0]
+    h, a = h[keep], a[keep]
+    sg2 = float(a.sum()) / sensitivity ** 2
+    sd, n = np.asarray(sd_V, float), np.maximum(np.asarray(n_samples, float), 1)
+    sr2 = max(float(np.mean(sd ** 2 / n)) if decimated else s_d ** 2, 1e-300) / sensitivity ** 2
+    info = {"shared_level_errors": bool(sg2 >= MIN_SHARED_FRACTION * sr2), "model": "rounding phase",
+            "harmonics": int(h.size), "sigma_shared_m_s2": float(np.sqrt(sg2)),
+            "sigma_independent_m_s2": float(np.sqrt(sr2)), "adc_step_V": q}
+    if not info["shared_level_errors"]:
+        return None, info
+    ph = 2 * np.pi * np.outer(v, h) / q
+    B = np.hstack([np.cos(ph), np.sin(ph)]) * np.sqrt(np.concatenate([a, a]))[None, :] / sensitivity
+    scale = np.sqrt(sr2 + sg2)
+
+    def draw(rng: np.random.Generator, m: int) -> np.ndarray:
+        return (np.sqrt(sr2) * rng.standard_normal(m) + B @ rng.standard_normal(B.shape[1])) / scale
     return draw, info

@@ -1,0 +1,55 @@
+"""The 'realistic size' criterion of the independent-lab benchmark: a mean-level effect's expected
+non-centrality from the lab's manifest (benchmarks/independent_detectability.py)."""
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from independent_lab import recording, tilt
+
+MOD = Path(__file__).resolve().parents[1] / "benchmarks" / "independent_detectability.py"
+
+
+def _mod():
+    spec = importlib.util.spec_from_file_location("independent_detectability", MOD)
+    m = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(m)
+    return m
+
+
+def test_lambda_needed_is_the_90_percent_power_point():
+    """For one degree of freedom the power point is (z_crit + z_0.9)^2 to within the far tail's
+    contribution; a larger non-centrality gives more power."""
+    m = _mod()
+    lam = m.lambda_needed(1, alpha=0.01, m=20, power=0.9)
+    z = stats.norm.isf(0.01 / 20 / 2)
+    assert abs(math.sqrt(lam) - (z + stats.norm.isf(0.1))) < 1e-3
+    assert m.lambda_needed(2) > lam
+
+
+def test_nonlinearity_is_undetectable_on_the_12_bit_converter_and_plain_on_the_24_bit_one(tmp_path):
+    """The lab's 48 ug/g^2 nonlinearity (k2 f^2 <= 0.5 mm/s^2) under a 4.9 mV step (about 48 mm/s^2,
+    rounding shared by a level's positions) is far below the test's power point; with a 24-bit
+    converter the per-position noise is the sensors' own and it is far above."""
+    m = _mod()
+    out = {}
+    for conv in ("12bit_10V", "24bit_10V"):
+        _, _, truth = recording("tilt_table", "scale_nonlinearity", 6, 100.0, conv)
+        out[conv] = m.detectability(truth, tmp_path / "unused.csv", tilt)
+    lo, hi = out["12bit_10V"], out["24bit_10V"]
+    assert not lo["detectable"] and max(lo["lambda"].values()) < 1.0
+    assert hi["detectable"] and min(hi["lambda"].values()) > 10 * hi["lambda_90"]
+    # the position noise: coarse converter ~ its shared rounding error, fine one ~ white noise / sqrt(N)
+    # 12 bit: the dither (0.3 q) leaves exp(-4 pi^2 0.09) of the first harmonic's q^2 / (2 pi^2),
+    # about (0.04 q)^2 shared, beside (0.015 q)^2 averaged over 800 samples
+    q = 2 * 10.0 / 2 ** 12
+    _, _, truth = recording("tilt_table", "scale_nonlinearity", 6, 100.0, "12bit_10V")
+    K = np.asarray(truth["triad"]["K_V_per_m_s2"])
+    sig_q = np.asarray(lo["sigma_position_m_s2"]) * K / q
+    assert np.all((sig_q > 0.03) & (sig_q < 0.06)), sig_q
+    white = 5e-6 * math.sqrt(50.0) / math.sqrt(8.0 * 100.0) * 9.80665
+    assert np.allclose(hi["sigma_position_m_s2"], white, rtol=0.02)
