@@ -56,13 +56,13 @@ def plot_fig_4_19(out_png, real: Recording, virtual: Recording | None = None, gy
         a = axs[0, j]
         a.plot(vv, f["beta0_dps"] + f["beta1_dps_per_V"] * vv, "C0-", lw=1.2,
                label=f"Actual ({f['scale_mV_per_dps']:.3f} mV/°/s)")
-        a.plot(V, ref, "C0o", ms=4, mfc="none")
+        a.plot(V, ref, "C0o", ms=4, mfc="none", label="measured (Table B.1 rows)")
         a.plot(vv, vv / (f["manufacturer_scale_mV_per_dps"] * 1e-3), "C3--", lw=1.2,
                label=f"Manufacturer ({f['manufacturer_scale_mV_per_dps']:.3g} mV/°/s)")
         a.set(xlim=xlim, ylim=rate_lim, title=title, xlabel=xl)
         a.legend(loc="upper left", fontsize=8)
         a = axs[1, j]
-        a.axhline(0.0, color="0.5", lw=0.6)
+        a.axhline(0.0, color="0.5", lw=0.6, label="zero")
         a.plot(V, f["residuals_dps"], "C0o-", ms=4, mfc="none", lw=0.6,
                label=f"σ_res = {f['sigma_res_dps']:.3f} °/s")
         a.set(xlim=xlim, ylim=own_lim, xlabel=xl)

@@ -49,3 +49,48 @@ def check_concealed_case():
         return d, rec
 
     return check
+
+
+def _named(artist) -> bool:
+    return not artist.get_label().startswith("_")
+
+
+def unnamed_artists(fig) -> list[str]:
+    """'panel i: artist' for every line, filled area or bar/error-bar set without a label, and every
+    panel whose labelled artists no legend of the figure names (its own, another panel's shared
+    legend, or the figure's): a legend that does not name every line."""
+    out = []
+    legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes if ax.get_legend() is not None)]
+    named = {t.get_text() for lg in legends for t in lg.get_texts()}
+    for i, ax in enumerate(fig.axes):
+        where = f"panel {i} ({ax.get_title()[:40]!r})"
+        inside = set()
+        for c in ax.containers:      # bars, histograms, error bars: the set carries the label
+            kids = [k for k in c.get_children() if k is not None]
+            inside.update(id(k) for k in kids)
+            if not (_named(c) or any(_named(k) for k in kids if hasattr(k, "get_label"))):
+                out.append(f"{where}: {type(c).__name__}")
+        loose = [a for a in (*ax.get_lines(), *ax.collections) if id(a) not in inside]
+        labels = {a.get_label() for a in (*loose, *ax.containers) if _named(a)}
+        if ax.get_legend() is None and not labels <= named:   # a shared legend elsewhere may name them
+            out.append(f"{where}: no legend names {sorted(labels - named)}")
+        out += [f"{where}: {a}" for a in loose if not _named(a)]
+    return out
+
+
+@pytest.fixture(autouse=True)
+def every_saved_figure_names_every_line(monkeypatch, request):
+    """Every figure a test makes the project save: each panel with lines has a legend and every
+    line in it a label (issue 19: figures a reader can read without the code)."""
+    from matplotlib.figure import Figure
+
+    problems = []
+    orig = Figure.savefig
+
+    def savefig(self, *a, **k):
+        problems.extend(f"{a[0] if a else '?'}: {p}" for p in unnamed_artists(self))
+        return orig(self, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    yield
+    assert not problems, "figures whose legend does not name every line:\n" + "\n".join(problems[:20])

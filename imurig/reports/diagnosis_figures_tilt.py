@@ -44,7 +44,7 @@ def figure_tilt_positions(out, d: dict) -> str:
             if v is not None:  # r_before - r_after = (I - H_0) C c exactly: the effects as the nominal fit leaves them
                 ax.plot(x, r0 - r1, "x", ms=3.5, color="k", alpha=0.6, label="before − after: the fitted effects "
                         "left in the nominal residual")
-            ax.axhline(0, color="0.6", lw=0.5)
+            ax.axhline(0, color="0.6", lw=0.5, label="zero")
             ax.set_xlabel(xl, fontsize=8)
             ax.set_ylabel("residual, mm/s²", fontsize=8)
             ax.set_title(title, fontsize=8)
@@ -85,13 +85,13 @@ def _slew_variable(dyn: dict, j: int) -> tuple[np.ndarray, str, str]:
     return dfdt, "twin's df/dt, m/s³ (the time-delay variable)", f"acc_{ax}: no effect accepted"
 
 
-def _binned(ax, x, y, color, bins: int = 15) -> None:
+def _binned(ax, x, y, color, bins: int = 15, label: str = "bin means") -> None:
     """Means of y in equal-count bins of x (a thick line): the trend through the scatter."""
     if x.size < 3 * bins:
         return
     order = np.argsort(x)
     xs, ys = np.array_split(x[order], bins), np.array_split(y[order], bins)
-    ax.plot([b.mean() for b in xs], [b.mean() for b in ys], "-", color=color, lw=2.2)
+    ax.plot([b.mean() for b in xs], [b.mean() for b in ys], "-", color=color, lw=2.2, label=label)
 
 
 def figure_tilt_slews(out, d: dict, span_s: float = 40.0) -> str:
@@ -122,13 +122,13 @@ def figure_tilt_slews(out, d: dict, span_s: float = 40.0) -> str:
         ax = axs[j, 1]
         ax.plot(x[mv], r0[mv, j], "o", ms=2, mfc="none", alpha=0.5, label="before")
         ax.plot(x[mv], r1[mv, j], ".", ms=2, alpha=0.5, label="after")
-        _binned(ax, x[mv], r0[mv, j], "C0")
-        _binned(ax, x[mv], r1[mv, j], "C1")
+        _binned(ax, x[mv], r0[mv, j], "C0", label="before, bin means")
+        _binned(ax, x[mv], r1[mv, j], "C1", label="after, bin means")
         ax.set(xlabel=xl, ylabel="residual, mm/s²")
         ax.set_title(title, fontsize=8)
         ax.grid(alpha=0.3)
-    axs[0, 0].legend(fontsize=7, loc="upper right")
-    axs[0, 1].legend(fontsize=7)
+    for ax in axs.flat:
+        ax.legend(fontsize=6, loc="upper right")
     fig.suptitle("Tilt-table slews against the dynamic twin: residual = recording − twin (20 Hz block means); "
                  "right: blocks during slews, thick lines = bin means", fontsize=9)
     fig.tight_layout()

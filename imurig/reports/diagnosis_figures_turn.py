@@ -38,21 +38,25 @@ def figure_turn(out, d: dict) -> str:
         ax.plot(on + jit + 0.04, r1, ".", ms=5, color="C1", label="after")
         for lev in np.unique(on):
             sel = on == lev
-            ax.plot([lev - 0.2, lev + 0.2], [r0[sel].mean()] * 2, "-", color="C0", lw=2.5)
-            ax.plot([lev - 0.2, lev + 0.2], [r1[sel].mean()] * 2, "-", color="C1", lw=2.5)
+            ax.plot([lev - 0.2, lev + 0.2], [r0[sel].mean()] * 2, "-", color="C0", lw=2.5,
+                    label="before, group mean")
+            ax.plot([lev - 0.2, lev + 0.2], [r1[sel].mean()] * 2, "-", color="C1", lw=2.5,
+                    label="after, group mean")
         ax.set_xticks([-1, 0, 1], ["on the axis,\ndown", "across\nthe axis", "on the axis,\nup"])
         ax.set_xlim(-1.5, 1.5)
-        ax.axhline(0, color="0.6", lw=0.5)
+        ax.axhline(0, color="0.6", lw=0.5, label="zero")
         ax.set(ylabel="residual, °/h")
         ax.set_title(ttl, fontsize=8)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, title="bars: group means", title_fontsize=6)
+        by_label = dict(zip(*reversed(ax.get_legend_handles_labels())))  # one entry per label
+        ax.legend(by_label.values(), by_label.keys(), fontsize=6, title="bars: group means", title_fontsize=6)
         # middle: against the table rate
         ax = axs[i, 1]
         ax.plot(rate, r0, "o", ms=3.5, mfc="none", color="C0", label="before")
         ax.plot(rate, r1, ".", ms=5, color="C1", label="after")
         ax.set_xscale("symlog", linthresh=1.0)
-        ax.axhline(0, color="0.6", lw=0.5)
+        ax.axhline(0, color="0.6", lw=0.5, label="zero")
+        ax.legend(fontsize=6)
         ax.set(xlabel="table rate, °/s", ylabel="residual, °/h")
         ax.set_title(f"gyro_{g}: whole-round means against the table rate", fontsize=8)
         ax.grid(alpha=0.3)
@@ -94,7 +98,7 @@ def figure_rows(out, rec: Recording, d: dict, findings: list[list]) -> str:
         axs[0, 0].plot(dial, (rate / (f * dial) - 1) * 100, "s", mfc="none", label=f"vs twin × {f:.4f} (mains factor)")
         after = d["shortfall"]["diagnosis"]
         if after["findings"]:
-            axs[0, 0].axhline(0, color="k", lw=0.5)
+            axs[0, 0].axhline(0, color="k", lw=0.5, label="zero")
     axs[0, 0].set(xscale="log", xlabel="dial rate, °/s", ylabel="rate mismatch, %", title="Where: the rate")
     axs[0, 0].legend(fontsize=7)
     axs[0, 0].grid(alpha=0.3)
@@ -115,7 +119,9 @@ def figure_rows(out, rec: Recording, d: dict, findings: list[list]) -> str:
         axs[1, 0].grid(alpha=0.3)
         g = d["gyros"].get("p", {})
         axs[1, 1].bar(["before", "after"], [g.get("fit_before", {}).get("sigma_res", np.nan) * 1e3,
-                                              g.get("fit_after", {}).get("sigma_res", np.nan) * 1e3])
+                                              g.get("fit_after", {}).get("sigma_res", np.nan) * 1e3],
+                      label="σ_res of the fit")
+        axs[1, 1].legend(fontsize=7)
         axs[1, 1].set(ylabel="σ_res, mV", title="Gyro p fit before and after the effects")
     axs[1, 1].grid(alpha=0.3)
     fig.tight_layout()
@@ -141,11 +147,11 @@ def _rate_residual_panels(axs, d: dict) -> None:
             s0 = te["setting_sigma"]
             s1 = np.sqrt(s0**2 + te["sigma_T2_s2"] / T**2)
             axs[0].plot(rr, 2 * s0 * 100 * np.ones_like(rr), "k:", lw=0.8, label="±2σ table setting")
-            axs[0].plot(rr, -2 * s0 * 100 * np.ones_like(rr), "k:", lw=0.8)
+            axs[0].plot(rr, -2 * s0 * 100 * np.ones_like(rr), "k:", lw=0.8, label="−2σ table setting")
             lab = (f"±2σ with timer σ_T = {te['sigma_T_s'] * 1e3:.1f} ms (LR {te['statistic']:.1f} vs "
                    f"{te['threshold']:.1f})")
             axs[0].plot(rr, 2 * s1 * 100, "r--", lw=0.8, label=lab)
-            axs[0].plot(rr, -2 * s1 * 100, "r--", lw=0.8)
+            axs[0].plot(rr, -2 * s1 * 100, "r--", lw=0.8, label="−2σ with the timer")
         axs[0].set(xscale="log", xlabel="measured rate, °/s", ylabel="rate residual, %",
                    title="Rate residual before/after vs rate")
         axs[0].legend(fontsize=6)

@@ -69,8 +69,11 @@ def budget_figure(b: dict, path, save_fig) -> None:
                                                                              d["all_mean_square_added"]]
         err = [d["sources"][s]["se"] or 0 for s in d["sources"]] + [0, d["all_se"] or 0]
         y = np.arange(len(names))
-        ax.barh(y, vals, xerr=err, color=["#8fb3d9"] * len(d["sources"]) + ["#d9b38f", "#d98f8f"])
-        ax.axvline(0, color="k", lw=0.8)
+        ax.barh(y, vals, color=["#8fb3d9"] * len(d["sources"]) + ["#d9b38f", "#d98f8f"],
+                label="mean square added")
+        ax.errorbar(vals, y, xerr=err, fmt="none", ecolor="k", lw=0.8, label="± its standard error")
+        ax.axvline(0, color="k", lw=0.8, label="zero")
+        ax.legend(fontsize=6)
         ax.set_yticks(y, names if ax is axes[0][0] else [""] * len(names), fontsize=7)
         ax.set_title(f"{m}\nfloor RMS {d['rms']['none']:.3g} {d['unit']}", fontsize=8)
         ax.set_xlabel(f"mean square added ({d['unit']}²)", fontsize=7)

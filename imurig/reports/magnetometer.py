@@ -27,7 +27,8 @@ def _fig5(out, res) -> str:
     for ax, j, lab in ((axs[0], 0, "X"), (axs[1], 1, "Y")):
         ax.plot(m[:, j], lw=0.8, label="Manufacturer")
         ax.plot(c[:, j], lw=0.8, label="Our (two-step 3-D)")
-        ax.axhline(0, color="k", lw=0.5)
+        ax.axhline(0, color="k", lw=0.5, label="zero")
+        ax.legend(fontsize=7)
         ax.set_ylabel(f"{lab} mag. field, nT")
         ax.grid(alpha=0.3)
     axs[2].plot(np.linalg.norm(m, axis=1), lw=0.8, label="Manufacturer")

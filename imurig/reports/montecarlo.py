@@ -44,7 +44,8 @@ def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[st
         e = E[:, k][np.isfinite(E[:, k])]
         s = by[name]
         if e.size:
-            ax.hist(e, bins=max(8, min(40, e.size // 5)), density=True, color="#8fb3d9", edgecolor="white")
+            ax.hist(e, bins=max(8, min(40, e.size // 5)), density=True, color="#8fb3d9", edgecolor="white",
+                    label="runs")
             x = np.linspace(e.min(), e.max(), 200) if e.max() > e.min() else np.array([e.min()])
             if s.get("std"):
                 ax.plot(x, _normpdf(x, s["bias"], s["std"]), "k-", lw=1, label="N(bias, std)")
@@ -65,13 +66,15 @@ def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[st
     y = np.arange(n)
     ratio = [by[m].get("rms_over_crlb") or np.nan for m in names]
     se_ratio = [by[m].get("rms_over_se") or np.nan for m in names]
-    ax[0].barh(y, ratio, color="#d98f8f")
-    ax[0].axvline(1.0, color="k", lw=1)
+    ax[0].barh(y, ratio, color="#d98f8f", label="RMS / CRLB")
+    ax[0].axvline(1.0, color="k", lw=1, label="efficient")
+    ax[0].legend(fontsize=7)
     ax[0].set_yticks(y, names, fontsize=7)
     ax[0].set_xscale("log")
     ax[0].set_xlabel("RMS error / Cramér-Rao bound (1 = efficient)")
-    ax[1].barh(y, se_ratio, color="#8fd9a8")
-    ax[1].axvline(1.0, color="k", lw=1)
+    ax[1].barh(y, se_ratio, color="#8fd9a8", label="RMS / RMS SE")
+    ax[1].axvline(1.0, color="k", lw=1, label="honest SEs")
+    ax[1].legend(fontsize=7)
     ax[1].set_yticks(y, names, fontsize=7)
     ax[1].set_xlabel("RMS error / RMS reported standard error (1 = honest SEs)")
     fig.tight_layout()
@@ -88,7 +91,7 @@ def figures(study, stats: list[dict], folder: Path, prefix: str = "") -> dict[st
         ax.axhspan(band[0], band[1], color="#dddddd", label="99 % band of Binomial(N, 0.95)/N")
     ax.errorbar(y, cov, yerr=[np.array(cov) - lo, np.array(hi) - cov], fmt="o", ms=4, capsize=2,
                 label="coverage, Clopper-Pearson 95 %")
-    ax.axhline(0.95, color="k", lw=1)
+    ax.axhline(0.95, color="k", lw=1, label="nominal 0.95")
     ax.set_xticks(y, names, rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("coverage of 95 % intervals")
     ax.legend(fontsize=7, loc="lower left")

@@ -40,14 +40,15 @@ def comparison_figure(results, out: Path) -> dict:
     for ax, g in zip(axes[0], groups):
         for r in results:
             h = r["lab_time"]["lab_time_seed_rates_s"] / 3600
-            ax.plot(h, r["groups"][g]["rms"], "o")
+            ax.plot(h, r["groups"][g]["rms"], "o", label=f"{r['label']}: RMS error")
             ax.annotate(r["label"], (h, r["groups"][g]["rms"]), fontsize=6)
             if r["groups"][g]["crlb"]:
-                ax.plot(h, r["groups"][g]["crlb"], "r_", ms=12)
+                ax.plot(h, r["groups"][g]["crlb"], "r_", ms=12, label=f"{r['label']}: CRLB")
         ax.set_title(f"{g} RMS error [{results[0]['groups'][g]['unit']}]", fontsize=8)
         ax.set_xlabel("lab time at the seed's rates (h)", fontsize=8)
         ax.set_yscale("log")
         ax.tick_params(labelsize=7)
+        ax.legend(fontsize=5)
     axes[0][0].set_ylabel("RMS error (dots), CRLB (red bars)", fontsize=8)
     fig.tight_layout()
     save_fig(fig, out / "fig_schedules.png")

@@ -47,9 +47,11 @@ def plot_z(path: Path, s: Score) -> None:
 
     z = np.array([r["z"] for r in s.rows])
     fig, ax = plt.subplots(figsize=(max(6, 0.35 * len(z)), 3.5))
-    ax.bar(range(len(z)), z, color=["tab:blue" if abs(v) <= s.z_bound else "tab:red" for v in z])
+    ax.bar(range(len(z)), z, color=["tab:blue" if abs(v) <= s.z_bound else "tab:red" for v in z],
+           label="z of each parameter")
     for b in (-s.z_bound, s.z_bound):
-        ax.axhline(b, color="k", ls="--", lw=0.8)
+        ax.axhline(b, color="k", ls="--", lw=0.8, label=f"{b:+g} bound")
+    ax.legend(fontsize=7, loc="upper right")
     ax.set_xticks(range(len(z)), [r["name"] for r in s.rows], rotation=70, fontsize=7)
     ax.set_ylabel("z = error / std. error")
     ax.set_title(f"{s.estimator} on {s.campaign}", fontsize=9)

@@ -54,7 +54,7 @@ def _figs(out, rec: Recording, res: dict) -> dict:
                         label=f"fit, {'heating' if h > 0 else 'cooling'}")
             ax.set_ylabel(f"{key.split('_')[0]} {a} bias, {unit}")
             ax.grid(alpha=0.3)
-        axs[0].legend(fontsize=7)
+            ax.legend(fontsize=7)
         axs[-1].set_xlabel("temperature-sensor reading, °C")
         name = "fig_4_23_gyro_bias.png" if kind == "gyro" else "fig_acc_bias_temperature.png"
         axs[0].set_title("Gyro bias vs box temperature, two cycles (cf. seed Fig. 4.23)" if kind == "gyro" else

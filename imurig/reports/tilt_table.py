@@ -154,9 +154,10 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
     if params:
         fig, ax = plt.subplots(figsize=(8, 3.8))
         z = [p["z"] for p in params]
-        ax.bar(range(len(z)), z, color=["C0" if abs(v) <= Z_BOUND else "C3" for v in z])
-        ax.axhline(Z_BOUND, color="k", ls="--", lw=0.8)
-        ax.axhline(-Z_BOUND, color="k", ls="--", lw=0.8)
+        ax.bar(range(len(z)), z, color=["C0" if abs(v) <= Z_BOUND else "C3" for v in z], label="z of each parameter")
+        ax.axhline(Z_BOUND, color="k", ls="--", lw=0.8, label=f"+{Z_BOUND:g} bound")
+        ax.axhline(-Z_BOUND, color="k", ls="--", lw=0.8, label=f"−{Z_BOUND:g} bound")
+        ax.legend(fontsize=7, loc="upper right")
         ax.set_xticks(range(len(z)), [p["name"] for p in params], rotation=60, ha="right", fontsize=7)
         ax.set_ylabel("(estimate − injected) / std. error")
         ax.set_title(f"Recovered vs injected parameters (bound ±{Z_BOUND:g}σ)")

@@ -38,7 +38,8 @@ def _fig_timers(out, ts: dict):
 
     fig, axs = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
     hp = ts["timers"]["hp6700"]
-    axs[0].plot(hp["rate_dps"], "o-", ms=3)
+    axs[0].plot(hp["rate_dps"], "o-", ms=3, label="reference rate of each step (HP timer)")
+    axs[0].legend(fontsize=7, loc="upper left")
     axs[0].set_ylabel("rotation rate, °/s")
     axs[0].set_title("Timer study, r gyro (cf. seed Fig. 4.20)")
     for ax, tm in zip(axs[1:], TIMERS):
@@ -90,11 +91,13 @@ def _fig_slip_ring(out, rec: Recording):
     ang = np.degrees(np.mod(rec.truth_signals["spin_angle"][sl], 2 * np.pi)) if "spin_angle" in \
         rec.truth_signals else None
     fig, axs = plt.subplots(1, 2 if ang is not None else 1, figsize=(10, 3.5), squeeze=False)
-    axs[0, 0].plot(np.arange(v.size), v, lw=0.4)
+    axs[0, 0].plot(np.arange(v.size), v, lw=0.4, label="temp_box")
+    axs[0, 0].legend(fontsize=7)
     axs[0, 0].set(xlabel="samples (1 kHz)", ylabel="V",
                   title=f"temp_box at {abs(np.degrees(seg['rate_dial'][i])):.0f}°/s dial (cf. seed Fig. 4.16)")
     if ang is not None:
-        axs[0, 1].plot(ang, v - np.median(v), ",", alpha=0.5)
+        axs[0, 1].plot(ang, v - np.median(v), ",", alpha=0.5, label="temp_box − median")
+        axs[0, 1].legend(fontsize=7)
         axs[0, 1].set(xlabel="table angle, °", ylabel="V − median", title="noise against table angle (slip rings)")
     fig.tight_layout()
     fig.savefig(out.file("fig_4_16_slip_rings.png"), dpi=110)
@@ -191,9 +194,10 @@ def _fig_z(out, params):
     ps = [p for p in params if p.get("z") is not None]
     fig, ax = plt.subplots(figsize=(8, 3.8))
     z = [p["z"] for p in ps]
-    ax.bar(range(len(z)), z, color=["C0" if abs(v) <= Z_BOUND else "C3" for v in z])
+    ax.bar(range(len(z)), z, color=["C0" if abs(v) <= Z_BOUND else "C3" for v in z], label="z of each parameter")
     for s in (Z_BOUND, -Z_BOUND):
-        ax.axhline(s, color="k", ls="--", lw=0.8)
+        ax.axhline(s, color="k", ls="--", lw=0.8, label=f"{s:+g} bound")
+    ax.legend(fontsize=7, loc="upper right")
     ax.set_xticks(range(len(z)), [p["name"] for p in ps], rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("(estimate − injected) / std. error")
     ax.set_title("Gyro parameters: recovered vs injected")
