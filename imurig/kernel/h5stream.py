@@ -15,7 +15,6 @@ more than ``MAX_DISTINCT_DT`` distinct intervals falls back to reading ``/time_s
 """
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -308,10 +307,9 @@ def h5_to_csv(src, dst, overwrite: bool = False) -> Path:
                         j = (ev_idx[k] >= a) & (ev_idx[k] < b)
                         col[ev_idx[k][j] - a] = ev[j]
                         cols.append(col)
-                    buf = io.StringIO()
-                    np.savetxt(buf, np.column_stack([np.asarray(c, dtype=float) for c in cols]), fmt=fmts,
+                    # straight to the file: a StringIO of one chunk's text peaks at ~200 MB (measured)
+                    np.savetxt(fh, np.column_stack([np.asarray(c, dtype=float) for c in cols]), fmt=fmts,
                                delimiter=",")
-                    fh.write(buf.getvalue())
 
         return atomic_write(Path(dst), writer, overwrite)
 
