@@ -87,7 +87,7 @@ class H5Recording:
         self.n = n = int(ts.shape[0])
         if n < 2:
             raise RecordingError(f"{path}: time_s must be a 1-D array with at least two samples")
-        for name, (_, _, _, rows) in {**self.channels, **self.truth_signals}.items():
+        for name, (_, _, _, rows) in self.channels.items():      # truth signals: unchecked, as load_h5
             if rows != n:
                 raise RecordingError(f"{path}: channel '{name}' has {rows} samples but time_s has {n}")
         self._check_segments()
