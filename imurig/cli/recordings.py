@@ -10,6 +10,7 @@ import numpy as np
 
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError, OutputExistsError
+from imurig.kernel.csvstream import csv_to_h5
 from imurig.kernel.files import load
 from imurig.kernel.h5stream import h5_info, h5_to_csv
 from imurig.kernel.infer import inference_report, warning_banner
@@ -233,6 +234,10 @@ def _run_convert(a):
     dst = Path(a.output)
     if dst.suffix.lower() == ".csv" and Path(a.input).suffix.lower() in H5_SUFFIXES:
         h5_to_csv(a.input, dst, overwrite=a.overwrite)        # row chunks: memory bounded, not the file's
+        print(f"wrote {dst}")
+        return
+    if dst.suffix.lower() in H5_SUFFIXES and Path(a.input).suffix.lower() == ".csv" \
+            and csv_to_h5(a.input, dst, overwrite=a.overwrite) is not None:   # row blocks (else None: whole file)
         print(f"wrote {dst}")
         return
     rec = load(a.input)
