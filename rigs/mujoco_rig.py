@@ -31,7 +31,7 @@ def sensor_slices(model: mujoco.MjModel) -> dict[str, slice]:
 
 
 def rollout_servo(models: list[mujoco.MjModel], qpos0: np.ndarray, ctrl: np.ndarray,
-                  chunk: int = 200_000, desc: str = "MuJoCo rollout") -> np.ndarray:
+                  chunk: int = 200_000, desc: str = "MuJoCo rollout", sink=None) -> np.ndarray | None:
     """Roll out position-servo commands on a batch of models, in time chunks.
 
     Parameters
@@ -39,6 +39,8 @@ def rollout_servo(models: list[mujoco.MjModel], qpos0: np.ndarray, ctrl: np.ndar
     models : nbatch models of identical size (e.g. one per IMU mounting).
     qpos0 : (nbatch, nq) initial joint positions (velocities start at zero).
     ctrl : (nbatch, nstep, nu) servo commands, one row per time step.
+    sink : optional ``sink(a, b, sensordata)``, called with each chunk's rows [a, b) (nbatch, b - a,
+        nsensordata) instead of keeping them: the whole array is then never built (returns None).
 
     Returns
     -------
@@ -56,12 +58,15 @@ def rollout_servo(models: list[mujoco.MjModel], qpos0: np.ndarray, ctrl: np.ndar
         d.ctrl[:] = ctrl[b, 0]
         mujoco.mj_forward(m, d)
         mujoco.mj_getState(m, d, state[b], spec)
-    out = np.empty((nbatch, nstep, models[0].nsensordata))
+    out = None if sink is not None else np.empty((nbatch, nstep, models[0].nsensordata))
     with progress(total=nstep, desc=desc, unit="step") as bar:
         for a in range(0, nstep, chunk):
             b = min(nstep, a + chunk)
             st, sd = rollout.rollout(models, datas, state, np.ascontiguousarray(ctrl[:, a:b]))
-            out[:, a:b] = sd
+            if sink is not None:
+                sink(a, b, sd)
+            else:
+                out[:, a:b] = sd
             state = st[:, -1].copy()
             bar.update(b - a)
     return out

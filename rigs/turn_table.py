@@ -217,25 +217,39 @@ class TurnTable:
     site: Site = field(default_factory=Site)
     radius_measurement_sigma_m: float = 1e-4  # how well the lab knows the arm radius
 
-    def _assemble(self, sd, sl, mounts, steps, profiles, windows, dt, remount_s):
-        """One record from the rollouts: mountings one after the other (remount gaps), each trimmed
-        to its length; per mounting the times, the segments (one per step), the truth f_C and w_C
-        (Earth rate added, R_CW Omega_W), the spin angle, the dial's reading and the true pulse edges."""
+    def _truth_sink(self, sl, sizes):
+        """The record's truth arrays, filled chunk by chunk from the rollout (``rollout_servo``'s
+        ``sink``): mountings one after the other, each trimmed to its length; f_C, w_C (Earth rate
+        added, R_CW Omega_W, row by row) and the spin angle. Only these are kept, never the whole
+        sensordata of every mounting (11 of its 15 columns are not kept)."""
+        off = np.concatenate(([0], np.cumsum(sizes)))
+        arrays = {"f_C": np.empty((off[-1], 3)), "w_C": np.empty((off[-1], 3)), "spin_angle": np.empty(off[-1])}
+        earth_W = self.site.earth_rate_W()
+
+        def sink(a, b, sd):
+            for k, n in enumerate(sizes):
+                z = min(b, n)
+                if z <= a:
+                    continue
+                rows, dst = sd[k, :z - a], slice(off[k] + a, off[k] + z)
+                arrays["f_C"][dst] = rows[:, sl["f_C"]]
+                arrays["w_C"][dst] = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
+                arrays["spin_angle"][dst] = rows[:, sl["spin_angle"]][:, 0]
+
+        return arrays, off, sink
+
+    def _assemble(self, arrays, off, mounts, steps, profiles, windows, dt, remount_s):
+        """One record from the rollouts' truth (:meth:`_truth_sink`): per mounting the times, the
+        segments (one per step), the dial's reading and the true pulse edges."""
         e = self.errors
         parts_t, seg = [], {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
-        truth = {k: [] for k in ("f_C", "w_C")}
-        angle, dial_cmd, pulse_true = [], [], []
+        dial_cmd, pulse_true = [], []
         t0 = 0.0
         for b, m in enumerate(mounts):
             n = profiles[b].size
             t = t0 + np.arange(n) * dt
             parts_t.append(t)
-            q = sd[b, :n, sl["q_WC"]]
-            truth["f_C"].append(sd[b, :n, sl["f_C"]])
-            truth["w_C"].append(sd[b, :n, sl["w_C"]] + rotate_to_body(q, self.site.earth_rate_W()))
-            ang = sd[b, :n, sl["spin_angle"]][:, 0]
-            angle.append(ang)
-            pulse_true.append(rising_edges(ang, t, e.pulse_width_rad))
+            pulse_true.append(rising_edges(arrays["spin_angle"][off[b]:off[b + 1]], t, e.pulse_width_rad))
             st = [s for s in steps if s.mount == m]
             dial = np.zeros(n)
             for s, (a, z) in zip(st, windows[b]):
@@ -250,7 +264,7 @@ class TurnTable:
                 dial[a:] = s.dial_dps * DEG
             dial_cmd.append(dial)
             t0 = t[-1] + dt + remount_s
-        return parts_t, seg, truth, angle, dial_cmd, pulse_true
+        return parts_t, seg, dial_cmd, pulse_true
 
     def simulate(self, protocol: TurnTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
         """Run the schedule; Recording with set-points, the index-pulse line, true events and truth.
@@ -294,20 +308,22 @@ class TurnTable:
         if e.ripple:
             ang = np.cumsum(ctrl[:, :, 0], axis=1) * dt
             ctrl[:, :, 0] *= 1 + e.ripple * np.sin(ang + e.ripple_phase_rad)
-        sd = rollout_servo(models, np.zeros((len(mounts), 1)), ctrl, desc="turn table (MuJoCo)")
-        sl = sensor_slices(base)
+        arrays, off, sink = self._truth_sink(sensor_slices(base), [p.size for p in profiles])
+        rollout_servo(models, np.zeros((len(mounts), 1)), ctrl, desc="turn table (MuJoCo)", sink=sink)
+        del ctrl
 
         # one record: mountings one after the other (remount gaps), each trimmed to its length
-        parts_t, seg, truth, angle, dial_cmd, pulse_true = self._assemble(sd, sl, mounts, steps, profiles, windows,
-                                                                         dt, protocol.remount_s)
+        parts_t, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, profiles, windows, dt,
+                                                            protocol.remount_s)
         time_s = np.concatenate(parts_t)
-        spin = np.concatenate(angle)
+        spin = arrays["spin_angle"]
         wrapped = np.mod(spin, 2 * np.pi)
         pulse = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
+        del wrapped
         tsig = {"spin_angle": spin, "pulse": pulse}
         tunits = {"spin_angle": "rad", "pulse": "V"}
         for name, unit in (("f_C", "m/s^2"), ("w_C", "rad/s")):
-            arr = np.concatenate(truth[name])
+            arr = arrays[name]
             for j, ax in enumerate("xyz"):
                 tsig[f"{name}_{ax}"] = arr[:, j]
                 tunits[f"{name}_{ax}"] = unit

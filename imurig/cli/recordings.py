@@ -10,11 +10,15 @@ import numpy as np
 
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError, OutputExistsError
+from imurig.kernel.csvstream import csv_to_h5
 from imurig.kernel.files import load
+from imurig.kernel.h5stream import h5_info, h5_to_csv
 from imurig.kernel.infer import inference_report, warning_banner
 from imurig.kernel.labcsv import write_csv
 from imurig.kernel.outputs import OutputFolder
 from imurig.kernel.recording import save_h5
+
+H5_SUFFIXES = (".h5", ".hdf5")
 
 
 def add_recording_parsers(sub) -> None:
@@ -230,8 +234,16 @@ def _is_appendix_b(path) -> bool:
 
 
 def _run_convert(a):
-    rec = load(a.input)
     dst = Path(a.output)
+    if dst.suffix.lower() == ".csv" and Path(a.input).suffix.lower() in H5_SUFFIXES:
+        h5_to_csv(a.input, dst, overwrite=a.overwrite)        # row chunks: memory bounded, not the file's
+        print(f"wrote {dst}")
+        return
+    if dst.suffix.lower() in H5_SUFFIXES and Path(a.input).suffix.lower() == ".csv" \
+            and csv_to_h5(a.input, dst, overwrite=a.overwrite) is not None:   # row blocks (else None: whole file)
+        print(f"wrote {dst}")
+        return
+    rec = load(a.input)
     if dst.suffix.lower() == ".csv":
         write_csv(rec, dst, overwrite=a.overwrite)
     elif dst.suffix.lower() in (".h5", ".hdf5"):
@@ -242,6 +254,9 @@ def _run_convert(a):
 
 
 def _run_info(a):
+    if Path(a.recording).suffix.lower() in H5_SUFFIXES:   # metadata, shapes and chunked passes: bounded memory
+        print(json.dumps(h5_info(a.recording), indent=2, default=float))
+        return
     rec = _load(a)
     info = {"samples": rec.n, "duration_s": float(rec.time_s[-1] - rec.time_s[0]),
             "sample_rate_hz": rec.sample_rate_hz, "blocks": len(rec.blocks()),
