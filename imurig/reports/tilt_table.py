@@ -18,7 +18,7 @@ from imurig.calibration.preprocess import lowpass_downsample
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
 from imurig.kernel.errors import UnidentifiableTermsError
-from imurig.kernel.progress import progress
+from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
@@ -265,6 +265,10 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
     })
 
 
+#: each stage's share of the default campaign's time (fresh install, 2 cores): the progress bar's ETA
+STAGE_SHARES = {"simulate": 50, "analyse": 25, "figures": 5, "recording.h5": 12, "campaign.rrd": 6, "report": 2}
+
+
 def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
         save_recording: bool = True) -> dict:
     """Simulate, calibrate and report. Returns the summary dict."""
@@ -272,31 +276,24 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
     stages = ["simulate", "analyse", "figures"] + (["recording.h5"] if save_recording else []) + \
         (["campaign.rrd"] if rrd else []) + ["report"]
     with out:  # committed on success, removed on any error
-        with progress(total=len(stages), desc="tilt-table campaign", unit="stage") as bar:
-            def stage(name):
-                bar.set_postfix_str(name)
-
+        with StageBar(STAGE_SHARES, stages, "tilt-table campaign") as stage:
             t0 = time.perf_counter()
             stage("simulate")
             rec = camp.simulate()
             t_sim = time.perf_counter() - t0
-            bar.update()
             t1 = time.perf_counter()
             stage("analyse")
             res = analyse(rec, camp.model, camp.statistic)
             t_cal = time.perf_counter() - t1
-            bar.update()
             t2 = time.perf_counter()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
             figs = make_figures(out, rec, res)
             files.update({f"figure_{k}": v for k, v in figs.items()})
-            bar.update()
             from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
-            bar.update(int(save_recording) + int(rrd))
             stage("report")
             t_out = time.perf_counter() - t2
             peak = peak_rss_bytes()
@@ -307,5 +304,4 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             summary = summary_dict(camp, rec, res, timing, files)
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report_md(camp, rec, res, figs, timing))
-            bar.update()
     return summary

@@ -17,7 +17,7 @@ from imurig.calibration.simona_report import plot_fig_4_19, simona_markdown
 from imurig.reports.tilt_table import peak_rss_bytes
 from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study,
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
-from imurig.kernel.progress import progress
+from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
@@ -207,6 +207,11 @@ def _fig_z(out, params):
     return "fig_truth_z.png"
 
 
+#: each stage's share of the default campaign's time (2 cores): the progress bar's ETA
+STAGE_SHARES = {"simulate": 45, "analyse": 5, "timer study": 14, "arm study": 5, "SIMONA": 5, "figures": 4,
+                "recording.h5": 13, "campaign.rrd": 7, "report": 2}
+
+
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
         studies: bool = True) -> dict:
     import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
@@ -216,27 +221,21 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
     stages = ["simulate", "analyse"] + (["timer study", "arm study", "SIMONA"] if studies else []) + \
         ["figures"] + (["recording.h5"] if save_recording else []) + (["campaign.rrd"] if rrd else []) + ["report"]
     with out:  # committed on success, removed on any error
-        with progress(total=len(stages), desc="turn-table campaign", unit="stage") as bar:
-            def stage(name):
-                bar.set_postfix_str(name)
+        with StageBar(STAGE_SHARES, stages, "turn-table campaign") as stage:
 
             t0 = time.perf_counter()
             stage("simulate")
             rec = camp.simulate()
             t_sim = time.perf_counter() - t0
-            bar.update()
             stage("analyse")
             res = analyse(rec, camp.timer, camp.model)
-            bar.update()
             ts = arm = simona = None
             figs = {}
             if studies:
                 stage("timer study")
                 ts = timer_study(camp.seed)
-                bar.update()
                 stage("arm study")
                 arm = arm_study(camp.seed)
-                bar.update()
                 stage("SIMONA")
                 real = read_simona()
                 virt = simona_virtual(camp.seed)
@@ -245,7 +244,6 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                           "virtual_rounds": virt.channels["measured_round"].tolist()}
                 plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
                 figs["simona"] = "fig_4_19_simona.png"
-                bar.update()
             stage("figures")
             figs["residuals"] = _fig_residuals(out, res)
             figs["slip_rings"] = _fig_slip_ring(out, rec)
@@ -255,13 +253,11 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             if arm:
                 figs["arm"] = _fig_arm(out, arm)
             out.write_json("calibration.json", res["main"].to_dict())
-            bar.update()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
             from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
-            bar.update(int(save_recording) + int(rrd))
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
                       "simulated_samples_per_s": round(rec.n / t_sim), "samples": rec.n,
@@ -269,7 +265,6 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             summary = summary_dict(camp, rec, res, ts, arm, simona, timing, files)
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report_md(camp, rec, res, ts, arm, simona, figs, timing))
-            bar.update()
     return summary
 
 
