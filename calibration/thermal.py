@@ -122,6 +122,10 @@ class ThermalCalibration(Estimator):
         self.scale_order = scale_order
         self.hysteresis = hysteresis
 
+    def terms_needed(self, hysteresis: bool) -> int:
+        """The largest model's number of terms: polynomial order + 1, + 1 for the hysteresis gap."""
+        return max(self.acc_order, self.scale_order, self.gyro_order) + 1 + int(hysteresis)
+
     def fit(self, table: dict | Recording) -> Self:
         """Fit every model of the step table (module doc); returns self."""
         self._clear_fitted()
@@ -132,6 +136,11 @@ class ThermalCalibration(Estimator):
                                  "set-points")
         s = np.where(table["branch"] == "up", 0.5, -0.5)
         use_h = self.hysteresis and np.unique(s).size == 2
+        need = self.terms_needed(use_h)
+        if len(s) <= need:
+            raise RecordingError(f"{len(s)} temperature steps for {need} terms (cubic accelerometer bias"
+                                 f"{' and the hysteresis gap' if use_h else ''}): least squares needs more steps than "
+                                 "terms; widen the temperature range, shrink the step or add a cycle")
         results, order = {}, {}
         if "acc_bias" in table:
             for j, a in enumerate("xyz"):

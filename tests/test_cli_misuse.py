@@ -91,3 +91,12 @@ def test_a_flight_too_short_to_score_is_refused(tmp_path, capsys):
     assert main(["flight", "--duration", "60", "--seed", "7", "--out", str(tmp_path / "f")]) == 2
     err = capsys.readouterr().err
     assert "settling" in err and "at least 65 s" in err and not (tmp_path / "f").exists()
+
+
+def test_a_thermal_profile_with_too_few_steps_is_refused_before_simulating(tmp_path, capsys):
+    # -10..10 C in 10 C steps, one cycle: 5 steps for the cubic bias with its hysteresis gap (5 terms)
+    argv = ["campaign", "thermal", "--low", "-10", "--high", "10", "--cycles", "1", "--out", str(tmp_path / "t")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "5 temperature steps" in err and "--cycles" in err and "Traceback" not in err
+    assert not (tmp_path / "t").exists()

@@ -13,6 +13,7 @@ import numpy as np
 
 from imurig.calibration.thermal import ThermalCalibration, branch_gap, step_table
 from imurig.kernel import random_streams
+from imurig.kernel.errors import ScheduleError
 from imurig.kernel.recording import Recording
 from imurig.rigs.thermal_chamber import ThermalChamber, ThermalProfile
 from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
@@ -60,7 +61,17 @@ class ThermalCampaign:
         return ThermalChamber(site=self.site), lab, random_streams.seed_sequence("campaign/thermal/sensor-chain",
                                                                                  self.seed)
 
+    def check_identifiable(self) -> None:
+        """Refuse, before simulating, a profile with no more steps than the thermal models have terms."""
+        pts = self.profile.validate().setpoints()
+        need = ThermalCalibration().terms_needed(hysteresis=len({b for _, b, _ in pts}) == 2)
+        if len(pts) <= need:
+            raise ScheduleError(f"this profile gives {len(pts)} temperature steps, and the thermal models have up to "
+                                f"{need} terms: least squares needs more steps than terms; widen --low/--high, "
+                                "shrink --step or add --cycles")
+
     def simulate(self) -> Recording:
+        self.check_identifiable()
         chamber, lab, ss = self.build()
         rig = chamber.simulate(self.profile, self.start_time)
         rec = lab.measure(rig, ss)

@@ -9,7 +9,7 @@ import numpy as np
 import imurig
 from imurig.campaigns.magnetometer import Z_BOUND, MagnetometerCampaign, analyse, indicated_field, manoeuvre_mask
 from imurig.reports.tilt_table import peak_rss_bytes
-from imurig.kernel.progress import progress
+from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_figures_and_run, md_table, save_products
@@ -120,19 +120,24 @@ def calibration_dict(res) -> dict:
             "swing": {"terms": list(res["swing"].names_), "coef_rad": res["swing"].coef_.tolist()}}
 
 
+#: each stage's share of the default campaign's time (estimated from one run on 2 cores): the bar's ETA
+STAGE_SHARES = {"simulate": 50, "analyse": 25, "outputs": 25}
+
+
 def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:
     out = OutputFolder(out_dir, overwrite=overwrite)
     with out:  # committed on success, removed on any error
-        with progress(total=3, desc="magnetometer campaign", unit="stage") as bar:
+        with StageBar(STAGE_SHARES, STAGE_SHARES, "magnetometer campaign") as stage:
             t0 = time.perf_counter()
+            stage("simulate")
             rec = camp.simulate()
-            bar.update()
+            stage("analyse")
             res = analyse(rec)
             figs = {"fig5": _fig5(out, res), "heading": _fig_heading(out, res), "ellipse": _fig_ellipse(out, rec, res)}
             out.write_json("magnetometer_calibration.json", calibration_dict(res))
             files = {"report": "report.md", "summary": "summary.json", "calibration": "magnetometer_calibration.json",
                      **{f"figure_{k}": v for k, v in figs.items()}}
-            bar.update()
+            stage("outputs")
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
             timing = {"total_s": round(time.perf_counter() - t0, 2), "samples": rec.n,
                       "peak_rss_MB": round(peak_rss_bytes() / 2**20, 1)}
@@ -146,7 +151,6 @@ def run(camp: MagnetometerCampaign, out_dir, overwrite=False, rrd=True, save_rec
                 "swing": res["swing"].to_dict(), "timing": timing, "files": files})
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report(camp, rec, res, figs, timing))
-            bar.update()
     return summary
 
 

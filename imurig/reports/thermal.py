@@ -10,7 +10,7 @@ import imurig
 from imurig.calibration.thermal import T0
 from imurig.campaigns.thermal import Z_BOUND, ThermalCampaign, analyse
 from imurig.reports.tilt_table import peak_rss_bytes
-from imurig.kernel.progress import progress
+from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_figures_and_run, md_table, save_products
@@ -104,16 +104,21 @@ def thermal_calibration_dict(res: dict) -> dict:
                        for k, r in res["fit"].results_.items()}}
 
 
+#: each stage's share of the default campaign's time (estimated from one run on 2 cores): the bar's ETA
+STAGE_SHARES = {"simulate": 60, "analyse": 10, "outputs": 28, "report": 2}
+
+
 def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recording=True) -> dict:
     out = OutputFolder(out_dir, overwrite=overwrite)
     with out:  # committed on success, removed on any error
-        with progress(total=4, desc="thermal campaign", unit="stage") as bar:
+        with StageBar(STAGE_SHARES, STAGE_SHARES, "thermal campaign") as stage:
             t0 = time.perf_counter()
+            stage("simulate")
             rec = camp.simulate()
             t_sim = time.perf_counter() - t0
-            bar.update()
+            stage("analyse")
             res = analyse(rec)
-            bar.update()
+            stage("outputs")
             figs = _figs(out, rec, res)
             out.write_json("thermal_calibration.json", thermal_calibration_dict(res))
             files = {"report": "report.md", "summary": "summary.json", "calibration": "thermal_calibration.json",
@@ -121,7 +126,7 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
             from imurig.reports.thermal_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             files.update(save_products(out, rec, res, write_rrd, save_recording, rrd))
-            bar.update()
+            stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
                       "samples": rec.n, "simulated_hours": round(rec.time_s[-1] / 3600, 2),
                       "peak_rss_MB": round(peak_rss_bytes() / 2**20, 1)}
@@ -135,5 +140,4 @@ def run(camp: ThermalCampaign, out_dir, overwrite=False, rrd=True, save_recordin
                 "timing": timing, "files": files})
             out.write_json("summary.json", summary)
             out.write_text("report.md", _report(camp, rec, res, figs, timing))
-            bar.update()
     return summary
