@@ -87,10 +87,16 @@ def mag_heading_error_rms_deg(truth, stream, decl, every_s: float = 1.0) -> floa
     ``every_s``: the compass error alone."""
     step = max(1, round(every_s * truth.rate_hz))
     i = np.arange(0, truth.n, step)
-    r, p_, y = E.euler_from_q(truth.q_NB[i])
+    _, _, y = E.euler_from_q(truth.q_NB[i])
+    return _rms(E.wrap_pi(compass_heading(truth, stream, decl, i) - y)) / DEG
+
+
+def compass_heading(truth, stream, decl, i: np.ndarray) -> np.ndarray:
+    """The magnetometer's own heading (rad) at the samples ``i``: ``stream.B_B`` levelled with the
+    TRUE roll and pitch, plus the declination ``decl`` (rad, or a callable D(lat, lon, h))."""
+    r, p_, _ = E.euler_from_q(truth.q_NB[i])
     dec = (lambda j: decl(truth.lat_rad[j], truth.lon_rad[j], truth.h_m[j])) if callable(decl) else (lambda j: decl)
-    psi = np.array([ekf.mag_heading(stream.B_B[j], r[k], p_[k], dec(j)) for k, j in enumerate(i)])
-    return _rms(E.wrap_pi(psi - y)) / DEG
+    return np.array([ekf.mag_heading(stream.B_B[j], r[k], p_[k], dec(j)) for k, j in enumerate(i)])
 
 
 def _rms(x):

@@ -46,10 +46,8 @@ class Item:
     if_outside: str = ""
 
 
-def _row(item, quantity, unit, seed, value, tolerance, note="") -> dict:
-    verdict = "within" if abs(value - seed) <= tolerance else "outside"
-    return {"item": item, "quantity": quantity, "unit": unit, "seed": seed, "imurig": float(value),
-            "tolerance": float(tolerance), "verdict": verdict, "note": note}
+#: one compared quantity (the row every item returns; :func:`imurig.reports.reproduce_lab.row`)
+_row = lab.row
 
 
 # ---------------------------------------------------------------------------------------------- items

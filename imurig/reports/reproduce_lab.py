@@ -147,18 +147,15 @@ def paper_fig_8() -> list[dict]:
     two-step ellipsoid calibration. Tolerance: half the 5-deg tick spacing of the figure's
     residual axis, which is all the precision the figure gives."""
     from imurig.campaigns.flight import FlightOptions, declination_model, fly   # lazy: the flight stack
-    from imurig.flights import ekf, earth
+    from imurig.campaigns.flight_filter import compass_heading
+    from imurig.flights import earth
 
     st = fly(FlightOptions(flight="van"))
     tr = st.truth
-    step = max(1, round(tr.rate_hz))
-    i = np.arange(0, tr.n, step)
+    i = np.arange(0, tr.n, max(1, round(tr.rate_hz)))
     i = i[np.linalg.norm(tr.v_N[i, :2], axis=1) > 3.0]
-    r, p, _ = earth.euler_from_q(tr.q_NB[i])
     decl = declination_model(tr)
-    dec = [decl(tr.lat_rad[j], tr.lon_rad[j], tr.h_m[j]) if callable(decl) else decl for j in i]
-    psi = {k: np.array([ekf.mag_heading(st.runs[k][2].B_B[j], r[n], p[n], dec[n]) for n, j in enumerate(i)])
-           for k in ("uncalibrated", "calibrated")}
+    psi = {k: compass_heading(tr, st.runs[k][2], decl, i) for k in ("uncalibrated", "calibrated")}
     d = np.abs(earth.wrap_pi(psi["uncalibrated"] - psi["calibrated"]))
     return [row("paper_fig_8", "compass heading change, manufacturer -> own calibration (mean, moving)", "deg",
                 published_figures()["magnetometer"]["heading_bias_corrected_deg"], math.degrees(d.mean()), 2.5,

@@ -30,6 +30,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from imurig.flights.earth import q_conj, q_mult
 from imurig.kernel.errors import OutputExistsError
 from imurig.reports.rrd_layout import _VIEW_OF, MARKER, WIDTH, legend, role_color, uncovered, views_of
 
@@ -189,24 +190,10 @@ def _xyzw(q_wxyz: np.ndarray) -> np.ndarray:
     return np.asarray(q_wxyz, dtype=float)[..., [1, 2, 3, 0]]
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (..., 4) w,x,y,z quaternions."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _quat_conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
-
-
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate (..., 3) vectors by (..., 4) w,x,y,z unit quaternions."""
     qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
-    return _quat_mul(_quat_mul(q, qv), _quat_conj(q))[..., 1:]
+    return q_mult(q_mult(q, qv), q_conj(q))[..., 1:]
 
 
 def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, idx: int) -> str:
@@ -319,9 +306,9 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
         for bid, q in saved.items():
             model.body_quat[bid] = q
     parent = np.asarray(model.body_parentid)
-    qp_inv = _quat_conj(xquat[:, parent])
+    qp_inv = q_conj(xquat[:, parent])
     rel_pos = _rotate(qp_inv, xpos - xpos[:, parent])
-    rel_quat = _quat_mul(qp_inv, xquat)
+    rel_quat = q_mult(qp_inv, xquat)
     times = _time_column(time_s)
     for b in range(1, nb):
         w.note(body_path(model, b, root), "Transform3D")
