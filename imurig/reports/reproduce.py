@@ -32,6 +32,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.kernel.site import Site, parse_time
 from imurig.reports import reproduce_lab as lab
+from imurig.reports import reproduce_tables_figures as tables_fig
 from imurig.reports import reproduce_tilt as tilt
 from imurig.reports.common import md_table, published_figures
 
@@ -44,6 +45,8 @@ class Item:
     run: Callable[[], list[dict]]
     #: one sentence for the report when a quantity of the item is outside its tolerance
     if_outside: str = ""
+    #: draws imurig's side of a seed figure into the report's folder (after ``run``), returns the file name
+    figure: Callable[[OutputFolder], str] | None = None
 
 
 #: one compared quantity (the row every item returns; :func:`imurig.reports.reproduce_lab.row`)
@@ -162,12 +165,11 @@ ITEMS = {i.key: i for i in (
          "a single-exponential settling leaks a grounded slot's 0 V only as a scale factor, so the preset's y at "
          "200 kHz with the grounded channel falls to the floor (0.0018) where the seed kept 0.00407 (a slower "
          "settling component, not in the model, would be needed)"),
+    *(Item(**spec) for spec in tables_fig.ITEM_SPECS),
 )}
 
 #: items of the seed not yet run by this command, and what they wait for
 PENDING = {
-    "tab_4_4, tab_4_5, tab_4_6, fig_4_10, fig_4_13, fig_4_14": "the Delft 2005 lab preset "
-    "(built and fitted to Tab. 4.2-4.3, which run; these items are not yet wired to it)",
     "fig_4_9, fig_4_20, fig_4_21": "the preset (the seed prints no values for Fig. 4.9's 'truedata'; "
     "Figs. 4.20-4.21 need the lab's noise level)",
     "paper figs 2-7 and 9 (thermal, manufacturer vs own residuals, static and flight filter, van attitude)":
@@ -198,6 +200,8 @@ def reproduce(which: str, out: OutputFolder, log=print) -> dict:
     for k in keys:
         it = ITEMS[k]
         L.append(f"\n## {k} ({it.seed_ref}): {'within' if item_ok[k] else 'outside'}\n\nThe seed: {it.describes}.\n")
+        if it.figure is not None:
+            L.append(f"imurig: ![{k}]({it.figure(out)})\n")
         if not item_ok[k]:
             L.append(f"Why not: {it.if_outside}\n")
         L.append(md_table(["quantity", "unit", "seed", "imurig", "tolerance", "verdict", "note"],

@@ -1,0 +1,287 @@
+"""Items of ``imurig reproduce`` from the seed's final accelerometer calibration (4.3.2-4.3.5) on the
+Delft 2005 lab preset: Tabs. 4.4-4.6 (the linear, cross-term and final models), Fig. 4.14 (the
+final model's residuals), Fig. 4.10 (raw volts at theta = 40 deg, evening) and Fig. 4.13 (the same
+with the basement pump running).
+
+The campaign (:func:`final_lab`) is the seed's final one: theta 0-90 deg in 10 deg x 12 phi x 2
+mountings (n = 240 positions), 15 s per position, 20 kHz multiplexing, the repaired y line, from
+6 pm (pump, transformer and air conditioning off), on the preset at its fitted sizes
+(:meth:`imurig.campaigns.delft_2005.Delft2005.fitted`; nothing here is sized by hand). It runs on the
+Monte-Carlo tilt campaign's closed-form rest windows with 100 Hz averaged logging, as the preset's
+fit did. Per position the seed's statistic, the median; per axis a the seed's least squares
+(appendix C.1.1) of the reference A_a on the indicated specific forces u = V / s_nom:
+
+    A_a = X_m(u) beta + r,      sigma_res = std(r, ddof=1)                      (Tabs. 4.4-4.6)
+
+with X_m the model's terms (``linear``: 1, u_x, u_y, u_z; ``cross``: + the three products;
+``seed_final``: Tab. 4.6's). imurig's value is the rms over ``N_LABS`` virtual labs of their own
+(the expected sigma). Tolerances are the seed's own scatter: a residual sigma from n positions and
+p coefficients has the relative standard error 1 / sqrt(2 (n - p)); the band is two of them. The
+seed's reduction of sigma by added terms has the scatter of :func:`reduction_se`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from functools import lru_cache
+
+import numpy as np
+
+from imurig.calibration.accelerometer import INPUTS, MODELS
+from imurig.calibration.preprocess import segment_statistic
+from imurig.calibration.tilt_reference import tilt_table_reference
+from imurig.campaigns.delft_2005 import Delft2005
+from imurig.kernel.random_streams import child_generator, child_seed_sequence
+from imurig.kernel.recording import Recording
+from imurig.kernel.site import Site
+from imurig.kernel.units import ARCMIN
+from imurig.montecarlo import delft_fit_42 as fit_42
+from imurig.montecarlo.tilt import PHI_12, THETA_SEED, TILT_TABLE
+from imurig.montecarlo.tilt_rig import static_rig
+from imurig.reports.common import published_figures
+from imurig.reports.reproduce_lab import row
+
+N_LABS = 2
+#: Fig. 4.13's day labs: the pump's direction is drawn per lab, so its scatter varies ~10 % from lab to lab
+N_DAY_LABS = 4
+#: the labs' seeds (own streams, apart from Tab. 4.2's and 4.3's)
+BASE_SEED = 2005 + 700
+N_POS = 240
+ACC = ("acc_x", "acc_y", "acc_z")
+FINAL = {"theta_deg": list(THETA_SEED), "phi_deg": list(PHI_12), "mounts": ["z_down", "z_up"], "model": "linear",
+         "pump": True, "people": True, "mux_khz": 20.0, "start_time": "2005-06-14T18:00:00+02:00"}
+#: Fig. 4.13: the same campaign by day, the pump running (its rms fitted to Tab. 4.2, over all positions)
+DAY = {**FINAL, "start_time": "2005-06-14T10:00:00+02:00"}
+#: the seed's tables and their models, with p (the number of coefficients)
+TABLES = {"tab_4_4": ("linear", 4), "tab_4_5": ("cross", 7), "tab_4_6": ("seed_final", 8)}
+#: Tabs. 4.4 and 4.5 are not in published_figures.toml: the seed's sigma_res, as printed
+SEED_SIGMA = {"tab_4_4": (0.00603819, 0.00600338, 0.00776800), "tab_4_5": (0.00515873, 0.00486450, 0.00709341)}
+
+
+# ------------------------------------------------------------------------------------ statistics
+def seed_fit(u: np.ndarray, ref: np.ndarray, model: str) -> dict:
+    """The seed's fit of one model (appendix C.1.1) on per-position indicated forces u (n, 3) and the
+    reference ref (n, 3), both m/s^2. Per axis: coefficients, residuals r = X beta - A,
+    sigma_res = std(r, ddof=1), and the seed's M_res and R as its listing computes them, from the
+    difference between the uncalibrated reading and the calibrated value (not the residual):
+
+        SS = sum (u_a - X beta)^2,  M_res = SS / (n - p),  R = sqrt(1 - SS / SST(u_a))
+    """
+    inputs = {n: u[:, j] for j, n in enumerate(INPUTS)}
+    out = {"sigma_res": [], "m_res": [], "R": [], "residuals": [], "coef": []}
+    for a, ax in enumerate("xyz"):
+        X = MODELS[model](ax).design(inputs)
+        beta, *_ = np.linalg.lstsq(X, ref[:, a], rcond=None)
+        cal = X @ beta
+        n, p = X.shape
+        ss = float(np.sum((u[:, a] - cal) ** 2))
+        sst = float(np.sum((u[:, a] - u[:, a].mean()) ** 2))
+        out["sigma_res"].append(float(np.std(cal - ref[:, a], ddof=1)))
+        out["m_res"].append(ss / (n - p))
+        out["R"].append(math.sqrt(max(1.0 - ss / sst, 0.0)))
+        out["residuals"].append(cal - ref[:, a])
+        out["coef"].append(beta)
+    return out
+
+
+def sigma_rel_se(n: int, p: int) -> float:
+    """Relative standard error of a residual sigma with n - p degrees of freedom: 1 / sqrt(2 (n - p))."""
+    return 1.0 / math.sqrt(2 * (n - p))
+
+
+def reduction_se(sigma_sub: float, sigma_full: float, n: int, p_full: int, k: int) -> float:
+    """Standard error of the reduction d = 1 - sigma_full / sigma_sub when k terms are added to a model
+    (nested fits on the same n rows, sigma = std(residuals, ddof=1) as the seed's). With the noise s^2,
+
+        SS_sub = SS_full + Q,  SS_full ~ s^2 chi^2(n - p_full),  Q ~ s^2 chi'^2(k, lambda) independent,
+
+    q = Q / SS_full = (sigma_sub / sigma_full)^2 - 1 and d = 1 - (1 + q)^(-1/2). lambda from the seed's
+    own q (lambda = (n - p_full) q - k, at least 0); var(Q/s^2) = 2 (k + 2 lambda), the relative
+    variance of SS_full 2 / (n - p_full); delta method: se_d = (1 + q)^(-3/2) / 2 * se_q."""
+    dof = n - p_full
+    q = (sigma_sub / sigma_full) ** 2 - 1.0
+    qs = dof * q                                      # Q / s^2
+    lam = max(qs - k, 0.0)
+    rel_q = math.sqrt(2 * (k + 2 * lam)) / max(qs, 1e-300)
+    se_q = abs(q) * math.hypot(rel_q, math.sqrt(2.0 / dof)) if q > 0 else math.sqrt(2 * k) / dof
+    return 0.5 * (1 + q) ** -1.5 * se_q
+
+
+# ------------------------------------------------------------------------------------ the campaign
+def final_lab(seed: int, params: dict = FINAL) -> Recording:
+    """One virtual lab of the seed's final campaign on the preset (module doc); 100 Hz averaged record."""
+    pre = Delft2005.fitted()
+    p = TILT_TABLE.validate({**params, "setting_resolution_arcmin": pre.setting_error_rad / ARCMIN})
+    ss = np.random.SeedSequence(seed)
+    errors, survey, lab = TILT_TABLE.draw_lab(p, ss)
+    adc = replace(lab.adc, settling_tau_s=pre.settling_tau_s, crosstalk_enabled=True,
+                  channel_settling_tau_s=pre.channel_settling())
+    lab = replace(lab, adc=adc, effects=pre.effects(cable_fault=False),
+                  pump=replace(lab.pump, rms_m_s2=pre.pump_rms_m_s2))
+    rig = static_rig(p, errors, survey, child_generator(ss, "run/rig"), Site())
+    rig.meta["averaged_logging"] = True
+    return lab.measure(rig, child_seed_sequence(ss, "run/sensor-chain"))
+
+
+def indicated_and_reference(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """Per-position medians as indicated specific force u = V / s_nom (n, 3) and the reference (n, 3)."""
+    s_nom = np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"], float)
+    ref, _, _ = tilt_table_reference(rec)
+    return segment_statistic(rec, list(ACC), "median") / s_nom, ref
+
+
+@lru_cache(maxsize=1)
+def final_fits() -> dict:
+    """Per model: sigma_res (N_LABS, 3), the seed's M_res and R (N_LABS, 3), and lab 0's residuals (3, n);
+    plus lab 0's record (for Fig. 4.10)."""
+    out = {}
+    recs = [final_lab(BASE_SEED + k) for k in range(N_LABS)]
+    fits = [indicated_and_reference(r) for r in recs]
+    for model, _ in TABLES.values():
+        f = [seed_fit(u, ref, model) for u, ref in fits]
+        out[model] = {k: np.array([x[k] for x in f]) for k in ("sigma_res", "m_res", "R")}
+        out[model]["residuals"] = np.array(f[0]["residuals"])
+    out["record"] = recs[0]
+    return out
+
+
+def _seed_sigma(key: str) -> np.ndarray:
+    if key == "tab_4_6":
+        return np.array(published_figures()["table_4_6"]["sigma_res"], float)
+    return np.array(SEED_SIGMA[key], float)
+
+
+def _rms(x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean(np.asarray(x) ** 2, axis=0))
+
+
+# ------------------------------------------------------------------------------------ items
+def _table(key: str) -> list[dict]:
+    model, p = TABLES[key]
+    fits = final_fits()
+    seed, ours = _seed_sigma(key), _rms(fits[model]["sigma_res"])
+    rel = sigma_rel_se(N_POS, p)
+    rows = []
+    for a, ax in enumerate("xyz"):
+        note = (f"tolerance 2 x sigma/sqrt(2({N_POS}-{p})); imurig: rms of {N_LABS} labs (own SE "
+                f"{rel * ours[a] / math.sqrt(N_LABS):.1g}); the seed's M_res {fits[model]['m_res'][:, a].mean():.3g} "
+                f"and R {fits[model]['R'][:, a].mean():.8f} in imurig (listing C.1.1: reading minus calibrated "
+                "value, so they measure this IMU's own scale and bias errors; not compared)")
+        rows.append(row(key, f"sigma_res A_{ax}, model '{model}'", "m/s^2", seed[a], ours[a], 2 * rel * seed[a], note))
+    if key != "tab_4_4":
+        lin = _seed_sigma("tab_4_4")
+        ours_lin = _rms(fits["linear"]["sigma_res"])
+        k = p - 4
+        for a, ax in enumerate("xyz"):
+            d_seed, d_ours = 1 - seed[a] / lin[a], 1 - ours[a] / ours_lin[a]
+            se = reduction_se(lin[a], seed[a], N_POS, p, k)
+            rows.append(row(key, f"sigma_res reduction of A_{ax} by the {k} added terms (1 - sigma/sigma_4.4)", "1",
+                            d_seed, d_ours, 2 * se, "tolerance 2 x the seed's SE (noncentral chi^2 of the added "
+                            f"terms' sum of squares, delta method); pure noise would give ~{1 - math.sqrt(1 - k / 236):.3f}"))
+    return rows
+
+
+def tab_4_4() -> list[dict]:
+    """Seed Table 4.4, the linear model A_a = b0 + b1 u_x + b2 u_y + b3 u_z: sigma_res per axis."""
+    return _table("tab_4_4")
+
+
+def tab_4_5() -> list[dict]:
+    """Seed Table 4.5, the linear model with the three products: sigma_res and its reduction from Tab. 4.4."""
+    return _table("tab_4_5")
+
+
+def tab_4_6() -> list[dict]:
+    """Seed Table 4.6, the final models (squares and one product): sigma_res and its reduction from Tab. 4.4."""
+    return _table("tab_4_6")
+
+
+def fig_4_14() -> list[dict]:
+    """Seed Fig. 4.14: the residuals of Tab. 4.6's models over the 240 positions. The figure prints no
+    values beyond its +-0.01 m/s^2 ticks; its scatter is Tab. 4.6's sigma_res, compared here on the
+    plotted lab (lab 0), with the tolerance of one lab's sigma (2 sigma / sqrt(2 (240 - 8)))."""
+    r = final_fits()["seed_final"]["residuals"]
+    seed = _seed_sigma("tab_4_6")
+    rel = sigma_rel_se(N_POS, 8)
+    return [row("fig_4_14", f"scatter of the plotted residuals, {ax} (std, ddof=1)", "m/s^2", seed[a],
+                float(np.std(r[a], ddof=1)), 2 * rel * seed[a],
+                f"largest |residual| {np.max(np.abs(r[a])):.2g} (the figure's frame: +-0.015)")
+            for a, ax in enumerate("xyz")]
+
+
+def theta40_volts(rec: Recording, mount: str = "z_down") -> tuple[np.ndarray, list[np.ndarray]]:
+    """phi (rad) and the 100 Hz volts (k, 3) of each position at theta = 40 deg of one mounting."""
+    seg = rec.segments
+    sl = rec.segment_slices()
+    keep = [i for i in range(rec.n_segments)
+            if abs(math.degrees(seg["theta"][i]) - 40.0) < 1e-6 and str(seg["mount"][i]) == mount]
+    return (np.asarray(seg["phi"], float)[keep],
+            [np.column_stack([rec.channels[c][sl[i]] for c in ACC]) for i in keep])
+
+
+def phi_harmonics(phi: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares v_a = c0 + c1 cos(phi) + c2 sin(phi) per channel: (level c0 (3,), amplitude
+    hypot(c1, c2) (3,)) of the per-position values v (k, 3)."""
+    X = np.column_stack([np.ones_like(phi), np.cos(phi), np.sin(phi)])
+    c, *_ = np.linalg.lstsq(X, v, rcond=None)
+    return c[0], np.hypot(c[1], c[2])
+
+
+def fig_4_10() -> list[dict]:
+    """Seed Fig. 4.10: raw volts of the three channels at theta = 40 deg over the 12 phi positions (the
+    evening lab). The figure prints no values; its curves trace eqs. 4.36-4.38: x and y swing with
+    amplitude g sin 40 deg (ratio 1), z stays at g cos 40 deg (ratio cot 40 deg to that amplitude).
+    Tolerance: the figure's reading precision, half its 0.2 V tick on each of the two curves read
+    (relative 0.1 V / (g sin 40 deg x s_nom) each, in quadrature)."""
+    rec = final_fits()["record"]
+    phi, vs = theta40_volts(rec)
+    level, amp = phi_harmonics(phi, np.array([np.median(v, axis=0) for v in vs]))
+    s_nom = float(np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"], float)[0])
+    g = Site().gravity_m_s2
+    a40, z40 = g * math.sin(math.radians(40)) * s_nom, g * math.cos(math.radians(40)) * s_nom
+    read = 0.1
+    ratio_z = z40 / a40
+    note = f"the figure prints no values; seed: eqs. 4.36-4.38 at theta 40 deg; amplitude x {amp[0]:.3f} V"
+    return [row("fig_4_10", "phi amplitude of y over x at theta 40 deg", "1", 1.0, amp[1] / amp[0],
+                math.hypot(read / a40, read / a40), note),
+            row("fig_4_10", "z level over the x amplitude at theta 40 deg", "1", ratio_z, abs(level[2]) / amp[0],
+                ratio_z * math.hypot(read / z40, read / a40), note)]
+
+
+@lru_cache(maxsize=1)
+def day_records() -> tuple[Recording, ...]:
+    """``N_DAY_LABS`` labs of the final campaign by day (10:00, the pump on at its Tab. 4.2 fit) on the preset."""
+    return tuple(final_lab(BASE_SEED + 50 + k, DAY) for k in range(N_DAY_LABS))
+
+
+def _spread(volts: list[np.ndarray]) -> np.ndarray:
+    """rms over positions of each channel's within-position std (ddof=1), (3,) in the input's unit."""
+    return np.sqrt(np.mean([np.var(v, axis=0, ddof=1) for v in volts], axis=0))
+
+
+def fig_4_13() -> list[dict]:
+    """Seed Fig. 4.13: raw data at theta 40 deg while the basement pump ran, against Fig. 4.10's quiet
+    evening. The figure prints no values; the size of the pump's vibration in the raw data is
+    Tab. 4.2's (the part the per-position medians remove), d = sqrt(raw^2 - median^2) for x and z over
+    its 240 positions. imurig: the same statistic (:func:`imurig.montecarlo.delft_fit_42.raw_and_median_sigmas`)
+    on the final campaign by day, rms over ``N_DAY_LABS`` labs. Tolerance: Tab. 4.2's scatter (relative 1 / sqrt(2 (240 - 4)) on both
+    sigmas) through the difference. The preset's pump rms was fitted to Tab. 4.2, so this is a
+    consistency check of the day lab, not an independent one."""
+    t42 = published_figures()["table_4_2"]
+    rel = sigma_rel_se(N_POS, 4)
+    labs = day_records()
+    rm = np.array([fit_42.raw_and_median_sigmas(r) for r in labs])            # (labs, 2, 3)
+    removed = np.sqrt(np.mean(np.maximum(rm[:, 0] ** 2 - rm[:, 1] ** 2, 0.0), axis=0))
+    s_nom = np.asarray(labs[0].meta["acc_nominal_sensitivity_V_per_m_s2"], float)
+    quiet = _spread(theta40_volts(final_fits()["record"])[1]) / s_nom
+    day = _spread(theta40_volts(labs[0])[1]) / s_nom
+    rows = []
+    for a, ax in ((0, "x"), (2, "z")):
+        R, M = t42["raw_sigma"][a], t42["median_sigma"][a]
+        d = math.sqrt(R ** 2 - M ** 2)
+        se = rel * math.sqrt(R ** 4 + M ** 4) / d
+        rows.append(row("fig_4_13", f"raw data's scatter the medians remove, {ax}, pump running", "m/s^2", d,
+                        removed[a], 2 * se,
+                        f"seed: sqrt(raw^2 - median^2) of Tab. 4.2; within-position rms at theta 40 deg: "
+                        f"{day[a]:.2g} by day, {quiet[a]:.2g} in the evening (Fig. 4.10)"))
+    return rows
