@@ -29,7 +29,8 @@ import numpy as np
 
 from imurig.calibration.accelerometer import INPUTS, MODELS
 from imurig.calibration.preprocess import segment_statistic
-from imurig.calibration.tilt_reference import tilt_table_reference
+from imurig.calibration.regression import fit_ols
+from imurig.calibration.tilt_reference import reference_inputs, tilt_table_reference
 from imurig.campaigns.delft_2005 import Delft2005
 from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.kernel.recording import Recording
@@ -39,6 +40,7 @@ from imurig.montecarlo import delft_fit_42 as fit_42
 from imurig.montecarlo.tilt import PHI_12, THETA_SEED, TILT_TABLE
 from imurig.montecarlo.tilt_rig import static_rig
 from imurig.reports.common import published_figures
+from imurig.rigs.tilt_table import reference_with_jacobian
 from imurig.reports.reproduce_lab import row
 
 N_LABS = 2
@@ -56,6 +58,10 @@ DAY = {**FINAL, "start_time": "2005-06-14T10:00:00+02:00"}
 TABLES = {"tab_4_4": ("linear", 4), "tab_4_5": ("cross", 7), "tab_4_6": ("seed_final", 8)}
 #: Tabs. 4.4 and 4.5 are not in published_figures.toml: the seed's sigma_res, as printed
 SEED_SIGMA = {"tab_4_4": (0.00603819, 0.00600338, 0.00776800), "tab_4_5": (0.00515873, 0.00486450, 0.00709341)}
+#: Tab. 4.5's product coefficients of the terms the seed kept (A_x: a_y a_z, A_y: a_x a_z), 1/(m/s^2)
+SEED_PRODUCT = {"x": ("ay*az", -0.00013689), "y": ("ax*az", 0.00015533)}
+#: the phi-plane error left out of the reference in :func:`mount_signature` [arcmin]
+DELTA_REF_ARCMIN = 4.0
 
 
 # ------------------------------------------------------------------------------------ statistics
@@ -142,7 +148,49 @@ def final_fits() -> dict:
         out[model] = {k: np.array([x[k] for x in f]) for k in ("sigma_res", "m_res", "R")}
         out[model]["residuals"] = np.array(f[0]["residuals"])
     out["record"] = recs[0]
+    out["records"] = tuple(recs)
     return out
+
+
+def mount_signature(delta_arcmin: float = DELTA_REF_ARCMIN) -> dict:
+    """What an attitude that differs between the two mountings does to Tabs. 4.4-4.5, on the final
+    campaign's labs: the reference is computed with a phi-plane error of ``delta`` left out (as the seed's
+    listing C.1.1 computes its reference from the nominal angles). The error turns the IMU about +z in
+    one mounting and about -z in the other, so one set of coefficients cannot absorb it. Per axis x, y
+    (a phi error leaves z alone), averaged over the labs:
+
+        m_a = (sigma_lin(delta)^2 - sigma_lin(0)^2) / delta^2       added variance per arcmin^2
+        c_a = (sigma_lin(delta)^2 - sigma_cross(delta)^2) / (m_a delta^2)   the part the products remove
+        b_a = the kept product's coefficient in the 'cross' model per arcmin of delta
+    """
+    d = delta_arcmin * ARCMIN
+    m, c, b = [], [], []
+    for rec in final_fits()["records"]:
+        u, ref0 = indicated_and_reference(rec)
+        segs, g, survey = reference_inputs(rec)
+        survey = replace(survey, phi_zero_rad={k: v - d for k, v in survey.phi_zero_rad.items()})
+        ref = reference_with_jacobian(segs, g, survey)[0]
+        s0, lin, cross = (np.array(seed_fit(u, r, mo)["sigma_res"])[:2] ** 2
+                          for r, mo in ((ref0, "linear"), (ref, "linear"), (ref, "cross")))
+        m.append((lin - s0) / delta_arcmin ** 2)
+        c.append((lin - cross) / (lin - s0))
+        inputs = {n: u[:, j] for j, n in enumerate(INPUTS)}
+        lib = {a: MODELS["cross"](a) for a in "xy"}
+        b.append([fit_ols(lib[a].design(inputs), ref[:, j], lib[a].names).coef(SEED_PRODUCT[a][0]) / delta_arcmin
+                  for j, a in enumerate("xy")])
+    return {"m": np.mean(m, 0), "c": np.mean(c, 0), "b": np.mean(b, 0)}
+
+
+def seed_split(axis: int, sig: dict) -> dict:
+    """The seed's Tab. 4.4 variance of axis x (0) or y (1) split by the products' signature (``sig`` from
+    :func:`mount_signature`): the mounting part M^2 = (sigma_4.4^2 - sigma_4.5^2 - 3 s^2 / (n - 7)) / c
+    (the products' own noise share removed), the fresh rest F^2 = sigma_4.4^2 - M^2, the phi-plane error
+    delta = M / sqrt(m) that gives M, and the product coefficient b delta it implies."""
+    s44, s45 = SEED_SIGMA["tab_4_4"][axis], SEED_SIGMA["tab_4_5"][axis]
+    mount2 = max((s44 ** 2 - s45 ** 2 - 3 * s45 ** 2 / (N_POS - 7)) / sig["c"][axis], 0.0)
+    delta = math.sqrt(mount2 / sig["m"][axis])
+    return {"mount": math.sqrt(mount2), "fresh": math.sqrt(max(s44 ** 2 - mount2, 0.0)), "delta_arcmin": delta,
+            "coef": sig["b"][axis] * delta}
 
 
 def _seed_sigma(key: str) -> np.ndarray:
@@ -172,13 +220,41 @@ def _table(key: str) -> list[dict]:
         lin = _seed_sigma("tab_4_4")
         ours_lin = _rms(fits["linear"]["sigma_res"])
         k = p - 4
+        split = _split_notes() if key == "tab_4_5" else ["", "", ""]
         for a, ax in enumerate("xyz"):
             d_seed, d_ours = 1 - seed[a] / lin[a], 1 - ours[a] / ours_lin[a]
             se = reduction_se(lin[a], seed[a], N_POS, p, k)
             rows.append(row(key, f"sigma_res reduction of A_{ax} by the {k} added terms (1 - sigma/sigma_4.4)", "1",
                             d_seed, d_ours, 2 * se, "tolerance 2 x the seed's SE (noncentral chi^2 of the added "
-                            f"terms' sum of squares, delta method); pure noise would give ~{1 - math.sqrt(1 - k / 236):.3f}"))
+                            f"terms' sum of squares, delta method); pure noise would give ~{1 - math.sqrt(1 - k / 236):.3f}"
+                            + split[a]))
     return rows
+
+
+def seed_coef_se(axis: int) -> float:
+    """Standard error of Tab. 4.5's kept product coefficient of axis x (0) or y (1): the seed's residual
+    variance s^2 = sigma_4.5^2 (n - 1) / (n - 7) times (X'X)^-1 of the 'cross' design (lab 0's positions)."""
+    ax = "xy"[axis]
+    u, _ = indicated_and_reference(final_fits()["record"])
+    lib = MODELS["cross"](ax)
+    X = lib.design({n: u[:, j] for j, n in enumerate(INPUTS)})
+    j = list(lib.names).index(SEED_PRODUCT[ax][0])
+    s2 = SEED_SIGMA["tab_4_5"][axis] ** 2 * (N_POS - 1) / (N_POS - 7)
+    return math.sqrt(s2 * np.linalg.inv(X.T @ X)[j, j])
+
+
+def _split_notes() -> list[str]:
+    """Per axis, the note on the seed's Tab. 4.4-4.5 split by the products' signature (:func:`seed_split`)."""
+    sig = mount_signature()
+    out = []
+    for a in (0, 1):
+        sp, (term, b_seed) = seed_split(a, sig), SEED_PRODUCT["xy"[a]]
+        out.append(f". Split of the seed's sigma by the products' signature (a phi-plane error left out of the "
+                   f"reference, products remove {sig['c'][a]:.2f} of it): mounting part {sp['mount']:.4f} "
+                   f"(delta {sp['delta_arcmin']:.1f} arcmin), fresh part {sp['fresh']:.4f} m/s^2; it implies "
+                   f"{term} {sp['coef']:+.3g} where the seed fitted {b_seed:+.3g} +- {seed_coef_se(a):.2g}")
+    return out + [". A phi-plane error leaves z alone; the seed's a_x a_z in A_z needs a tilt about the IMU's y "
+                  "that differs between the mountings"]
 
 
 def tab_4_4() -> list[dict]:
