@@ -13,8 +13,11 @@ the seed's table or figure; ``reproduce.json`` lists the rows for machines.
 Items (``ITEMS``): Tab. 4.1 (the swimmer regression), the IGRF field of the paper's section 3.2,
 the paper's Table 1 (observability through the Gramian of its eq. 4), and from
 :mod:`imurig.reports.reproduce_lab` the site's gravity, the timer resolution of 4.4.2, the SIMONA
-calibration (Fig. 4.19), the round times of Table B.1 and the time budget of Table 4.7. The items that need the
-Delft 2005 lab preset (issue 17) are listed in ``PENDING`` and named as not yet run in the report.
+calibration (Fig. 4.19), the round times of Table B.1 and the time budget of Table 4.7; on the Delft 2005 lab
+preset (issue 17) Tabs. 4.2-4.3 (:mod:`imurig.reports.reproduce_tilt`) and the final calibration's Tabs. 4.4-4.6
+and Figs. 4.10, 4.13, 4.14 (:mod:`imurig.reports.reproduce_tables`, items and figures in
+:mod:`imurig.reports.reproduce_tables_figures`). Items not yet run are listed in ``PENDING`` and named as
+such in the report.
 """
 from __future__ import annotations
 

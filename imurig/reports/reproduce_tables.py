@@ -18,6 +18,13 @@ with X_m the model's terms (``linear``: 1, u_x, u_y, u_z; ``cross``: + the three
 (the expected sigma). Tolerances are the seed's own scatter: a residual sigma from n positions and
 p coefficients has the relative standard error 1 / sqrt(2 (n - p)); the band is two of them. The
 seed's reduction of sigma by added terms has the scatter of :func:`reduction_se`.
+
+Tab. 4.5's notes split the seed's x and y sigma by the products' signature (:func:`mount_signature`,
+:func:`seed_split`): an attitude that differs between the two mountings, such as a phi-plane error the
+seed's reference (nominal angles, listing C.1.1) leaves out, is what products with the flipped a_z
+partly remove. The split uses only the seed's sigmas; the product coefficients it implies are set
+beside the seed's (with their standard errors, :func:`seed_coef_se`) as a check. Not a preset size:
+imurig's reference leaves no table error out.
 """
 from __future__ import annotations
 
@@ -139,16 +146,19 @@ def indicated_and_reference(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
 @lru_cache(maxsize=1)
 def final_fits() -> dict:
     """Per model: sigma_res (N_LABS, 3), the seed's M_res and R (N_LABS, 3), and lab 0's residuals (3, n);
-    plus lab 0's record (for Fig. 4.10)."""
-    out = {}
-    recs = [final_lab(BASE_SEED + k) for k in range(N_LABS)]
-    fits = [indicated_and_reference(r) for r in recs]
+    lab 0's record (for Fig. 4.10) and per lab (u, reference, reference inputs) (for :func:`mount_signature`;
+    the other labs' records are not kept)."""
+    out, labs = {}, []
+    for k in range(N_LABS):
+        rec = final_lab(BASE_SEED + k)
+        labs.append((*indicated_and_reference(rec), reference_inputs(rec)))
+        if k == 0:
+            out["record"] = rec
     for model, _ in TABLES.values():
-        f = [seed_fit(u, ref, model) for u, ref in fits]
+        f = [seed_fit(u, ref, model) for u, ref, _ in labs]
         out[model] = {k: np.array([x[k] for x in f]) for k in ("sigma_res", "m_res", "R")}
         out[model]["residuals"] = np.array(f[0]["residuals"])
-    out["record"] = recs[0]
-    out["records"] = tuple(recs)
+    out["labs"] = tuple(labs)
     return out
 
 
@@ -165,9 +175,7 @@ def mount_signature(delta_arcmin: float = DELTA_REF_ARCMIN) -> dict:
     """
     d = delta_arcmin * ARCMIN
     m, c, b = [], [], []
-    for rec in final_fits()["records"]:
-        u, ref0 = indicated_and_reference(rec)
-        segs, g, survey = reference_inputs(rec)
+    for u, ref0, (segs, g, survey) in final_fits()["labs"]:
         survey = replace(survey, phi_zero_rad={k: v - d for k, v in survey.phi_zero_rad.items()})
         ref = reference_with_jacobian(segs, g, survey)[0]
         s0, lin, cross = (np.array(seed_fit(u, r, mo)["sigma_res"])[:2] ** 2
@@ -226,7 +234,8 @@ def _table(key: str) -> list[dict]:
             se = reduction_se(lin[a], seed[a], N_POS, p, k)
             rows.append(row(key, f"sigma_res reduction of A_{ax} by the {k} added terms (1 - sigma/sigma_4.4)", "1",
                             d_seed, d_ours, 2 * se, "tolerance 2 x the seed's SE (noncentral chi^2 of the added "
-                            f"terms' sum of squares, delta method); pure noise would give ~{1 - math.sqrt(1 - k / 236):.3f}"
+                            "terms' sum of squares, delta method); pure noise would give "
+                            f"~{1 - math.sqrt(1 - k / 236):.3f}"
                             + split[a]))
     return rows
 
@@ -325,9 +334,15 @@ def fig_4_10() -> list[dict]:
 
 
 @lru_cache(maxsize=1)
-def day_records() -> tuple[Recording, ...]:
-    """``N_DAY_LABS`` labs of the final campaign by day (10:00, the pump on at its Tab. 4.2 fit) on the preset."""
-    return tuple(final_lab(BASE_SEED + 50 + k, DAY) for k in range(N_DAY_LABS))
+def day_labs() -> tuple[np.ndarray, Recording]:
+    """``N_DAY_LABS`` labs of the final campaign by day (10:00, the pump on at its Tab. 4.2 fit) on the preset:
+    Tab. 4.2's [raw, median] sigmas per lab (labs, 2, 3) and lab 0's record (for the figure)."""
+    rm, first = [], None
+    for k in range(N_DAY_LABS):
+        rec = final_lab(BASE_SEED + 50 + k, DAY)
+        rm.append(fit_42.raw_and_median_sigmas(rec))
+        first = rec if k == 0 else first
+    return np.array(rm), first
 
 
 def _spread(volts: list[np.ndarray]) -> np.ndarray:
@@ -340,17 +355,16 @@ def fig_4_13() -> list[dict]:
     evening. The figure prints no values; the size of the pump's vibration in the raw data is
     Tab. 4.2's (the part the per-position medians remove), d = sqrt(raw^2 - median^2) for x and z over
     its 240 positions. imurig: the same statistic (:func:`imurig.montecarlo.delft_fit_42.raw_and_median_sigmas`)
-    on the final campaign by day, rms over ``N_DAY_LABS`` labs. Tolerance: Tab. 4.2's scatter (relative 1 / sqrt(2 (240 - 4)) on both
-    sigmas) through the difference. The preset's pump rms was fitted to Tab. 4.2, so this is a
-    consistency check of the day lab, not an independent one."""
+    on the final campaign by day, rms over ``N_DAY_LABS`` labs. Tolerance: Tab. 4.2's scatter (relative
+    1 / sqrt(2 (240 - 4)) on both sigmas) through the difference. The preset's pump rms was fitted to
+    Tab. 4.2, so this is a consistency check of the day lab, not an independent one."""
     t42 = published_figures()["table_4_2"]
     rel = sigma_rel_se(N_POS, 4)
-    labs = day_records()
-    rm = np.array([fit_42.raw_and_median_sigmas(r) for r in labs])            # (labs, 2, 3)
+    rm, first = day_labs()
     removed = np.sqrt(np.mean(np.maximum(rm[:, 0] ** 2 - rm[:, 1] ** 2, 0.0), axis=0))
-    s_nom = np.asarray(labs[0].meta["acc_nominal_sensitivity_V_per_m_s2"], float)
+    s_nom = np.asarray(first.meta["acc_nominal_sensitivity_V_per_m_s2"], float)
     quiet = _spread(theta40_volts(final_fits()["record"])[1]) / s_nom
-    day = _spread(theta40_volts(labs[0])[1]) / s_nom
+    day = _spread(theta40_volts(first)[1]) / s_nom
     rows = []
     for a, ax in ((0, "x"), (2, "z")):
         R, M = t42["raw_sigma"][a], t42["median_sigma"][a]

@@ -51,7 +51,7 @@ def fig_4_10(out: OutputFolder) -> str:
 
 
 def fig_4_13(out: OutputFolder) -> str:
-    return _volts_at_40(out, T.day_records()[0], "fig_4_13_raw_theta40_pump.png",
+    return _volts_at_40(out, T.day_labs()[1], "fig_4_13_raw_theta40_pump.png",
                         "imurig, Delft 2005 preset: raw volts at θ = 40°, 10 am, pump on (cf. seed Fig. 4.13)")
 
 
@@ -77,7 +77,7 @@ def fig_4_14(out: OutputFolder) -> str:
 
 
 _LEFT_OUT = ("a phi-plane error left out of the reference (the seed's listing C.1.1 computes it from the nominal "
-             "angles), which turns the IMU about +z in one mounting and about -z in the other")
+             "angles; such an error turns the IMU about +z in one mounting and about -z in the other)")
 #: the items of :mod:`imurig.reports.reproduce_tables` as keyword arguments of ``reproduce.Item``
 ITEM_SPECS = (
     dict(key="tab_4_4", seed_ref="report 4.3.5, Table 4.4", run=T.tab_4_4,
