@@ -13,13 +13,18 @@ sentence that supports it (``seed_says``):
   ``transformer_hum``), ship passages on the canals (``ship_passages``, evening too), the warm-up
   transient and vibration rectification at their datasheet bounds (no published table constrains
   them; they are listed with ``fitted: false``),
+* for the seed's final campaign (Tabs. 4.4-4.6): the phi-plane error its reference leaves out
+  (``reference_phi_error``, listing C.1.1 computes the reference from the nominal angles) and that
+  day's setting-error width, both fitted to Tabs. 4.4-4.5 (:mod:`imurig.montecarlo.delft_fit_44`;
+  ``final_setting_error_rad``, ``reference_phi_error_rad``),
 * the persistent y-channel cable fault (``persistent_cable_fault``) for the campaigns before the
   junction box was repaired (Tab. 4.2; ``cable_fault=True``) and the basement pump's rms by day
   (``building_vibration``), both fitted to Tab. 4.2.
 
 Fitted sizes come from ``delft_2005_fit.json`` (package assets), written by
 :func:`imurig.montecarlo.delft_fit.main` (weighted least squares of the simulator to Tab. 4.3,
-standard errors in that file); this module only reads them.
+standard errors in that file; the final campaign's entry by :func:`imurig.montecarlo.delft_fit_44.main`);
+this module only reads them.
 """
 from __future__ import annotations
 
@@ -36,6 +41,7 @@ from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.air_conditioning import AirConditioningVibration
 from imurig.sensors.effects.building_vibration import PumpVibration
 from imurig.sensors.effects.persistent_cable_fault import PersistentCableFault
+from imurig.sensors.effects.reference_phi_error import ReferencePhiError
 from imurig.sensors.effects.ship_passages import ShipPassages
 from imurig.sensors.effects.transformer_hum import TransformerHum
 from imurig.sensors.effects.vibration_rectification import VibrationRectification
@@ -75,6 +81,9 @@ class Delft2005:
     cable_offset_V: float
     pump_rms_m_s2: float = 0.03
     cable_dwell_s: float = 60.0
+    #: the final campaign's setting-error width and the phi-plane error its reference leaves out (Tabs. 4.4-4.5)
+    final_setting_error_rad: float = 0.0
+    reference_phi_error_rad: float = 0.0
 
     @classmethod
     def fitted(cls) -> "Delft2005":
@@ -82,9 +91,16 @@ class Delft2005:
         conditions), the pump's rms and the y contact's offset from Tab. 4.2."""
         rec = fitted_sizes()
         s, s42 = rec["sizes"], rec["table_4_2"]["sizes"]
+        fin = rec["final_campaign"]["sizes"]
         return cls(setting_error_rad=s["setting_error_arcmin"]["value"] * ARCMIN,
                    settling_tau_s=s["settling_tau_s"]["value"], settling_tau_y_s=s["settling_tau_y_s"]["value"],
-                   cable_offset_V=s42["cable_offset_V"]["value"], pump_rms_m_s2=s42["pump_rms_m_s2"]["value"])
+                   cable_offset_V=s42["cable_offset_V"]["value"], pump_rms_m_s2=s42["pump_rms_m_s2"]["value"],
+                   final_setting_error_rad=fin["setting_error_arcmin"]["value"] * ARCMIN,
+                   reference_phi_error_rad=fin["reference_phi_error_arcmin"]["value"] * ARCMIN)
+
+    def reference_phi_error(self) -> ReferencePhiError:
+        """The final campaign's phi-plane error left out of the reference, as its effect object."""
+        return ReferencePhiError(delta_phi_rad=self.reference_phi_error_rad)
 
     def channel_settling(self) -> dict:
         """Per-channel settling for :class:`imurig.sensors.adc.DAQ6036E` (the y line's own tau)."""
@@ -107,6 +123,13 @@ class Delft2005:
                 {"effect": AdcCrosstalk.name, "size": f"tau {self.settling_tau_s:.3g} s, y {self.settling_tau_y_s:.3g} s",
                  "fitted": True, "se": [rec["settling_tau_s"]["se"], rec["settling_tau_y_s"]["se"]],
                  "seed_says": AdcCrosstalk.seed_says}]
+        fin = fitted_sizes()["final_campaign"]["sizes"]
+        rows += [{"effect": ReferencePhiError.name, "size": f"{self.reference_phi_error_rad / ARCMIN:.3g} arcmin "
+                  "(final campaign, both mountings)", "fitted": True, "se": fin["reference_phi_error_arcmin"]["se"],
+                  "seed_says": ReferencePhiError.seed_says},
+                 {"effect": "table setting error, final campaign",
+                  "size": f"{self.final_setting_error_rad / ARCMIN:.3g} arcmin (width)", "fitted": True,
+                  "se": fin["setting_error_arcmin"]["se"], "seed_says": SETTING_ERROR_SEED_SAYS}]
         rows.append({"effect": "building_vibration", "size": f"pump rms {self.pump_rms_m_s2:.3g} m/s^2 by day",
                      "fitted": True, "se": fitted_sizes()["table_4_2"]["sizes"]["pump_rms_m_s2"]["se"],
                      "seed_says": PumpVibration.seed_says})
