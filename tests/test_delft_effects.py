@@ -312,3 +312,38 @@ def test_the_tilt_table_turns_by_the_backlash():
         np.testing.assert_allclose(rec.truth_signals["phi_true"][s], ph, rtol=0, atol=1e-9)
         assert np.all(rec.channels["theta"][s] == seg["theta"][i])
     assert bl.fitted(rec.truth) == {"beta_theta_rad": 4 * ARCMIN, "beta_phi_rad": 6 * ARCMIN}
+
+
+# ------------------------------------------------------------------ phi-plane error left out of the reference
+def test_reference_phi_error_turns_the_imu_about_plus_z_and_minus_z():
+    """The table turned by delta in both mountings after its survey: the closed-form rig's f_C is the
+    reference's turned by Rz(s_m delta)' (s = +1 z_up, -1 z_down) to rounding, delta f = s delta (f_y, -f_x, 0)
+    to first order, the true phi carries delta and the survey does not."""
+    from imurig.kernel.site import Site
+    from imurig.montecarlo.tilt import TILT_TABLE
+    from imurig.montecarlo.tilt_rig import static_rig
+    from imurig.rigs.tilt_table import TableSurvey, TiltTableErrors
+    from imurig.sensors.effects import ReferencePhiError
+
+    p = TILT_TABLE.validate({"theta_deg": [0.0, 10.0, 50.0, 90.0], "phi_deg": [0.0, 90.0, 210.0, 330.0],
+                             "mounts": ["z_down", "z_up"], "setting_resolution_arcmin": 0.0})
+    errors = TiltTableErrors(setting_resolution_rad=0.0)
+    survey = TableSurvey.measure(errors, np.random.default_rng(0), 0.0)
+    delta = 3.0 * ARCMIN
+    eff = ReferencePhiError(delta_phi_rad=delta)
+    assert ReferencePhiError().apply_to_table(errors) is errors          # off by default
+    turned = eff.apply_to_table(errors)
+    assert turned.phi_zero_rad == {m: v + delta for m, v in errors.phi_zero_rad.items()}
+    r0, r1 = (static_rig(p, e, survey, np.random.default_rng(1), Site()) for e in (errors, turned))
+    f0, f1 = (np.column_stack([r.truth_signals[f"f_C_{a}"] for a in "xyz"]) for r in (r0, r1))
+    mounts = np.array([str(m) for m in r0.segments["mount"]])
+    pos_mount = np.concatenate([np.full(s.stop - s.start, mounts[i]) for i, s in enumerate(r0.segment_slices())])
+    for m, sign in (("z_up", 1.0), ("z_down", -1.0)):
+        k = pos_mount == m
+        np.testing.assert_allclose(f1[k], eff.specific_force(f0[k], m), rtol=0, atol=1e-13)
+        first = sign * delta * np.column_stack([f0[k, 1], -f0[k, 0], 0 * f0[k, 0]])
+        assert np.max(np.abs(f1[k] - f0[k] - first)) <= G * delta ** 2      # second order
+        assert np.max(np.abs(f1[k] - f0[k])) > 0.5 * G * delta                # and not nothing
+    np.testing.assert_allclose(r1.truth_signals["phi_true"] - r0.truth_signals["phi_true"], delta, rtol=0, atol=1e-15)
+    assert r1.meta["table_survey"] == r0.meta["table_survey"]              # the reference does not know it
+    assert eff.inject(np.array([[0.1, 0.2]]))[0, 1] == pytest.approx(0.2 + delta, abs=1e-16)

@@ -10,7 +10,7 @@ from imurig.campaigns.delft_2005 import Delft2005, fitted_sizes
 from imurig.campaigns.tilt_table import TiltTableCampaign
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.units import ARCMIN
-from imurig.montecarlo import delft_fit, delft_fit_42
+from imurig.montecarlo import delft_fit, delft_fit_42, delft_fit_44
 from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN
@@ -55,7 +55,7 @@ def test_the_preset_differs_from_the_quiet_lab_only_by_its_named_imperfections()
     assert sorted(e.name for e in lab1.effects) == sorted(e.name for e in pre.effects())
     assert lab1.pump.rms_m_s2 == pre.pump_rms_m_s2 and lab0.pump.rms_m_s2 == type(lab0.pump)().rms_m_s2
     assert all(e.seed_says for e in lab1.effects)
-    assert all(r["seed_says"] for r in pre.describe()) and sum(r["fitted"] for r in pre.describe()) == 4
+    assert all(r["seed_says"] for r in pre.describe()) and sum(r["fitted"] for r in pre.describe()) == 6
     with pytest.raises(ConfigError, match="unknown lab"):
         TiltTableCampaign(protocol=proto, lab="delft").build()
 
@@ -68,6 +68,11 @@ def test_the_preset_constants_are_the_fit_record():
     assert rec["dof"] == 12 and len(rec["z"]) == 5
     s42 = rec["table_4_2"]["sizes"]
     assert (pre.cable_offset_V, pre.pump_rms_m_s2) == (s42["cable_offset_V"]["value"], s42["pump_rms_m_s2"]["value"])
+    fin = rec["final_campaign"]["sizes"]
+    assert pre.reference_phi_error_rad == pytest.approx(fin["reference_phi_error_arcmin"]["value"] * ARCMIN)
+    assert pre.final_setting_error_rad == pytest.approx(fin["setting_error_arcmin"]["value"] * ARCMIN)
+    assert pre.reference_phi_error().delta_phi_rad == pre.reference_phi_error_rad
+    assert rec["final_campaign"]["dof"] == 4 and rec["final_campaign"]["bounds"]["reference_phi_error_arcmin"]["within"]
 
 
 def _synthetic_design():
@@ -124,3 +129,61 @@ def test_the_tab_4_2_fit_recovers_known_sizes_from_tables_made_with_them():
         misses += sum(abs(s[k]["value"] - t) > 3 * s[k]["se"]
                       for k, t in zip(("setting_error_arcmin", "pump_rms_m_s2", "cable_offset_V"), truth))
     assert misses <= 1   # 60 comparisons at 3 SE: P(> 1 miss) < 0.02
+
+
+def _final_design():
+    return {k: np.array(v) for k, v in fitted_sizes()["final_campaign"]["design"].items()}
+
+
+def test_the_seeds_covariance_of_nested_sigmas_against_a_monte_carlo():
+    """seed_covariance's (sigma_4.4, sigma_4.5) block against 300 nested regressions on 240 rows with a real
+    product term: the correlation within 0.1 (the MC correlation's SE is ~0.03 at rho ~ 0.7)."""
+    rng = np.random.default_rng(3)
+    th, ph = np.meshgrid(np.radians(np.arange(0, 91, 10)), np.radians(np.arange(0, 360, 30)), indexing="ij")
+    f = 9.81 * np.column_stack([-np.cos(ph.ravel()) * np.sin(th.ravel()), np.sin(ph.ravel()) * np.sin(th.ravel()),
+                                np.cos(th.ravel())])
+    u = np.vstack([f * [1, -1, -1], f])
+    X4 = np.column_stack([np.ones(240), u])
+    X7 = np.column_stack([X4, u[:, 0] * u[:, 1], u[:, 0] * u[:, 2], u[:, 1] * u[:, 2]])
+    s = []
+    for _ in range(300):
+        y = 1.4e-4 * X7[:, 6] + rng.normal(0, 0.005, 240)
+        s.append([np.std(y - X @ np.linalg.lstsq(X, y, rcond=None)[0], ddof=1) for X in (X4, X7)])
+    s = np.array(s)
+    y6 = delft_fit_44.targets(sig44=[s[:, 0].mean()] * 3, sig45=[s[:, 1].mean()] * 3, coef=[0.0, 0.0])
+    C = delft_fit_44.seed_covariance(y6, np.ones(2))
+    rho = C[0, 1] / math.sqrt(C[0, 0] * C[1, 1])
+    assert abs(np.corrcoef(s.T)[0, 1] - rho) < 0.1
+    assert math.sqrt(C[1, 1]) == pytest.approx(np.std(s[:, 1], ddof=1), rel=0.15)   # 300 draws: sd's SE 4 %
+
+
+def test_the_final_campaign_fit_recovers_known_sizes_from_tables_made_with_them():
+    """Six numbers drawn from the model at known (delta, w) with the seed's covariance: the GLS estimate
+    recovers them exactly without scatter, and lies within 3 SE of the truth in 20 of 20 draws (at most 1 miss)."""
+    d = _final_design()
+    truth = np.array([2.0, 5.0])
+    exact = delft_fit_44._vector(delft_fit_44.model_values(truth, d))
+    got = delft_fit_44.fit(exact, d)
+    assert [got["sizes"][k]["value"] for k in ("reference_phi_error_arcmin", "setting_error_arcmin")] == \
+        pytest.approx(truth, rel=1e-5)
+    assert got["chi2"] < 1e-8
+    C = delft_fit_44.seed_covariance(exact, d["g"])
+    rng = np.random.default_rng(44)
+    misses = 0
+    for _ in range(20):
+        s = delft_fit_44.fit(rng.multivariate_normal(exact, C), d)["sizes"]
+        misses += sum(abs(s[k]["value"] - t) > 3 * s[k]["se"]
+                      for k, t in zip(("reference_phi_error_arcmin", "setting_error_arcmin"), truth))
+    assert misses <= 1   # 40 comparisons at 3 SE: P(> 1 miss) < 0.01
+
+
+@pytest.mark.slow
+def test_the_final_campaign_fit_recovers_sizes_from_simulator_output():
+    """Tabs. 4.4-4.5 (x, y and the kept products) of one simulated final campaign at known sizes (own seed),
+    fitted with the record's design (other seeds): both sizes within 3 SE."""
+    delta, w = 2.0, 5.0
+    st = delft_fit_44.simulate(4242, w, delta)
+    y = delft_fit_44.targets(st["sigma"][0], st["sigma"][1], st["b"])
+    s = delft_fit_44.fit(y, _final_design())["sizes"]
+    assert abs(s["reference_phi_error_arcmin"]["value"] - delta) < 3 * s["reference_phi_error_arcmin"]["se"]
+    assert abs(s["setting_error_arcmin"]["value"] - w) < 3 * s["setting_error_arcmin"]["se"]

@@ -60,8 +60,8 @@ DAY = {**FINAL, "start_time": "2005-06-14T10:00:00+02:00"}
 TABLES = {"tab_4_4": ("linear", 4), "tab_4_5": ("cross", 7), "tab_4_6": ("seed_final", 8)}
 #: which quantities the final campaign's fit (:mod:`imurig.montecarlo.delft_fit_44`) took as targets
 FIT_TARGET = ("; FIT TARGET (x and y sigma of Tabs. 4.4-4.5 and the kept products fix the reference's phi error "
-              "and the day's setting error, delft_fit_44): reproduced by construction, not a prediction")
-PREDICTION = "; prediction (not a target of any fit)"
+              "and the day's setting error, delft_fit_44): reproduced by construction")
+PREDICTION = "; PREDICTION (not a target of any fit)"
 
 
 # ------------------------------------------------------------------------------------ statistics
@@ -229,7 +229,7 @@ def fig_4_14() -> list[dict]:
     rel = sigma_rel_se(N_POS, 8)
     return [row("fig_4_14", f"scatter of the plotted residuals, {ax} (std, ddof=1)", "m/s^2", seed[a],
                 float(np.std(r[a], ddof=1)), 2 * rel * seed[a],
-                f"largest |residual| {np.max(np.abs(r[a])):.2g} (the figure's frame: +-0.015)")
+                f"largest |residual| {np.max(np.abs(r[a])):.2g} (the figure's frame: +-0.015)" + PREDICTION)
             for a, ax in enumerate("xyz")]
 
 
