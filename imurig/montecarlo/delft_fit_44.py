@@ -19,7 +19,8 @@ at (w, delta) = (0, 0), (w_ref, 0), (0, delta_ref) with common random numbers, a
 The two sizes are the generalised least squares of six published numbers, sigma_4.4 and sigma_4.5
 of x and y and the two kept coefficients, with the seed's own scatter: per axis the covariance of
 (sigma_4.4, sigma_4.5) of nested fits on the same rows (:func:`seed_covariance`), the coefficients'
-standard errors s^2 (X'X)^-1 of the 'cross' design. z does not enter: delta leaves z alone, and a
+standard errors s^2 (X'X)^-1 of the 'cross' design. The design's own Monte-Carlo error is given
+apart (``design_se``, a jackknife over its labs, :func:`design_jackknife`). z does not enter: delta leaves z alone, and a
 single w cannot give z's 1.3-1.7x larger floor (a setting error puts at most twice the x variance
 into z); the fit predicts z. The tables constrain only delta's mean over the two mountings, and w
 only as one width for both wheels (a theta and a phi width are not separable by x and y alone).
@@ -123,8 +124,20 @@ def design(seeds=DESIGN_SEEDS) -> dict:
         M.append((d["sigma"] ** 2 - f0) / DELTA_REF ** 2)
         B.append((d["b"] - z["b"]) / DELTA_REF)
         G.append(z["g"])
-    return {"F": np.mean(F, 0), "S": np.mean(S, 0), "M": np.mean(M, 0), "B": np.mean(B, 0), "g": np.mean(G, 0),
-            "B_se": np.std(B, 0, ddof=1) / math.sqrt(len(seeds)), "seeds": np.array(seeds)}
+    per = {"F": np.array(F), "S": np.array(S), "M": np.array(M), "B": np.array(B), "g": np.array(G)}
+    return {**{k: v.mean(0) for k, v in per.items()}, "B_se": np.std(B, 0, ddof=1) / math.sqrt(len(seeds)),
+            "seeds": np.array(seeds), "per_seed": per}
+
+
+def design_jackknife(y: np.ndarray, d: dict) -> np.ndarray:
+    """Jackknife SE (2,) of (delta, w) over the design's labs: the fit repeated with each lab's terms left
+    out, se^2 = (n - 1) / n sum (theta_i - mean)^2 (the design's own Monte-Carlo error, which the fit's
+    SEs leave out)."""
+    per = d["per_seed"]
+    n = len(per["F"])
+    th = np.array([[fit(y, {k: np.delete(v, i, 0).mean(0) for k, v in per.items()})["sizes"][s]["value"]
+                    for s in ("reference_phi_error_arcmin", "setting_error_arcmin")] for i in range(n)])
+    return np.sqrt((n - 1) / n * np.sum((th - th.mean(0)) ** 2, axis=0))
 
 
 def model_values(theta, d: dict) -> dict:
@@ -206,8 +219,11 @@ def main(path: Path | None = None, seeds=DESIGN_SEEDS) -> dict:
     t0 = time.perf_counter()
     d = design(seeds)
     rec = fit(targets(), d)
+    for k, se in zip(("reference_phi_error_arcmin", "setting_error_arcmin"), design_jackknife(targets(), d)):
+        rec["sizes"][k]["design_se"] = float(se)
     rec["bounds"] = within_bounds(rec["sizes"])
-    rec["design"] = {k: np.asarray(v).tolist() for k, v in d.items()}
+    rec["design"] = {k: np.asarray(v).tolist() for k, v in d.items() if k != "per_seed"}
+    rec["design_per_seed"] = {k: v.tolist() for k, v in d["per_seed"].items()}
     rec["run_s"] = time.perf_counter() - t0
     path = path or Path(__file__).resolve().parents[2] / "assets" / "delft_2005_fit.json"
     whole = json.loads(path.read_text())
