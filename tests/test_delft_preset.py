@@ -159,7 +159,7 @@ def test_the_seeds_covariance_of_nested_sigmas_against_a_monte_carlo():
 
 def test_the_final_campaign_fit_recovers_known_sizes_from_tables_made_with_them():
     """Six numbers drawn from the model at known (delta, w) with the seed's covariance: the GLS estimate
-    recovers them exactly without scatter, and lies within 3 SE of the truth in 20 of 20 draws (at most 1 miss)."""
+    recovers them exactly without scatter, and lies within 3 SE of the truth in 20 draws (at most 1 miss of 40)."""
     d = _final_design()
     truth = np.array([2.0, 5.0])
     exact = delft_fit_44._vector(delft_fit_44.model_values(truth, d))
