@@ -44,6 +44,7 @@ import json
 import math
 import sys
 import time
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +79,7 @@ FREE = ("sf_sigma", "gps_jitter_s")
 FIXED = {"slip_density_V_rtHz": 20e-6 / math.sqrt(500.0)}
 
 
+@lru_cache(maxsize=1)
 def slip_profile_mean_sq() -> tuple[float, float]:
     """(<P^2> over a round, max P) of the slip rings' angle profile (the quiet lab's rough spots)."""
     s = SlipRingNoise()
@@ -179,7 +181,7 @@ def seed_values() -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit(target: np.ndarray | None = None, reading_se: np.ndarray | None = None, st: dict | None = None,
-        use=FIT_USES, free=FREE) -> dict:
+        use=FIT_USES, free=FREE, n_draws: int = N_DRAWS) -> dict:
     """Weighted least squares of the envelopes ``use`` (indices into :data:`SEED`; module doc) in the sizes
     ``free`` (the others at :data:`FIXED`), two passes (the weights' scatter at the first pass's sizes).
     ``target``: the six envelopes (default the seed's)."""
@@ -200,8 +202,8 @@ def fit(target: np.ndarray | None = None, reading_se: np.ndarray | None = None, 
 
     x = hi / 16
     for _ in range(2):
-        se = np.sqrt(reading_se**2 + envelopes(sizes(x), st)[1] ** 2)
-        res = least_squares(lambda u: ((envelopes(sizes(u * hi), st)[0] - target) / se)[use], x0=x / hi,
+        se = np.sqrt(reading_se**2 + envelopes(sizes(x), st, n_draws)[1] ** 2)
+        res = least_squares(lambda u: ((envelopes(sizes(u * hi), st, n_draws)[0] - target) / se)[use], x0=x / hi,
                             bounds=(np.zeros(len(free)), np.ones(len(free))), diff_step=1e-3)
         x = res.x * hi
     J = res.jac / hi
@@ -211,7 +213,7 @@ def fit(target: np.ndarray | None = None, reading_se: np.ndarray | None = None, 
     theta = np.sqrt(x)
     # size +- SE by the delta method (none at 0) and the two-SE upper limit sqrt(x + 2 se_x)
     sd = np.where(theta > 0, sx / (2 * np.where(theta > 0, theta, 1)), np.nan)
-    model, scatter = envelopes(sizes(x), st)
+    model, scatter = envelopes(sizes(x), st, n_draws)
     z = (model - target) / se
     at_bound = [free[k] for k in range(len(free)) if x[k] >= hi[k] * (1 - 1e-6) or x[k] <= 1e-12 * hi[k]]
     inseparable = [[free[a], free[c]] for a in range(len(free)) for c in range(a + 1, len(free))

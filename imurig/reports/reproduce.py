@@ -32,6 +32,7 @@ from imurig.kernel.errors import ConfigError
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.kernel.site import Site, parse_time
 from imurig.reports import reproduce_gyro as gyro
+from imurig.reports.reproduce_gyro_figures import FIGURES as GYRO_FIGURES
 from imurig.reports import reproduce_lab as lab
 from imurig.reports import reproduce_paper as paper
 from imurig.reports import reproduce_tilt as tilt
@@ -46,6 +47,8 @@ class Item:
     run: Callable[[], list[dict]]
     #: one sentence for the report when a quantity of the item is outside its tolerance
     if_outside: str = ""
+    #: draws the item's figure beside the seed's into the output folder (after ``run``), returns its file name
+    figure: Callable[[OutputFolder], str] | None = None
 
 
 #: one compared quantity (the row every item returns; :func:`imurig.reports.reproduce_lab.row`)
@@ -170,22 +173,27 @@ ITEMS = {i.key: i for i in (
     Item("fig_4_20", "report 4.4.3, Fig. 4.20", "the r gyro's calibration residuals at 15 rates timed by the ADC "
          "(within +-0.1 deg/s), the GPS board (+-0.06) and the HP 6700 counter (+-0.03)", gyro.fig_4_20,
          "one virtual lab's envelope scatters by a third of itself; the preset's sizes are fitted to these three "
-         "envelopes' expectations, not to this run"),
+         "envelopes' expectations, not to this run", GYRO_FIGURES["fig_4_20"]),
     Item("fig_4_21", "report 4.4.4, Fig. 4.21", "the final calibration's residuals (eq. 4.39-4.41, HP timer) per "
          "gyro against the rate: P within -0.1..0.3, Q -0.2..0.15, R +-0.1 deg/s", gyro.fig_4_21,
          "no seed-documented turn-table disturbance within its physical bound (datasheet scale-factor stability, "
          "GPS jitter below the ADC's, Fig. 4.16's slip-ring noise) lifts these envelopes above 0.02 deg/s, so the "
-         "seed's 0.1-0.3 deg/s come from something its text does not name"),
+         "seed's 0.1-0.3 deg/s come from something its text does not name", GYRO_FIGURES["fig_4_21"]),
     Item("paper_fig_2", "paper section 3.1, Fig. 2", "the z accelerometer's output (1.28-1.29 V) against its temperature "
          "sensor (2.5-3.2 V) and the r gyro's (6.0-8.5 mV) against the IMU box sensor (2.3-3.2 V) in the thermal "
          "chamber", paper.paper_fig_2, "the thermal campaign draws the gyro bias' temperature coefficient within "
          "+-2e-4 deg/s/K, where the paper's r gyro drifts ~4e-3 deg/s/K (2.5 mV over the chamber's range)"),
+    Item("paper_fig_3", "paper section 3.1, Fig. 3", "the accelerometers' calibration residuals over 120 samples: the "
+         "manufacturer's within +-0.1 (X, Z) and +-0.2 m/s^2 (Y), the own within +-0.01 m/s^2", paper.paper_fig_3,
+         "the virtual Q-Flex triad's sensitivities and biases are drawn from the datasheet's limits, not the paper's "
+         "units, so the manufacturer's residuals differ per axis from the paper's, and the own residuals of the "
+         "preset (about 0.005 m/s^2) sit at the lower edge of what the paper's axis allows"),
     Item("paper_fig_4", "paper section 3.1, Fig. 4", "the gyros' calibration residuals over 48 samples (0-300 deg/s "
          "both ways about each axis): the manufacturer's scale factors leave -30..10 deg/s, the own eq. 3 model "
          "within +-1 deg/s", gyro.paper_fig_4, "the virtual gyros' scale factors lie within +-2 % of the datasheet's "
          "6 mV/(deg/s), where the paper's -30 deg/s at 300 deg/s mean ~10 % (as the same gyro type's 5.44 mV/(deg/s) "
          "of Table B.1), and its own residuals of up to 1 deg/s are, as in Fig. 4.21, beyond every seed-documented "
-         "disturbance within its bound"),
+         "disturbance within its bound", GYRO_FIGURES["paper_fig_4"]),
     Item("paper_fig_5", "paper section 3.2, Fig. 5", "the field's X, Y and norm while the system turns level: with the "
          "own calibration the X and Y sinusoids centre on zero (+-19018 nT) and the norm is constant at ~48723 nT; "
          "with the manufacturer's the norm wanders within 44000-50000 nT", paper.paper_fig_5,
@@ -210,7 +218,6 @@ ITEMS = {i.key: i for i in (
 PENDING = {
     "tab_4_4, tab_4_5, tab_4_6, fig_4_10, fig_4_13, fig_4_14": "the Delft 2005 lab preset "
     "(built and fitted to Tab. 4.2-4.3, which run; these items are not yet wired to it)",
-    "paper fig 3 (accelerometers' manufacturer vs own residuals)": "the preset",
 }
 
 
@@ -242,6 +249,8 @@ def reproduce(which: str, out: OutputFolder, log=print) -> dict:
         L.append(md_table(["quantity", "unit", "seed", "imurig", "tolerance", "verdict", "note"],
                           [[r["quantity"], r["unit"], r["seed"], r["imurig"], r["tolerance"], r["verdict"], r["note"]]
                            for r in rows if r["item"] == k]))
+        if it.figure is not None:
+            L.append(f"\n![{k}, imurig in the seed's axes]({it.figure(out)})\n")
     if which == "all":
         L.append("\n## Not yet run by this command\n")
         L += [f"- {items}: waits for {why}" for items, why in PENDING.items()]
