@@ -147,7 +147,7 @@ ITEMS = {i.key: i for i in (
     Item("fig_4_19", "report 4.4.2, Fig. 4.19 and appendix B", "the SIMONA gyros' rate against output voltage: "
          "own linear calibration with residuals within ±0.2 °/s, the manufacturer's with residuals up to ~8 °/s",
          lab.fig_4_19, "the virtual voltmeter and gyros are quieter than SIMONA's (the SIMONA twin runs the "
-         "quiet lab; the Delft 2005 preset covers the tilt table only)"),
+         "quiet lab; the Delft 2005 preset covers the tilt table and the MiniSAR IMU's turn-table campaigns)"),
     Item("b_1_round_times", "report appendix B, Table B.1", "round times at 24 dial rates, 1-8 % longer than "
          "360° over 5/6 of the dial rate", lab.b_1_round_times),
     Item("tab_4_7", "report 4.8, Table 4.7", "the time to calibrate the accelerometers: 15 min warm-up, 15 s per "
