@@ -16,17 +16,20 @@ residuals inside the seed's envelope, side by side with it.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
 
 from imurig.calibration.gyro import GyroCalibration
+from imurig.calibration.preprocess import segment_statistic
 from imurig.campaigns.delft_2005_turn import fitted_turn_sizes
 from imurig.campaigns.turn_table import TurnTableCampaign, timer_study
 from imurig.montecarlo.delft_fit_turn import FINAL_PROTOCOL, SEED, seed_values
 from imurig.reports.common import published_figures
 from imurig.reports.reproduce_lab import row
 from imurig.rigs.tilt_kinematics import reference_specific_force
+from imurig.rigs.turn_table import TurnTableErrors, TurnTableProtocol
 
 #: the final calibration runs at the seed's logged rate (data low-passed and downsampled to 100 Hz,
 #: appendix C.1.1); the preset's slip rings are a density, so the window means do not change
@@ -50,7 +53,7 @@ def _timer_run() -> dict:
 
 @lru_cache(maxsize=1)
 def _final_run():
-    proto = FINAL_PROTOCOL.__class__(**{**FINAL_PROTOCOL.to_dict(), "sample_rate_hz": FINAL_SAMPLE_RATE_HZ})
+    proto = replace(FINAL_PROTOCOL, sample_rate_hz=FINAL_SAMPLE_RATE_HZ)
     rec = TurnTableCampaign(protocol=proto, seed=BASE_SEED, lab="delft-2005").simulate()
     return rec, GyroCalibration(model="seed_final", timer="hp6700", gls=False).fit(rec)
 
@@ -119,12 +122,9 @@ FIG4_OWN = {"p": (1.0, 1.0), "q": (1.0, 0.5), "r": (1.0, 0.5)}
 
 @lru_cache(maxsize=1)
 def _paper_run():
-    from imurig.calibration.preprocess import segment_statistic
-    from imurig.rigs.turn_table import TurnTableErrors
-
     e = TurnTableErrors()
     dial = tuple(float(r / (e.mains_factor * (1 - e.slip(r / e.mains_factor)))) for r in PAPER_RATES_DPS)
-    proto = FINAL_PROTOCOL.__class__(dial_rates_dps=dial, min_window_s=3.0, sample_rate_hz=FINAL_SAMPLE_RATE_HZ)
+    proto = TurnTableProtocol(dial_rates_dps=dial, min_window_s=3.0, sample_rate_hz=FINAL_SAMPLE_RATE_HZ)
     rec = TurnTableCampaign(protocol=proto, seed=BASE_SEED + 1, lab="delft-2005").simulate()
     cal = GyroCalibration(model="paper_eq3", timer="hp6700", gls=False).fit(rec)
     volts = segment_statistic(cal.windows_, ["gyro_p", "gyro_q", "gyro_r"], "mean")
