@@ -85,3 +85,21 @@ def test_the_model_predicts_the_simulated_timer_study():
     rec = fitted_turn_sizes()
     for k, (_, timer, _, _) in enumerate(F.SEED[:3]):
         assert abs(ts[timer]["envelope_dps"] - rec["model"][k]) <= 3 * rec["scatter"][k], timer
+
+
+def test_gls_covariance_holds_the_scale_factor_wander():
+    """segment_covariance's wander term on one window equals Omega^2 var(mean s over T) (the effect's own
+    closed form); across blocks (remounts) the windows are independent."""
+    from imurig.calibration.gyro import segment_covariance
+    from imurig.kernel.recording import Recording
+
+    t = np.arange(0.0, 100.0, 0.1)
+    rec = Recording(time_s=t, channels={"x": np.zeros_like(t)}, units={"x": "V"},
+                    segments={"start_s": np.array([5.0, 40.0]), "stop_s": np.array([25.0, 52.0])},
+                    segment_units={"start_s": "s", "stop_s": "s"}, meta={}).validate()
+    w = np.array([1.0, -2.0])
+    eff = GyroScaleInstability(enabled=True, sigma=3e-4, tau_s=10.0)
+    cov = segment_covariance(rec, w, {"scale_instability": eff.sigma, "scale_instability_tau_s": eff.tau_s}, 0.0)
+    np.testing.assert_allclose(np.diag(cov), w**2 * eff.window_variance(np.array([20.0, 12.0])), rtol=1e-12)
+    assert cov[0, 1] < 0                                    # opposite rates, a shared positive wander
+    assert np.array_equal(segment_covariance(rec, w, {}, 0.0), np.zeros((2, 2)))
