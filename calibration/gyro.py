@@ -235,7 +235,10 @@ def segment_covariance(rec_windows: Recording, table_rate: np.ndarray, noise: di
       and 2 tau^2 (T/tau - 1 + e^-T/tau) for a window with itself;
       windows in different blocks (remounts) are taken as independent;
     - the reference rate from the timer: (Omega_i sigma_dT / T_i)^2 on the diagonal, with
-      sigma_dT the timer's error on a round-time difference.
+      sigma_dT the timer's error on a round-time difference;
+    - a scale-factor wander, Gauss-Markov (sigma_s, tau_s; ``scale_instability`` and
+      ``scale_instability_tau_s`` in ``noise`` when the lab has one): Omega_i Omega_j sigma_s^2 times
+      the same window integrals with tau_s, over (T_i T_j).
     """
     a = np.asarray(rec_windows.segments["start_s"], float)
     b = np.asarray(rec_windows.segments["stop_s"], float)
@@ -244,19 +247,28 @@ def segment_covariance(rec_windows: Recording, table_rate: np.ndarray, noise: di
     sb = noise.get("bias_instability_rad_s", 0.0)
     tau = noise.get("bias_instability_tau_s", 100.0)
     cov = np.diag(N**2 / T + (table_rate * timer_sigma_s / T) ** 2)
+    block = _block_index(rec_windows, a)
     if sb > 0:
-        # order so that i precedes j: for i < j in time use the disjoint formula
-        ai, aj = a[:, None], a[None, :]
-        bi, bj = b[:, None], b[None, :]
-        first_a, first_b = np.where(ai <= aj, ai, aj), np.where(ai <= aj, bi, bj)
-        second_a, second_b = np.where(ai <= aj, aj, ai), np.where(ai <= aj, bj, bi)
-        e = lambda x: np.exp(-np.clip(x, 0, None) / tau)  # noqa: E731
-        I = tau**2 * (e(second_a - first_b) - e(second_a - first_a) - e(second_b - first_b) + e(second_b - first_a))
-        I[np.diag_indices_from(I)] = 2 * tau**2 * (T / tau - 1 + np.exp(-T / tau))
-        block = _block_index(rec_windows, a)
-        I = np.where(block[:, None] == block[None, :], I, 0.0)
-        cov = cov + sb**2 * I / np.outer(T, T)
+        cov = cov + sb**2 * _gauss_markov_window_integrals(a, b, tau, block) / np.outer(T, T)
+    ss = noise.get("scale_instability", 0.0)
+    if ss > 0:
+        I = _gauss_markov_window_integrals(a, b, noise.get("scale_instability_tau_s", 10.0), block)
+        cov = cov + ss**2 * np.outer(table_rate, table_rate) * I / np.outer(T, T)
     return cov
+
+
+def _gauss_markov_window_integrals(a: np.ndarray, b: np.ndarray, tau: float, block: np.ndarray) -> np.ndarray:
+    """int_Ii int_Ij exp(-|t - s| / tau) ds dt for the windows [a_i, b_i) (segment_covariance's doc); 0 across blocks."""
+    T = b - a
+    # order so that i precedes j: for i < j in time use the disjoint formula
+    ai, aj = a[:, None], a[None, :]
+    bi, bj = b[:, None], b[None, :]
+    first_a, first_b = np.where(ai <= aj, ai, aj), np.where(ai <= aj, bi, bj)
+    second_a, second_b = np.where(ai <= aj, aj, ai), np.where(ai <= aj, bj, bi)
+    e = lambda x: np.exp(-np.clip(x, 0, None) / tau)  # noqa: E731
+    I = tau**2 * (e(second_a - first_b) - e(second_a - first_a) - e(second_b - first_b) + e(second_b - first_a))
+    I[np.diag_indices_from(I)] = 2 * tau**2 * (T / tau - 1 + np.exp(-T / tau))
+    return np.where(block[:, None] == block[None, :], I, 0.0)
 
 
 def _block_index(rec: Recording, t: np.ndarray) -> np.ndarray:

@@ -23,6 +23,8 @@ from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.simona import MANUFACTURER_SENSITIVITY_V_PER_RAD_S
 from imurig.calibration.terms import TermLibrary
 from imurig.calibration.gls import delta_cov
+from imurig.campaigns.delft_2005 import check_lab
+from imurig.campaigns.delft_2005_turn import Delft2005Turn
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
@@ -30,6 +32,7 @@ from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import TURN_TABLE_SCAN, ImuLab
 from imurig.sensors.disturbances import SlipRingNoise
+from imurig.sensors.effects.gyro_scale_instability import GyroScaleInstability
 from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.voltmeter import AutoscaleVoltmeter
 from imurig.kernel.site import Site
@@ -54,6 +57,9 @@ class TurnTableCampaign:
     slip_rings: bool = True
     mains_hz: float = 50.0
     site: Site = field(default_factory=Site)
+    #: "quiet" (default) or "delft-2005": the seed's turn-table disturbances at sizes fitted to Figs. 4.20-4.21
+    #: (:mod:`imurig.campaigns.delft_2005_turn`)
+    lab: str = "quiet"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -65,6 +71,8 @@ class TurnTableCampaign:
         base = (ImuLab.draw(random_streams.generator("sensor_errors", self.seed)) if self.draw_sensor_errors
                 else ImuLab())
         lab = replace(base, adc=DAQ6036E(scan_list=TURN_TABLE_SCAN), slip_rings=SlipRingNoise(enabled=self.slip_rings))
+        if check_lab(self.lab) == "delft-2005":
+            lab = Delft2005Turn.fitted().apply(lab, self.protocol.sample_rate_hz, self.slip_rings)
         return table, lab, random_streams.seed_sequence("campaign/turn-table/sensor-chain", self.seed)
 
     def check_identifiable(self) -> None:
@@ -104,9 +112,19 @@ class TurnTableCampaign:
         rig = table.simulate(self.protocol, self.start_time,
                              random_streams.generator("campaign/turn-table/rig", self.seed))
         rec = lab.measure(rig, ss)
+        note_scale_instability(rec, lab)
         rec.meta["campaign"] = {"name": "turn-table", **self.to_dict()}
         rec.truth["seed"] = self.seed
         return rec
+
+
+def note_scale_instability(rec: Recording, lab: ImuLab) -> None:
+    """A lab whose gyros' scale factor wanders (the Delft 2005 preset) says so in the record's noise model,
+    as it states the gyros' random walk, so the GLS fit weighs each step by it (``segment_covariance``)."""
+    for e in lab.effects:
+        if e.name == GyroScaleInstability.name and e.enabled and e.sigma > 0:
+            rec.meta.setdefault("gyro_noise_model", {}).update(scale_instability=e.sigma,
+                                                                scale_instability_tau_s=e.tau_s)
 
 
 # ------------------------------------------------------------------- gyro analysis
@@ -124,13 +142,13 @@ def gyro_parameters(cal: GyroCalibration, rec: Recording) -> list[dict]:
 
 # ------------------------------------------------------------------- timer study
 def timer_study(seed: int = 2005, rates_dps=TIMER_STUDY_RATES_DPS, start_time="2005-06-16T18:00:00+02:00",
-                min_window_s: float = 3.0) -> dict:
+                min_window_s: float = 3.0, lab: str = "quiet") -> dict:
     """Section 4.4.3: the r gyro (r up) at each rate, about ``min_window_s`` of whole rounds
     each (at least one), calibrated with the rate from each timer. Returns per timer the
     residuals (deg/s) per step and their envelope."""
     camp = TurnTableCampaign(protocol=TurnTableProtocol(dial_rates_dps=tuple(rates_dps), directions=(1,),
                                                         mounts=("r_up",), min_window_s=min_window_s),
-                             seed=seed, start_time=start_time, model="linear")
+                             seed=seed, start_time=start_time, model="linear", lab=lab)
     # a single axis on the table: fit the r gyro alone, Omega = b0 + b1 V_r + b2 V_r^2 (the
     # square takes up the gyro's nonlinearity, so the residuals show the timers)
     table, lab, _ = camp.build()

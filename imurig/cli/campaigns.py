@@ -122,6 +122,9 @@ def _turn_table_args(p):
                    help="gyro calibration model (paper_eq3: the EUCASS paper's eq. 3, own axis to the cube)")
     p.add_argument("--mains-hz", type=float, default=50.0, help="mains frequency of the synchronous motor")
     p.add_argument("--no-slip-rings", action="store_true", help="no slip-ring noise")
+    p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
+                   help="the virtual lab: quiet (default) or delft-2005 (the seed's turn-table disturbances, sizes "
+                        "fitted to Figs. 4.20-4.21)")
     p.add_argument("--no-studies", action="store_true", help="skip the timer, arm and SIMONA studies")
     p.add_argument("--no-rrd", action="store_true")
     p.add_argument("--no-recording", action="store_true")
@@ -185,7 +188,7 @@ def _run_turn_table(a):
     proto = TurnTableProtocol(dial_rates_dps=a.rates, directions=tuple(int(d) for d in a.directions),
                               mounts=a.mounts, min_window_s=a.min_window)
     camp = TurnTableCampaign(protocol=proto, seed=a.seed, timer=a.timer, model=a.model, mains_hz=a.mains_hz,
-                             slip_rings=not a.no_slip_rings)
+                             slip_rings=not a.no_slip_rings, lab=a.lab)
     print(f"imurig: turn-table campaign, {len(proto.steps())} steps, seed {a.seed} -> {a.out}", file=sys.stderr)
     s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording,
             studies=not a.no_studies)

@@ -97,6 +97,7 @@ CHILD_STREAMS: dict[str, str] = {
     "sensor-chain/gyros": "FOG angle random walk and bias instability",
     "sensor-chain/temp_{sensor}": "noise of one temperature sensor line (temp_acc_x, ..., temp_box)",
     "sensor-chain/slip_{line}": "slip-ring contact noise on one analog line",
+    "sensor-chain/gyro_scale_{line}": "the gyro scale-factor wander of one gyro line (gyro_p, gyro_q, gyro_r)",
     "sensor-chain/cable": "loose-cable spikes",
     "sensor-chain/adc": "DAQ-6036E noise and dither",
     "sensor-chain/gps_mark": "the GPS receiver's event-mark timer",

@@ -136,6 +136,15 @@ def tab_4_7() -> list[dict]:
     return out
 
 
+@lru_cache(maxsize=None)
+def flight_study(flight: str):
+    """``imurig flight --flight <flight>`` (default options), once per process: the van's ground test serves
+    paper Figs. 8 and 9, the static tests Figs. 6 and 7."""
+    from imurig.campaigns.flight import FlightOptions, fly   # lazy: the flight stack is only needed here
+
+    return fly(FlightOptions(flight=flight))
+
+
 def paper_fig_8() -> list[dict]:
     """Paper Fig. 8, the van's ground test (section 4.3): the heading from the magnetometer changes by
     ~10 deg when the manufacturer's calibration is replaced by the own off-line calibration.
@@ -146,11 +155,11 @@ def paper_fig_8() -> list[dict]:
     moves faster than 3 m/s, with the datasheet (manufacturer) conversion against the own
     two-step ellipsoid calibration. Tolerance: half the 5-deg tick spacing of the figure's
     residual axis, which is all the precision the figure gives."""
-    from imurig.campaigns.flight import FlightOptions, declination_model, fly   # lazy: the flight stack
+    from imurig.campaigns.flight import declination_model   # lazy: the flight stack
     from imurig.campaigns.flight_filter import compass_heading
     from imurig.flights import earth
 
-    st = fly(FlightOptions(flight="van"))
+    st = flight_study("van")
     tr = st.truth
     i = np.arange(0, tr.n, max(1, round(tr.rate_hz)))
     i = i[np.linalg.norm(tr.v_N[i, :2], axis=1) > 3.0]

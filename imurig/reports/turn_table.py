@@ -233,7 +233,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             figs = {}
             if studies:
                 stage("timer study")
-                ts = timer_study(camp.seed)
+                ts = timer_study(camp.seed, lab=camp.lab)
                 stage("arm study")
                 arm = arm_study(camp.seed)
                 stage("SIMONA")

@@ -1,0 +1,81 @@
+"""The Delft 2005 preset on the turn table (issue 17): the seed's documented disturbances of 4.4.x at
+sizes fitted to the residual envelopes of Figs. 4.20-4.21 (:mod:`imurig.montecarlo.delft_fit_turn`,
+record in assets/delft_2005_turn_fit.json; this module only reads it).
+
+* the gyros' steady-state scale-factor instability, effect ``gyro_scale_instability``
+  (datasheet A.2: "SF stability (steady state) 0.03%"), fitted;
+* the GPS board's mark-input jitter (seed 4.4.3), fitted; the ADC times edges at its 1 kHz
+  samples (1 ms, seed 4.4.3) and the HP 6700 counter at 1 us, as in the quiet lab;
+* the slip rings' contact noise (seed 4.4.1, Fig. 4.16) as a density, so that a record at any
+  sample rate f_s carries the per-sample rms density sqrt(f_s / 2); the figures cannot tell it from
+  the scale factor, so it stays at the quiet lab's level (20 uV per 1 kHz sample).
+
+``TurnTableCampaign(lab="delft-2005")`` (CLI ``imurig campaign turn-table --lab delft-2005``) builds
+its sensor chain through :meth:`Delft2005Turn.apply`.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from functools import lru_cache
+from importlib import resources
+
+from imurig.kernel.errors import ConfigError
+from imurig.sensors.chain import ImuLab
+from imurig.sensors.effects.gyro_scale_instability import GyroScaleInstability
+from imurig.sensors.effects.slip_rings import SlipRingNoise
+from imurig.sensors.effects.timer_quantisation import TimerQuantisation
+from imurig.sensors.timers import gps_mark_timer, hp6700_counter
+
+FIT_ASSET = "delft_2005_turn_fit.json"
+GPS_JITTER_SEED_SAYS = ("4.4.3: 'The GPS board internal clock is corrected by the GPS system continuously and reaches a "
+                        "higher accuracy as the time measurement with the ADC card'")
+
+
+@lru_cache(maxsize=1)
+def fitted_turn_sizes() -> dict:
+    """The turn-table fit's record (sizes, standard errors, bounds, chi^2) from the package assets."""
+    try:
+        text = resources.files("imurig.assets").joinpath(FIT_ASSET).read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"the Delft 2005 turn-table fit record {FIT_ASSET} is missing from the package assets; "
+                          "run 'python -m imurig.montecarlo.delft_fit_turn' to write it") from None
+    return json.loads(text)
+
+
+@dataclass(frozen=True)
+class Delft2005Turn:
+    """The turn table's preset sizes (SI: relative scale factor, s, V/sqrt(Hz))."""
+
+    sf_sigma: float
+    gps_jitter_s: float
+    slip_density_V_rtHz: float
+    sf_tau_s: float = 10.0
+
+    @classmethod
+    def fitted(cls) -> "Delft2005Turn":
+        s = fitted_turn_sizes()["sizes"]
+        return cls(sf_sigma=s["sf_sigma"]["value"], gps_jitter_s=s["gps_jitter_s"]["value"],
+                   slip_density_V_rtHz=s["slip_density_V_rtHz"]["value"])
+
+    def slip_rings(self, sample_rate_hz: float, enabled: bool = True) -> SlipRingNoise:
+        """The slip rings at a record's sample rate: rms per sample = density sqrt(f_s / 2)."""
+        return SlipRingNoise(enabled=enabled, rms_V=self.slip_density_V_rtHz * math.sqrt(sample_rate_hz / 2))
+
+    def apply(self, lab: ImuLab, sample_rate_hz: float, slip_rings: bool = True) -> ImuLab:
+        """The quiet chain ``lab`` with the preset's slip rings, timers and gyro scale-factor wander."""
+        gps = replace(gps_mark_timer(), jitter_s=self.gps_jitter_s)
+        sf = GyroScaleInstability(enabled=True, sigma=self.sf_sigma, tau_s=self.sf_tau_s)
+        return replace(lab, slip_rings=self.slip_rings(sample_rate_hz, slip_rings), timers=(gps, hp6700_counter()),
+                       effects=(*lab.effects, sf))
+
+    def describe(self) -> list[dict]:
+        """One row per disturbance: size, SE, fitted or not, the seed's sentence."""
+        s = fitted_turn_sizes()["sizes"]
+        return [{"effect": GyroScaleInstability.name, "size": f"sigma {self.sf_sigma:.3g} (tau {self.sf_tau_s:g} s)",
+                 "fitted": True, "se": s["sf_sigma"]["se"], "seed_says": GyroScaleInstability.seed_says},
+                {"effect": TimerQuantisation.name + " (GPS mark)", "size": f"jitter {self.gps_jitter_s * 1e3:.3g} ms",
+                 "fitted": True, "se": s["gps_jitter_s"]["se"], "seed_says": GPS_JITTER_SEED_SAYS},
+                {"effect": SlipRingNoise.name, "size": f"{self.slip_density_V_rtHz * 1e6:.3g} uV/sqrt(Hz)",
+                 "fitted": False, "se": None, "seed_says": SlipRingNoise.seed_says}]
