@@ -152,9 +152,9 @@ class LooseEKF(Estimator):
     (:class:`ImuNoise`, default ``ImuNoise()``), ``lever_gps_B`` (3,) m the antenna relative to the
     IMU in body axes, ``declination`` the IGRF declination in rad (east positive), a constant or a
     callable D(lat_rad, lon_rad, h_m) such as :class:`IgrfDeclination`, ``compiled`` whether the paper's
-    18-state filter runs its propagation between updates in compiled code
-    (:mod:`imurig.flights.ekf_kernel`, the default; False: the plain Python path, the reference it
-    is tested against; the larger filters always run in Python).
+    18-state filter (also with the receiver's error states) runs its propagation between updates
+    in compiled code (:mod:`imurig.flights.ekf_kernel`, the default; False: the plain Python path,
+    the reference it is tested against; with sensor-error or compass states it always runs in Python).
 
     Fitted: ``solution_`` (:class:`FilterResult`), the filtered solution at the navigation epochs.
     """
@@ -261,7 +261,7 @@ class LooseEKF(Estimator):
         mag_every = max(1, round(c.nav_rate_hz / c.mag_rate_hz)) if (c.use_magnetometer and ep.B_B is not None) else 0
         temp_every = max(1, round(c.nav_rate_hz / c.temp_rate_hz)) if ep.T_acc_K is not None else 0
         spans = None
-        if self.compiled and st.lay.n == 18:     # the paper's filter: the epochs between updates compiled
+        if self.compiled and st.compilable:   # the paper's states: the epochs between updates compiled
             from imurig.flights import ekf_kernel   # lazy: numba (~0.4 CPU-s to import)
             spans = ekf_kernel.SpanPropagator(st, ep, rec)
         gps_at = sorted(sched.at) if sched is not None else []

@@ -21,6 +21,7 @@ an 18-state filter runs (:mod:`imurig.flights.ekf`), never by the CLI's start-up
 """
 from __future__ import annotations
 
+import math
 import types
 from pathlib import Path
 
@@ -125,12 +126,12 @@ def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, w_B,
     """Propagate from epoch ``k0`` to ``k1`` (> k0), recording the epochs k0+1 .. k1−1.
 
     ``C0`` (9,) C_NB the step from k0 linearises at (row-major; later steps use the current attitude);
-    ``nav`` (10,) [lat, lon, h, v_N (3), q_NB (4)] in/out; ``P`` (18, 18) in/out; ``F`` (18, 18) with
-    its constant entries (rows δv̇, ψ̇ rewritten); ``qc`` (18,) the diagonal of Q; ``corr`` (4, 3) the
+    ``nav`` (10,) [lat, lon, h, v_N (3), q_NB (4)] in/out; ``P`` (n, n) in/out; ``F`` (n, n) with its
+    constant entries (rows δv̇, ψ̇ of the 18 base states rewritten); ``qc`` (n,) the diagonal of Q; ``corr`` (4, 3) the
     corrections (b̂_g, ŝ_g, ŝ_a, b̂_a + k_T (T̂_a − T_ref)); ``kT`` (3,); the epoch data ``dtheta``, ``dv``
-    (M, 3), ``f_B``, ``w_B`` (M+1, 3); ``work`` (3, 18, 18) scratch; the record ``rec_nav`` (M+1, 10),
-    ``rec_Pd`` (M+1, 18), ``rec_Pn`` (M+1, 9, 9). Same operations as
-    :func:`imurig.flights.ekf_model.propagate` for the 18 states."""
+    (M, 3), ``f_B``, ``w_B`` (M+1, 3); ``work`` (3, n, n) scratch; the record ``rec_nav`` (M+1, 10),
+    ``rec_Pd`` (M+1, n), ``rec_Pn`` (M+1, 9, 9). Same operations as
+    :func:`imurig.flights.ekf_model.propagate` (n = 18, or 21 with the receiver's error)."""
     n = P.shape[0]
     C = (C0[0], C0[1], C0[2], C0[3], C0[4], C0[5], C0[6], C0[7], C0[8])
     kt = (kT[0], kT[1], kT[2])
@@ -163,15 +164,18 @@ def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, w_B,
 
 class SpanPropagator:
     """:func:`propagate_span` on a run's :class:`imurig.flights.ekf_state.FilterState` ``st``, epoch
-    data ``ep`` and record ``rec`` (18 states): :meth:`run` takes the filter from epoch k to k1."""
+    data ``ep`` and record ``rec``: :meth:`run` takes the filter from epoch k to k1. For the 18 base
+    states, optionally with the receiver's Gauss-Markov position error (``st.compilable``)."""
 
     def __init__(self, st, ep, rec):
-        if st.lay.n != 18:
-            raise ValueError(f"the compiled propagation is for the 18 base states, not {st.lay.n}")
+        if not st.compilable:
+            raise ValueError(f"the compiled propagation does not cover these states: {st.cfg.state_names()}")
+        n = st.lay.n
         self.st, self.T, self.rec = st, float(ep.T), rec
         self.data = tuple(np.ascontiguousarray(a, dtype=float) for a in (ep.dtheta_B, ep.dv_B, ep.f_B, ep.w_B))
-        self.work = np.empty((3, 18, 18))
+        self.work = np.empty((3, n, n))
         self.nav = np.empty(10)
+        self.phi_gps = None if st.lay.G is None else math.exp(-self.T / st.cfg.gps_pos_tau_s)
 
     def run(self, k: int, k1: int, C) -> None:
         """From epoch k (recorded, updates done; ``C`` the 9-tuple C_NB to linearise at) to k1 > k,
@@ -184,4 +188,7 @@ class SpanPropagator:
                        corr, st.dynamics.kT, *self.data, self.work, self.rec.nav, self.rec.P_diag, self.rec.P_nav)
         lat, lon, h, *vq = nav.tolist()
         st.x = type(x)(lat, lon, h, np.array(vq[:3]), np.array(vq[3:]))
+        if self.phi_gps is not None:            # the receiver's error estimate decays (as propagate does)
+            for _ in range(k1 - k):
+                st.bgps = st.bgps * self.phi_gps
 

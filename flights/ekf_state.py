@@ -121,6 +121,14 @@ class FilterState:
         self.version = 0
         self._corrections = (-1, None)
 
+    @property
+    def compilable(self) -> bool:
+        """Whether the compiled span propagation (:mod:`imurig.flights.ekf_kernel`) covers this
+        configuration: the 18 base states, optionally the receiver's error (its decay is constant in
+        F); no sensor-error columns in F, no compass or gyro Gauss-Markov states (which change the
+        estimates between updates)."""
+        return not self.dynamics.optional and self.lay.mag is None and self.lay.GM is None
+
     def corrections(self) -> tuple:
         """(b̂_g, ŝ_g, ŝ_a, f̂_corr) as lists of floats, f̂_corr = b̂_a + k_T (T̂_a − T_ref) the
         accelerometers' bias correction, recomputed only when ``version`` has changed."""
