@@ -115,7 +115,8 @@ def main(argv=None) -> dict:
     cpu = statistics.median(r[2] for r in runs)
     ins_wall = statistics.median(r[1] for r in ins_runs)
     epochs = int(res.time_s.size)
-    out = {"filter": a.filter, "compiled": f.compiled and cfg.n_states == 18, "states": cfg.n_states, "duration_s": dur, "imu_samples": n,
+    out = {"filter": a.filter, "compiled": f.compiled and cfg.n_states == 18,
+           "states": cfg.n_states, "duration_s": dur, "imu_samples": n,
            "imu_rate_hz": tr.rate_hz, "nav_rate_hz": a.nav_rate, "epochs": epochs, "repeats": a.repeats,
            "filter_epochs_per_s": epochs / wall, "filter_real_time_factor": dur / wall,
            "filter_wall_s": wall, "filter_wall_s_all": [round(r[1], 4) for r in runs],

@@ -122,14 +122,20 @@ def _covariance_step(P, F, qc, T, FT, Phi, tmp):
 
 
 @_jit
-def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, w_B, work, rec_nav, rec_Pd, rec_Pn):
+def _corrected(x, b, s, T):
+    """(x − b T)(1 − s) per axis, a 3-tuple (the corrections of ``ekf_model._corrected_increments``)."""
+    return ((x[0] - b[0] * T) * (1.0 - s[0]), (x[1] - b[1] * T) * (1.0 - s[1]), (x[2] - b[2] * T) * (1.0 - s[2]))
+
+
+@_jit
+def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, work, rec_nav, rec_Pd, rec_Pn):
     """Propagate from epoch ``k0`` to ``k1`` (> k0), recording the epochs k0+1 .. k1−1.
 
     ``C0`` (9,) C_NB the step from k0 linearises at (row-major; later steps use the current attitude);
     ``nav`` (10,) [lat, lon, h, v_N (3), q_NB (4)] in/out; ``P`` (n, n) in/out; ``F`` (n, n) with its
-    constant entries (rows δv̇, ψ̇ of the 18 base states rewritten); ``qc`` (n,) the diagonal of Q; ``corr`` (4, 3) the
-    corrections (b̂_g, ŝ_g, ŝ_a, b̂_a + k_T (T̂_a − T_ref)); ``kT`` (3,); the epoch data ``dtheta``, ``dv``
-    (M, 3), ``f_B``, ``w_B`` (M+1, 3); ``work`` (3, n, n) scratch; the record ``rec_nav`` (M+1, 10),
+    constant entries (rows δv̇, ψ̇ of the 18 base states rewritten); ``qc`` (n,) the diagonal of Q;
+    ``corr`` (4, 3) the corrections (b̂_g, ŝ_g, ŝ_a, b̂_a + k_T (T̂_a − T_ref)); ``kT`` (3,); the epoch
+    data ``dtheta``, ``dv`` (M, 3), ``f_B`` (M+1, 3); ``work`` (3, n, n) scratch; the record ``rec_nav`` (M+1, 10),
     ``rec_Pd`` (M+1, n), ``rec_Pn`` (M+1, 9, 9). Same operations as
     :func:`imurig.flights.ekf_model.propagate` (n = 18, or 21 with the receiver's error)."""
     n = P.shape[0]
@@ -142,12 +148,9 @@ def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, w_B,
                 rec_Pd[k, i] = P[i, i]
             rec_Pn[k, :, :] = P[:9, :9]
             C = _nm.dcm((nav[6], nav[7], nav[8], nav[9]))
-        dth = ((dtheta[k, 0] - corr[0, 0] * T) * (1.0 - corr[1, 0]), (dtheta[k, 1] - corr[0, 1] * T) * (1.0 - corr[1, 1]),
-               (dtheta[k, 2] - corr[0, 2] * T) * (1.0 - corr[1, 2]))
-        dvc = ((dv[k, 0] - corr[3, 0] * T) * (1.0 - corr[2, 0]), (dv[k, 1] - corr[3, 1] * T) * (1.0 - corr[2, 1]),
-               (dv[k, 2] - corr[3, 2] * T) * (1.0 - corr[2, 2]))
-        f_in = ((f_B[k, 0] - corr[3, 0]) * (1 - corr[2, 0]), (f_B[k, 1] - corr[3, 1]) * (1 - corr[2, 1]),
-                (f_B[k, 2] - corr[3, 2]) * (1 - corr[2, 2]))
+        dth = _corrected(dtheta[k], corr[0], corr[1], T)       # (Δθ − b̂_g T)(1 − ŝ_g)
+        dvc = _corrected(dv[k], corr[3], corr[2], T)           # (Δv − f̂_corr T)(1 − ŝ_a)
+        f_in = _corrected(f_B[k], corr[3], corr[2], 1.0)       # (f − f̂_corr)(1 − ŝ_a)
         lat, lon, h = nav[0], nav[1], nav[2]
         v = (nav[3], nav[4], nav[5])
         r0 = _nm.rates(lat, h, v[0], v[1])
@@ -172,7 +175,7 @@ class SpanPropagator:
             raise ValueError(f"the compiled propagation does not cover these states: {st.cfg.state_names()}")
         n = st.lay.n
         self.st, self.T, self.rec = st, float(ep.T), rec
-        self.data = tuple(np.ascontiguousarray(a, dtype=float) for a in (ep.dtheta_B, ep.dv_B, ep.f_B, ep.w_B))
+        self.data = tuple(np.ascontiguousarray(a, dtype=float) for a in (ep.dtheta_B, ep.dv_B, ep.f_B))
         self.work = np.empty((3, n, n))
         self.nav = np.empty(10)
         self.phi_gps = None if st.lay.G is None else math.exp(-self.T / st.cfg.gps_pos_tau_s)
