@@ -19,7 +19,7 @@ the ratio of the medians, which the load affects less than the absolute times.
 
 The paper's 18 states run their propagation between updates compiled (numba,
 ``imurig.flights.ekf_kernel``); the warm-up run compiles it (the first time after an install or an
-edit, ~8 CPU-s) or loads it from the on-disk cache, and is not counted.
+edit, ~4.5 CPU-s) or loads it from the on-disk cache, and is not counted.
 """
 from __future__ import annotations
 

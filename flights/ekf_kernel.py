@@ -7,17 +7,19 @@ filter only propagates: per epoch the corrected increments, the INS step
 
     Φ = I + F T + ½ (F T)²,   P ← Φ (P + ½ Q T) Φᵀ + ½ Q T     (Q diagonal)
 
-and the record of the epoch. Called from Python that is ~60 µs per epoch, mostly the overhead
-of small numpy calls and float objects; :func:`propagate_span` does the whole span in compiled
-code. The navigation equations and F are *the same Python source* as the plain-float path, compiled
-by :func:`_compiled` (so there is one copy of the maths); only the span loop and the 18 × 18
-products are written here. Results agree with the Python path to rounding (matrix products summed
-in another order: ~1e-15 relative per epoch; tested).
+and the record of the epoch (also with the receiver's Gauss-Markov error states: 21). Called from
+Python that is ~60 µs per epoch, mostly the overhead of small numpy calls and float objects;
+:func:`propagate_span` does the whole span in compiled code (~5 µs per epoch). The navigation
+equations and F are *the same Python source* as the plain-float path, compiled by :func:`_compiled`
+(one copy of the maths); only the span loop and the n × n products are written here. Results agree
+with the Python path to rounding (matrix products summed in another order; tested).
 
-Cost: numba + llvmlite (~210 MB installed), ~0.4 CPU-s to import and, on the first run after an
-install or an edit of the compiled functions, ~5 s of compilation; the machine code is then cached
-on disk next to the sources (``cache=True``) and loaded in ~0.1 s. This module is imported only when
-an 18-state filter runs (:mod:`imurig.flights.ekf`), never by the CLI's start-up.
+Cost: numba + llvmlite (~210 MB installed), ~0.3 CPU-s to import numba, ~0.2 CPU-s to load the cached
+machine code; on the first run after an install or an edit of the compiled functions ~4.5 CPU-s of
+compilation, cached on disk next to the sources (``cache=True``). Loops are written element by
+element (no slice assignments, no indexing of nested tuples): that halves the compilation. This
+module is imported only when such a filter runs (:mod:`imurig.flights.ekf`), never at the CLI's
+start-up.
 """
 from __future__ import annotations
 
@@ -143,10 +145,13 @@ def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, work
     kt = (kT[0], kT[1], kT[2])
     for k in range(k0, k1):
         if k > k0:                                       # the record of epoch k, and its attitude
-            rec_nav[k, :] = nav
+            for i in range(10):
+                rec_nav[k, i] = nav[i]
             for i in range(n):
                 rec_Pd[k, i] = P[i, i]
-            rec_Pn[k, :, :] = P[:9, :9]
+            for i in range(9):
+                for j in range(9):
+                    rec_Pn[k, i, j] = P[i, j]
             C = _nm.dcm((nav[6], nav[7], nav[8], nav[9]))
         dth = _corrected(dtheta[k], corr[0], corr[1], T)       # (Δθ − b̂_g T)(1 − ŝ_g)
         dvc = _corrected(dv[k], corr[3], corr[2], T)           # (Δv − f̂_corr T)(1 − ŝ_a)
@@ -154,10 +159,10 @@ def propagate_span(k0, k1, C0, nav, P, F, qc, T, corr, kT, dtheta, dv, f_B, work
         lat, lon, h = nav[0], nav[1], nav[2]
         v = (nav[3], nav[4], nav[5])
         r0 = _nm.rates(lat, h, v[0], v[1])
-        rows = _base_rows(lat, h, v, f_in, C, kt, r0)
+        rows = np.array(_base_rows(lat, h, v, f_in, C, kt, r0))
         for i in range(6):
             for j in range(18):
-                F[3 + i, j] = rows[i][j]
+                F[3 + i, j] = rows[i, j]
         lat, lon, h, v1, q1 = _nav_step(lat, lon, h, v, (nav[6], nav[7], nav[8], nav[9]), dth, dvc, T, r0)
         nav[0], nav[1], nav[2] = lat, lon, h
         nav[3], nav[4], nav[5] = v1
