@@ -5,19 +5,65 @@ Reports, per stage, wall time, simulated IMU samples per second, the real-time f
 
     python benchmarks/bench_flight_sim.py            # default flight plan (~15 min) + default van test
     python benchmarks/bench_flight_sim.py --quick    # a 1-minute airborne plan and a short van run
+    python benchmarks/bench_flight_sim.py --peer     # beside gnss-ins-sim on comparable work, in one run
+
+``--peer``: gnss-ins-sim (``../shared/peers/``, see its README; a fresh process) generates 9-axis
+IMU + 10 Hz GPS at 1 kHz for its 3-D demo trajectory (~80 s); imurig flies an 80 s airborne plan
+(level, S-turns at 30 deg bank, level) at 1 kHz in MuJoCo and makes the flight's truth, 10 Hz GPS
+fixes and the IMU chain's recording. Samples per wall second of each (the peer's own timer, without
+its imports) and the ratio imurig / peer, with the load average before and after.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import sys
 import time
+from pathlib import Path
 
 
 def peak_rss_mb() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return (r if sys.platform == "darwin" else r * 1024) / 2**20
+
+
+def beside_peer(repeat: int = 1) -> dict:
+    """imurig's 80 s flight at 1 kHz (MuJoCo, truth, GPS, IMU chain) beside gnss-ins-sim at 1 kHz."""
+    from imurig.flights.gps import GpsReceiver
+    from imurig.flights.imu import measure_flight
+    from imurig.flights.plan import AlphaDotSTurns, FlightPlan, Level, simulate_flight
+    from imurig.sensors.chain import ImuLab
+    from imurig.kernel import random_streams
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_tilt_table import PEER, peer_once   # the peer's runner (a fresh process, its own timer)
+
+    if not PEER.exists():
+        raise SystemExit(f"{PEER} not found; put the peers next to the repository")
+    plan = FlightPlan(phases=(Level(37.0), AlphaDotSTurns(banks_first_deg=(30,), banks_second_deg=(30,)),
+                              Level(10.0)), rate_hz=1000.0)
+    load0, runs = os.getloadavg(), []
+    for _ in range(repeat):
+        peer = peer_once(1000.0)
+        t0, c0 = time.perf_counter(), time.process_time()
+        truth = simulate_flight(plan, progress_bar=False)
+        t_truth = time.perf_counter() - t0
+        GpsReceiver.euro4("rtk", rate_hz=10.0).measure(truth, random_streams.generator("flight/gps", 2005))
+        lab = ImuLab.draw(random_streams.generator("sensor_errors", 2005))
+        measure_flight(truth, lab, random_streams.seed_sequence("flight/sensor-chain", 2005))
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        im = {"samples": truth.n, "sim_s": truth.n / plan.rate_hz, "wall_s": wall, "cpu_s": cpu,
+              "mujoco_and_truth_s": t_truth, "samples_per_s": truth.n / wall}
+        runs.append({"imurig": im, "peer": peer, "ratio_samples_per_s": im["samples_per_s"] / peer["samples_per_s"]})
+        print(json.dumps(runs[-1]), flush=True)
+    ratios = sorted(r["ratio_samples_per_s"] for r in runs)
+    out = {"repeats": repeat, "ratio_samples_per_s_median": ratios[len(ratios) // 2],
+           "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()],
+           "peak_rss_mb": peak_rss_mb()}
+    print(json.dumps(out))
+    return out
 
 
 def main(argv=None) -> dict:
@@ -43,7 +89,11 @@ def main(argv=None) -> dict:
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--peer", action="store_true", help="beside gnss-ins-sim at 1 kHz (module doc)")
+    ap.add_argument("--repeat", type=int, default=1, help="with --peer: runs; the median ratio")
     a = ap.parse_args(argv)
+    if a.peer:
+        return beside_peer(a.repeat)
     plan = (FlightPlan(phases=(Level(20.0), AlphaDotSTurns(banks_first_deg=(30,), banks_second_deg=(30,)), Level(10.0)))
             if a.quick else FlightPlan())
     van = (VanPlan(phases=(VanParked(5.0), VanStraight(10.0), VanCircle(turns=1.0), VanHardBrake()))

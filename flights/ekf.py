@@ -25,6 +25,7 @@ navigation rate. Each update records its normalised innovation squared (NIS) and
 """
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 from typing import Self
 
@@ -150,17 +151,21 @@ class LooseEKF(Estimator):
     Settings: ``config`` (:class:`FilterConfig`, default ``FilterConfig()``), ``noise``
     (:class:`ImuNoise`, default ``ImuNoise()``), ``lever_gps_B`` (3,) m the antenna relative to the
     IMU in body axes, ``declination`` the IGRF declination in rad (east positive), a constant or a
-    callable D(lat_rad, lon_rad, h_m) such as :class:`IgrfDeclination`.
+    callable D(lat_rad, lon_rad, h_m) such as :class:`IgrfDeclination`, ``compiled`` whether the paper's
+    18-state filter (also with the receiver's error states) runs its propagation between updates
+    in compiled code (:mod:`imurig.flights.ekf_kernel`, the default; False: the plain Python path,
+    the reference it is tested against; with sensor-error or compass states it always runs in Python).
 
     Fitted: ``solution_`` (:class:`FilterResult`), the filtered solution at the navigation epochs.
     """
 
     def __init__(self, config: FilterConfig | None = None, noise: ImuNoise | None = None,
-                 lever_gps_B=(0.0, 0.0, 0.0), declination=0.0):
+                 lever_gps_B=(0.0, 0.0, 0.0), declination=0.0, compiled: bool = True):
         self.config = config
         self.noise = noise
         self.lever_gps_B = lever_gps_B
         self.declination = declination
+        self.compiled = compiled
 
     # ------------------------------------------------------------------ settings, resolved
     @property
@@ -255,7 +260,13 @@ class LooseEKF(Estimator):
         consider = consider_mask(c, st.lay)
         mag_every = max(1, round(c.nav_rate_hz / c.mag_rate_hz)) if (c.use_magnetometer and ep.B_B is not None) else 0
         temp_every = max(1, round(c.nav_rate_hz / c.temp_rate_hz)) if ep.T_acc_K is not None else 0
-        for k in range(ep.M + 1):
+        spans = None
+        if self.compiled and st.compilable:   # the paper's states: the epochs between updates compiled
+            from imurig.flights import ekf_kernel   # lazy: numba (~0.4 CPU-s to import)
+            spans = ekf_kernel.SpanPropagator(st, ep, rec)
+        gps_at = sorted(sched.at) if sched is not None else []
+        k = 0
+        while True:
             if sched is not None and k in sched.at:
                 gps_updates(st, rec, ep, gps, sched, k, lever)
             if mag_every and k % mag_every == 0:
@@ -266,14 +277,29 @@ class LooseEKF(Estimator):
             rec.store(k, st)
             if k == ep.M:
                 break
-            propagate(st, ep, k, C, noise)
+            if spans is not None:            # to the next epoch with an update (or a progress call)
+                k1 = _next_event(k, ep.M, gps_at, (mag_every, temp_every, 500 if progress is not None else 0))
+                spans.run(k, k1, C)
+            else:
+                propagate(st, ep, k, C, noise)
+                k1 = k + 1
             if progress is not None and k % 500 == 0:
                 progress(k)
+            k = k1
 
     def apply(self) -> FilterResult:
         """The filtered solution (``solution_``)."""
         self.check_fitted()
         return self.solution_
+
+
+def _next_event(k: int, M: int, gps_at: list, every: tuple) -> int:
+    """The first epoch after k at which the filter does more than propagate: a GPS fix is used
+    (``gps_at`` sorted), a multiple of a nonzero period in ``every`` (compass, temperatures,
+    progress), or the last epoch M."""
+    i = bisect.bisect_right(gps_at, k)
+    nxt = [M] + ([gps_at[i]] if i < len(gps_at) else []) + [(k // e + 1) * e for e in every if e]
+    return min(nxt)
 
 
 def nees_nav(res: FilterResult, truth, idx) -> np.ndarray:

@@ -121,6 +121,14 @@ class FilterState:
         self.version = 0
         self._corrections = (-1, None)
 
+    @property
+    def compilable(self) -> bool:
+        """Whether the compiled span propagation (:mod:`imurig.flights.ekf_kernel`) covers this
+        configuration: the 18 base states, optionally the receiver's error (its decay is constant in
+        F); no sensor-error columns in F, no compass or gyro Gauss-Markov states (which change the
+        estimates between updates)."""
+        return not self.dynamics.optional and self.lay.mag is None and self.lay.GM is None
+
     def corrections(self) -> tuple:
         """(b̂_g, ŝ_g, ŝ_a, f̂_corr) as lists of floats, f̂_corr = b̂_a + k_T (T̂_a − T_ref) the
         accelerometers' bias correction, recomputed only when ``version`` has changed."""
@@ -200,11 +208,11 @@ class SolutionRecord:
     INS history at a fix's time from it)."""
 
     def __init__(self, M: int, n: int):
-        self.lat = np.empty(M + 1)
-        self.lon = np.empty(M + 1)
-        self.h = np.empty(M + 1)
-        self.v = np.empty((M + 1, 3))
-        self.q = np.empty((M + 1, 4))
+        # [lat, lon, h, v_N (3), q_NB (4)] per epoch in one array (the compiled span writes its rows);
+        # lat, lon, h, v, q are views of it until :meth:`finish` makes them contiguous
+        self.nav = np.empty((M + 1, 10))
+        self.lat, self.lon, self.h = self.nav[:, 0], self.nav[:, 1], self.nav[:, 2]
+        self.v, self.q = self.nav[:, 3:6], self.nav[:, 6:10]
         self.ba = np.empty((M + 1, 3))
         self.bg = np.empty((M + 1, 3))
         self.T = np.empty((M + 1, 3))
@@ -231,6 +239,8 @@ class SolutionRecord:
         for (k0, *vals), k1 in zip(self._sensor, ends):
             for arr, v in zip((self.ba, self.bg, self.T, self.sa, self.sg), vals):
                 arr[k0:k1] = v
+        self.lat, self.lon, self.h, self.v, self.q = (np.ascontiguousarray(a) for a in
+                                                      (self.lat, self.lon, self.h, self.v, self.q))
         return self
 
     def history(self, k: int, s: float, x: ins.NavState):

@@ -173,32 +173,14 @@ def _floats(a):
 
 def nav_step(x: NavState, dtheta_B, dv_B, T: float, rates0=None) -> NavState:
     """One navigation update over T seconds with body increments ``dtheta_B``, ``dv_B`` (3,)
-    (module doc; plain-float arithmetic, :mod:`imurig.flights.navmath`); ``rates0`` the
+    (module doc; plain-float arithmetic, :func:`imurig.flights.navmath.nav_step`); ``rates0`` the
     :func:`imurig.flights.navmath.rates` at ``x`` if the caller has them."""
-    q0 = x.q_NB.tolist()
-    vn0, ve0, vd0 = x.v_N.tolist()
-    dn, de, dd = nm.mat_vec(nm.dcm(q0), _floats(dv_B))      # C Δv_B
-    lat0, h0 = x.lat_rad, x.h_m
-    lat_m, h_m, vn, ve, vd = lat0, h0, vn0, ve0, vd0
-    for it in range(2):                          # predictor, then corrector at the mid-point
-        w_ie, w_en, g, R_N, R_E = (rates0 if it == 0 and rates0 is not None else nm.rates(lat_m, h_m, vn, ve))
-        zn, ze, zd = (w_ie[0] + w_en[0]) * T, (w_ie[1] + w_en[1]) * T, (w_ie[2] + w_en[2]) * T      # ζ
-        an, ae, ad = 2.0 * w_ie[0] + w_en[0], 2.0 * w_ie[1] + w_en[1], 2.0 * w_ie[2] + w_en[2]   # 2ω_IE + ω_EN
-        # v_new = v + C Δv − ½ ζ × C Δv + (g_N − (2ω_IE + ω_EN) × v_mid) T
-        vn1 = vn0 + dn - 0.5 * (ze * dd - zd * de) + (0.0 - (ae * vd - ad * ve)) * T
-        ve1 = ve0 + de - 0.5 * (zd * dn - zn * dd) + (0.0 - (ad * vn - an * vd)) * T
-        vd1 = vd0 + dd - 0.5 * (zn * de - ze * dn) + (g - (an * ve - ae * vn)) * T
-        vn, ve, vd = 0.5 * (vn0 + vn1), 0.5 * (ve0 + ve1), 0.5 * (vd0 + vd1)
-        h_new = h0 - vd * T
-        h_m = 0.5 * (h0 + h_new)
-        lat_new = lat0 + vn / (R_N + h_m) * T
-        lat_m = 0.5 * (lat0 + lat_new)
-    v_new, v_m = (vn1, ve1, vd1), (vn, ve, vd)
-    w_ie, w_en, g, R_N, R_E = nm.rates(lat_m, h_m, vn, ve)
-    lon_new = x.lon_rad + v_m[1] / ((R_E + h_m) * math.cos(lat_m)) * T
-    zeta = (-(w_ie[0] + w_en[0]) * T, -(w_ie[1] + w_en[1]) * T, -(w_ie[2] + w_en[2]) * T)
-    q = nm.qnormalised(nm.qmul(nm.qmul(nm.qrot(zeta), q0), nm.qrot(_floats(dtheta_B))))
-    return NavState(lat_new, lon_new, h_new, np.array(v_new), np.array(q))
+    v0 = x.v_N.tolist()
+    if rates0 is None:
+        rates0 = nm.rates(x.lat_rad, x.h_m, v0[0], v0[1])
+    lat, lon, h, v, q = nm.nav_step(x.lat_rad, x.lon_rad, x.h_m, v0, x.q_NB.tolist(), _floats(dtheta_B),
+                                    _floats(dv_B), T, rates0)
+    return NavState(lat, lon, h, np.array(v), np.array(q))
 
 
 @dataclass

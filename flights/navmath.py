@@ -72,6 +72,39 @@ def qnormalised(q) -> tuple:
     return (q[0] / s, q[1] / s, q[2] / s, q[3] / s)
 
 
+def nav_step(lat0: float, lon0: float, h0: float, v0, q0, dtheta_B, dv_B, T: float, rates0) -> tuple:
+    """One step of the navigation equations (:mod:`imurig.flights.ins`, module doc) over T seconds on
+    floats: (lat, lon, h, v_N, q_NB) after the body increments ``dtheta_B``, ``dv_B`` from the state
+    ``lat0, lon0, h0, v0`` (3,), ``q0`` (4,), with ``rates0`` = :func:`rates` at the start. Mid-interval
+    rates from one predictor-corrector pass::
+
+        v_new = v + C Δv − ½ ζ × C Δv + (g_N − (2ω_IE + ω_EN) × v_mid) T,   ζ = (ω_IE + ω_EN)_mid T
+        q_new = q(−ζ) ⊗ q ⊗ q(Δθ)"""
+    vn0, ve0, vd0 = v0[0], v0[1], v0[2]
+    dn, de, dd = mat_vec(dcm(q0), dv_B)          # C Δv_B
+    lat_m, h_m, vn, ve, vd = lat0, h0, vn0, ve0, vd0
+    vn1, ve1, vd1, h_new = vn0, ve0, vd0, h0
+    w_ie, w_en, g, R_N, R_E = rates0
+    for it in range(2):                          # predictor, then corrector at the mid-point
+        if it == 1:
+            w_ie, w_en, g, R_N, R_E = rates(lat_m, h_m, vn, ve)
+        zn, ze, zd = (w_ie[0] + w_en[0]) * T, (w_ie[1] + w_en[1]) * T, (w_ie[2] + w_en[2]) * T      # ζ
+        an, ae, ad = 2.0 * w_ie[0] + w_en[0], 2.0 * w_ie[1] + w_en[1], 2.0 * w_ie[2] + w_en[2]   # 2ω_IE + ω_EN
+        vn1 = vn0 + dn - 0.5 * (ze * dd - zd * de) + (0.0 - (ae * vd - ad * ve)) * T
+        ve1 = ve0 + de - 0.5 * (zd * dn - zn * dd) + (0.0 - (ad * vn - an * vd)) * T
+        vd1 = vd0 + dd - 0.5 * (zn * de - ze * dn) + (g - (an * ve - ae * vn)) * T
+        vn, ve, vd = 0.5 * (vn0 + vn1), 0.5 * (ve0 + ve1), 0.5 * (vd0 + vd1)
+        h_new = h0 - vd * T
+        h_m = 0.5 * (h0 + h_new)
+        lat_new = lat0 + vn / (R_N + h_m) * T
+        lat_m = 0.5 * (lat0 + lat_new)
+    w_ie, w_en, g, R_N, R_E = rates(lat_m, h_m, vn, ve)
+    lon_new = lon0 + ve / ((R_E + h_m) * math.cos(lat_m)) * T
+    zeta = (-(w_ie[0] + w_en[0]) * T, -(w_ie[1] + w_en[1]) * T, -(w_ie[2] + w_en[2]) * T)
+    q = qnormalised(qmul(qmul(qrot(zeta), q0), qrot(dtheta_B)))
+    return lat_new, lon_new, h_new, (vn1, ve1, vd1), q
+
+
 def ecef(lat: float, lon: float, h: float) -> tuple:
     """WGS-84 ECEF position (m) of one geodetic point (as :func:`imurig.flights.earth.ecef_from_geodetic`)."""
     s, c = math.sin(lat), math.cos(lat)

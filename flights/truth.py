@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from imurig.flights import earth
+from imurig.flights.mechanise_steps import euler_step, trapezoid_step
 
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.navdata import FlightTruth
@@ -245,50 +246,11 @@ def mechanise(truth: FlightTruth, f_B: np.ndarray | None = None, w_IB_B: np.ndar
     v = np.empty((n, 3))
     q = np.empty((n, 4))
     lat[0], lon[0], h[0], v[0], q[0] = truth.lat_rad[0], truth.lon_rad[0], truth.h_m[0], truth.v_N[0], truth.q_NB[0]
-
-    def vdot(k, la, hh, vv, qq):
-        C = earth.C_from_q(qq)
-        wie, wen = earth.omega_IE_N(la), earth.omega_EN_N(la, hh, vv)
-        return C @ f_B[k] - np.cross(2 * wie + wen, vv) + earth.gravity_N(la, hh), C, wie + wen
-
-    def pos_step(k, v1):
-        la1, h1 = lat[k], h[k] - 0.5 * dt * (v[k, 2] + v1[2])
-        for _ in range(3):
-            R_N0, _ = earth.radii(lat[k])
-            R_N1, _ = earth.radii(la1)
-            la1 = lat[k] + 0.5 * dt * (v[k, 0] / (R_N0 + h[k]) + v1[0] / (R_N1 + h1))
-        _, R_E0 = earth.radii(lat[k])
-        _, R_E1 = earth.radii(la1)
-        lo1 = lon[k] + 0.5 * dt * (v[k, 1] / ((R_E0 + h[k]) * np.cos(lat[k])) + v1[1] / ((R_E1 + h1) * np.cos(la1)))
-        return la1, lo1, h1
-
+    fl, wl = np.asarray(f_B, float).tolist(), np.asarray(w_IB_B, float).tolist()   # per-sample maths on floats
     for k in range(n - 1):
-        a0, C0, wn0 = vdot(k, lat[k], h[k], v[k], q[k])
-        if scheme == "euler":
-            v1 = v[k] + dt * a0
-            la1, lo1, h1 = pos_step(k, v1)
-            if held:
-                # Δθ = log(exp(ζ_B) exp(a)) (:func:`held_inertial_rate`), ζ the frame's exact turn: the body's own a
-                zeta_N = earth.nav_frame_turn(lat[k], lon[k], la1, lo1, dt)
-                dq = earth.q_mult(earth.q_conj(earth.q_from_rotvec(C0.T @ zeta_N)), earth.q_from_rotvec(dt * w_IB_B[k]))
-                q1 = earth.q_normalize(earth.q_mult(q[k], dq))
-                # the sample is the body-frame mean over a step that holds f_N (:func:`held_body_mean`)
-                W = held_body_mean(np.tile(earth.rotvec_from_q(dq), (3, 1)), np.eye(3)).T      # columns W e_j
-                f0 = np.linalg.solve(W, f_B[k])
-                v1 = v[k] + dt * (a0 + C0 @ (f0 - f_B[k]))
-                la1, lo1, h1 = pos_step(k, v1)
-            else:
-                q1 = earth.q_normalize(earth.q_mult(q[k], earth.q_from_rotvec(dt * (w_IB_B[k] - C0.T @ wn0))))
-        else:
-            wnb0 = w_IB_B[k] - C0.T @ wn0
-            q_mid = earth.q_mult(q[k], earth.q_from_rotvec(0.5 * dt * wnb0))
-            wnb1 = w_IB_B[k + 1] - earth.C_from_q(q_mid).T @ wn0
-            q1 = earth.q_normalize(earth.q_mult(q[k], earth.q_from_rotvec(0.5 * dt * (wnb0 + wnb1))))
-            vp = v[k] + dt * a0
-            la1, lo1, h1 = pos_step(k, vp)
-            a1, _, _ = vdot(k + 1, la1, h1, vp, q1)
-            v1 = v[k] + 0.5 * dt * (a0 + a1)
-            la1, lo1, h1 = pos_step(k, v1)
+        st = (float(lat[k]), float(lon[k]), float(h[k]), tuple(v[k].tolist()), tuple(q[k].tolist()))
+        la1, lo1, h1, v1, q1 = (euler_step(st, fl[k], wl[k], dt, held) if scheme == "euler"
+                                else trapezoid_step(st, fl[k], fl[k + 1], wl[k], wl[k + 1], dt))
         lat[k + 1], lon[k + 1], h[k + 1], v[k + 1], q[k + 1] = la1, lo1, h1, v1, q1
     return lat, lon, h, v, q
 

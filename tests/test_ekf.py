@@ -26,14 +26,14 @@ def truth():
                             pitch_period_s=30.0, climb_amp_m_s=3.0)
 
 
-def _run(truth, seed, noise_filter=None, outages=(OUTAGE,)):
+def _run(truth, seed, noise_filter=None, outages=(OUTAGE,), compiled=True):
     noise = ekf.ImuNoise(vrw=5e-4)
     rng = np.random.default_rng(np.random.SeedSequence([6, seed]))
     imu, gps, tb = synthetic_sensors(truth, noise, rng, lever_gps_B=LEVER, mag_sigma_rad=1 * D,
                                          outages=outages)
     cfg = ekf.FilterConfig(nav_rate_hz=20.0, mag_heading_sigma_rad=1 * D, sigma0_heading_rad=5 * D,
                            sigma0_acc_bias_m_s2=0.05, sigma0_gyro_bias_rad_s=0.003 * D)
-    f = ekf.LooseEKF(cfg, noise_filter or noise, lever_gps_B=LEVER)
+    f = ekf.LooseEKF(cfg, noise_filter or noise, lever_gps_B=LEVER, compiled=compiled)
     # initial state drawn from the filter's own prior (what NEES assumes)
     s0 = np.sqrt(np.diag(f.initial_covariance()))
     dx = rng.standard_normal(18) * s0
@@ -67,6 +67,51 @@ def test_nees_and_nis_inside_chi_square_bounds(truth, runs):
         dof = sum(r.updates[kind]["dof"].sum() for r, _, _ in runs)
         a, b = chi2.ppf([0.0005, 0.9995], dof)
         assert a < s < b, (kind, s / dof, a / dof, b / dof)
+
+
+def _assert_same_to_rounding(res_c, res_p):
+    """Two runs of the filter on the same data, compiled and plain Python (``LooseEKF(compiled=...)``):
+    the same arithmetic, only the n x n products summed in another order, so the two differ by rounding
+    (~1e-16 relative per operation, ~1e4 epochs and updates): every navigation error state within
+    1e-9 of its own σ, every variance within 1e-9 relative. A wrong entry of F or Φ, a missed epoch of
+    the record or a wrong span boundary is orders of magnitude larger."""
+    sigma = np.sqrt(res_p.P_diag)
+    R_N, R_E = E.radii(res_p.lat_rad)           # the differences in metres (NED), not via ECEF (1e-9 m rounding)
+    d_pos = np.stack([(res_c.lat_rad - res_p.lat_rad) * (R_N + res_p.h_m),
+                      (res_c.lon_rad - res_p.lon_rad) * (R_E + res_p.h_m) * np.cos(res_p.lat_rad),
+                      res_p.h_m - res_c.h_m], axis=1)
+    assert np.all(np.abs(d_pos) <= 1e-9 * sigma[:, :3])
+    assert np.all(np.abs(res_c.v_N - res_p.v_N) <= 1e-9 * sigma[:, 3:6])
+    dq = E.q_mult(res_p.q_NB, E.q_conj(res_c.q_NB))
+    assert np.all(np.abs(E.rotvec_from_q(dq)) <= 1e-9 * sigma[:, 6:9])
+    assert np.all(np.abs(res_c.acc_bias_m_s2 - res_p.acc_bias_m_s2) <= 1e-9 * sigma[:, 9:12])
+    assert np.all(np.abs(res_c.gyro_bias_rad_s - res_p.gyro_bias_rad_s) <= 1e-9 * sigma[:, 12:15])
+    assert np.all(np.abs(res_c.P_diag - res_p.P_diag) <= 1e-9 * res_p.P_diag)
+    np.testing.assert_array_equal(res_c.time_s, res_p.time_s)
+    for kind in res_p.updates:
+        np.testing.assert_allclose(res_c.updates[kind]["nis"], res_p.updates[kind]["nis"], rtol=1e-7, atol=1e-12)
+
+
+def test_compiled_propagation_is_the_python_path(truth, runs):
+    """The 18-state filter's compiled span propagation (``ekf_kernel``) against the plain Python path on
+    the same data (S-turns, a 40 s GPS outage), to rounding (:func:`_assert_same_to_rounding`)."""
+    _assert_same_to_rounding(runs[0][0], _run(truth, 0, compiled=False)[0])
+
+
+def test_compiled_propagation_with_the_receivers_error_states(truth):
+    """The same with the receiver's Gauss-Markov position error as three more states (21): their
+    decay between updates, their process noise following the fixes' σ and their reset after the
+    outage."""
+    noise = ekf.ImuNoise(vrw=5e-4)
+    imu, gps, _ = synthetic_sensors(truth, noise, np.random.default_rng(3), lever_gps_B=LEVER, mag_sigma_rad=1 * D,
+                                    outages=(OUTAGE,))
+    cfg = ekf.FilterConfig(nav_rate_hz=20.0, mag_heading_sigma_rad=1 * D, gps_pos_states=True, gps_pos_tau_s=100.0,
+                           gps_pos_sigma_white_N_m=(0.1, 0.1, 0.2))
+    assert cfg.n_states == 21
+    res = [ekf.LooseEKF(cfg, noise, lever_gps_B=LEVER, compiled=c).fit(imu, gps, ins.state_at(truth, 0)).solution_
+           for c in (True, False)]
+    _assert_same_to_rounding(*res)
+    assert np.all(np.abs(res[0].P_diag[:, 18:] - res[1].P_diag[:, 18:]) <= 1e-9 * res[1].P_diag[:, 18:])
 
 
 def test_overconfident_filter_fails_the_nees_test(truth):
@@ -170,9 +215,13 @@ REAL_DUR = 300.0
 
 @pytest.fixture(scope="module")
 def flight_truth():
-    from imurig.flights.plan import simulate_flight
+    """The default flight's first REAL_DUR s. The flight is simulated forward in time, so the plan's
+    first five phases (parked, ground circle, take-off, climb, the leg to Delft: 0-453 s) give
+    these samples bit for bit; the later phases are not flown (half the simulation's CPU)."""
+    from imurig.flights.plan import FlightPlan, default_phases, simulate_flight
 
-    tr = simulate_flight(progress_bar=False)
+    tr = simulate_flight(FlightPlan(phases=default_phases()[:5]), progress_bar=False)
+    assert tr.time_s[-1] >= tr.time_s[0] + REAL_DUR
     return tr.slice(tr.time_s[0], tr.time_s[0] + REAL_DUR)
 
 

@@ -19,6 +19,7 @@ from imurig.scoring.flight import (
     assert_nav_meets,
     flight_streams,
     score_nav_filter_on_flight,
+    simulate_truth,
     trim_solution,
 )
 from imurig.kernel.navdata import GpsFixes, ImuStream
@@ -33,13 +34,20 @@ SETTLE_S = 10.0
 
 
 @pytest.fixture(scope="module")
-def nominal():
-    return flight_streams(SEED)
+def flight_truth():
+    """The scorer's default flight, flown once for this module (``flight_streams(seed)`` flies the same
+    plan; ``test_same_seed_identical_streams`` flies it again and compares)."""
+    return simulate_truth()
 
 
 @pytest.fixture(scope="module")
-def calibrated(nominal):
-    return flight_streams(SEED, calibrated=True)
+def nominal(flight_truth):
+    return flight_streams(SEED, truth=flight_truth)
+
+
+@pytest.fixture(scope="module")
+def calibrated(flight_truth):
+    return flight_streams(SEED, calibrated=True, truth=flight_truth)
 
 
 @pytest.fixture(scope="module")
@@ -114,13 +122,11 @@ def _flat_numbers(x):
         yield float(x)
 
 
-def test_streams_hold_no_truth(nominal):
+def test_streams_hold_no_truth(nominal, flight_truth):
     from imurig.campaigns import flight as R
     from imurig.kernel import random_streams
     from imurig.flights.imu import measure_flight
     from imurig.sensors.chain import ImuLab
-
-    from imurig.scoring.flight import simulate_truth
 
     s, _, _ = nominal
     assert type(s) is NavStreams
@@ -132,7 +138,7 @@ def test_streams_hold_no_truth(nominal):
     assert not any("truth" in k or "true" in k for k in s.meta)
     assert not any(isinstance(v, NavSolution) for v in s.meta.values())
     # measurements differ from the truth by the sensor errors (the IMU is not the truth signal)
-    tr = simulate_truth(duration_s=30.0)
+    tr = flight_truth.slice(flight_truth.time_s[0], flight_truth.time_s[0] + 30.0)  # = simulate_truth(duration_s=30)
     n = tr.n
     assert np.max(np.abs(s.imu.f_B[:n] - tr.f_B)) > 1e-4
     assert np.max(np.abs(s.mag.B_B[:n] - tr.B_B)) > 1e-8
@@ -146,7 +152,7 @@ def test_streams_hold_no_truth(nominal):
     assert drawn and not (drawn & given), drawn & given
 
 
-def test_same_seed_identical_streams(nominal):
+def test_same_seed_identical_streams(nominal, flight_truth):
     s, truth, _ = nominal
     s2, truth2, _ = flight_streams(SEED)
     for a, b in ((s.imu, s2.imu), (s.gps, s2.gps), (s.mag, s2.mag), (truth, truth2)):
@@ -154,5 +160,5 @@ def test_same_seed_identical_streams(nominal):
             x, y = getattr(a, f.name), getattr(b, f.name)
             assert (x is None and y is None) or np.array_equal(x, y), f.name
     assert s.meta == s2.meta
-    s3, _, _ = flight_streams(SEED + 1, duration_s=30.0)
+    s3, _, _ = flight_streams(SEED + 1, duration_s=30.0, truth=flight_truth)
     assert not np.array_equal(s3.imu.f_B, s.imu.f_B[: s3.imu.f_B.shape[0]])

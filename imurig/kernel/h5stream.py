@@ -266,7 +266,7 @@ def h5_to_csv(src, dst, overwrite: bool = False) -> Path:
     """Write the HDF5 recording ``src`` as the lab CSV ``dst`` in row chunks: the same bytes as
     ``write_csv(load_h5(src), dst)`` (see :func:`imurig.kernel.labcsv.write_csv`), in memory
     bounded by the chunk."""
-    from imurig.kernel.labcsv import _flatten   # labcsv imports the recording; keeps one writer of the head
+    from imurig.kernel.labcsv import _flatten, write_rows   # labcsv imports the recording; one writer of the head
 
     with H5Recording(src) as h:
         seg = h.segments
@@ -308,8 +308,7 @@ def h5_to_csv(src, dst, overwrite: bool = False) -> Path:
                         col[ev_idx[k][j] - a] = ev[j]
                         cols.append(col)
                     # straight to the file: a StringIO of one chunk's text peaks at ~200 MB (measured)
-                    np.savetxt(fh, np.column_stack([np.asarray(c, dtype=float) for c in cols]), fmt=fmts,
-                               delimiter=",")
+                    write_rows(fh, np.column_stack([np.asarray(c, dtype=float) for c in cols]), fmts)
 
         return atomic_write(Path(dst), writer, overwrite)
 

@@ -31,7 +31,6 @@ Rules
 """
 from __future__ import annotations
 
-import io
 import json
 import re
 import warnings
@@ -290,11 +289,23 @@ def write_csv(rec: Recording, path, overwrite: bool = False, include_truth_signa
             for k, v in _flatten(meta).items():
                 fh.write(f"# {k}: {json.dumps(v) if not isinstance(v, str) else v}\n")
             fh.write(header + "\n")
-            buf = io.StringIO()
-            np.savetxt(buf, table, fmt=fmts, delimiter=",")
-            fh.write(buf.getvalue())
+            write_rows(fh, table, fmts)
 
     return atomic_write(Path(path), writer, overwrite)
+
+
+#: rows formatted per text block of :func:`write_rows` (~4 MB of text at 60 characters a row)
+ROWS_PER_BLOCK = 1 << 16
+
+
+def write_rows(fh, table: np.ndarray, fmts: list[str]) -> None:
+    """Write ``table`` (rows, columns) to the text file ``fh`` as comma-separated lines, column j
+    formatted with ``fmts[j]``: the same text as ``np.savetxt(fh, table, fmt=fmts, delimiter=",")``,
+    made by one ``%`` operation per block of rows instead of one per row (about half the CPU)."""
+    line = ",".join(fmts) + "\n"
+    for a in range(0, table.shape[0], ROWS_PER_BLOCK):
+        block = table[a:a + ROWS_PER_BLOCK]
+        fh.write((line * block.shape[0]) % tuple(block.ravel().tolist()))
 
 
 def _fill_between(run: np.ndarray, seg: np.ndarray) -> np.ndarray:
