@@ -25,6 +25,8 @@ scan values, a Bonferroni stand-in for the engine's max-statistic threshold) has
 An effect is detectable in a recording when every axis it must be named on has lambda_j >=
 lambda_90. The shared rounding error is treated as independent and the engine's simulated
 threshold is higher where it dominates, so this errs on the side of calling a recording detectable.
+
+The turn table's counterpart (slip-ring ripple, timer jitter): ``independent_detectability_turn.py``.
 """
 from __future__ import annotations
 
