@@ -21,9 +21,9 @@ slip of the manifest) so the index crossings and the whole rounds are those of t
   (1 - f) dt, f = w / dt mod 1). The statistic Q = sum r^2 / v (r the plateau line fits' weighted
   residuals, v = |interval|^2 / 12) is simulated with the recording's pulses, jittered, at uniform
   grid phases, against its null as the test draws it (no jitter, uniform phases, each plateau's
-  period drawn within the SE the pulses fix it to, E v = dt^2 ((1 - f)^3 + f^3) / 12); its power at level alpha is expressed as the non-centrality of a
-  chi-square on the same m residual degrees of freedom that has that power, needed: the one with
-  90 % power.
+  period drawn within the SE the pulses fix it to, E v = dt^2 ((1 - f)^3 + f^3) / 12); its power at
+  level alpha is expressed as the non-centrality of a chi-square on the same m residual degrees of
+  freedom that has that power, needed: the one with 90 % power.
 
 The mains factor and the slip are read from the table's mean rate over many rounds, far above the
 timer's error at the lab's sizes: always scored (None).

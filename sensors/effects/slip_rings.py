@@ -41,8 +41,9 @@ Earth's horizontal rate, the spin axis' tilt and the gyro's misalignment all put
 on a gyro across the spin axis, physics the whole-round twin holds. The converter's rounding of
 that 1/rev signal makes harmonics of its own, damped by the noise before the rounding (the
 dither): a ripple must exceed their bound as well (:func:`rounding_harmonic_bound_V`, with the
-1/rev amplitude 3 SE high and the dither from the residual variance less q^2 / 12, low). p < alpha names the effect with the largest
-harmonic's amplitude A_k = sqrt(a_k^2 + b_k^2) +- its SE (V) and phase.
+1/rev amplitude 3 SE high and the dither from the residual variance less q^2 / 12, low).
+p < alpha names the effect with the largest harmonic's amplitude A_k = sqrt(a_k^2 + b_k^2) +- its
+SE (V) and phase.
 """
 from __future__ import annotations
 
