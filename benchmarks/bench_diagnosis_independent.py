@@ -59,8 +59,9 @@ def _bench_diagnose():
 
 
 def detectability(truth: dict, csv: Path) -> dict | None:
-    """The expected non-centrality of a recording's mean-level effect against the one a test needs
-    (``benchmarks/independent_detectability.py``), or None where it does not apply."""
+    """The expected non-centrality of a recording's mean-level tilt effect, slip-ring ripple or timer
+    jitter against the one a test needs (``benchmarks/independent_detectability.py``,
+    ``benchmarks/independent_detectability_turn.py``), or None where it does not apply."""
     spec = importlib.util.spec_from_file_location("independent_detectability",
                                                   ROOT / "benchmarks" / "independent_detectability.py")
     mod = importlib.util.module_from_spec(spec)

@@ -25,9 +25,13 @@ scan values, a Bonferroni stand-in for the engine's max-statistic threshold) has
 An effect is detectable in a recording when every axis it must be named on has lambda_j >=
 lambda_90. The shared rounding error is treated as independent and the engine's simulated
 threshold is higher where it dominates, so this errs on the side of calling a recording detectable.
+
+The turn table's counterpart (slip-ring ripple, timer jitter): ``independent_detectability_turn.py``.
 """
 from __future__ import annotations
 
+import importlib
+import importlib.util
 import math
 from pathlib import Path
 
@@ -117,6 +121,12 @@ def detectability(truth: dict, csv: Path, tilt) -> dict | None:
     """{lambda: {channel: non-centrality}, lambda_90, detectable, sigma_position_m_s2} of a recording's
     mean-level effect (module doc), or None for a null or another effect. ``tilt``: the lab's
     tilt module (its positions, set-point schedule and specific force)."""
+    if truth.get("rig") == "turn_table":     # the table's effects: benchmarks/independent_detectability_turn.py
+        spec = importlib.util.spec_from_file_location("independent_detectability_turn",
+                                                      Path(__file__).with_name("independent_detectability_turn.py"))
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod.detectability(truth, importlib.import_module(tilt.__package__ + ".turn"))
     eff = [e for e in truth.get("effects", []) if e["effect"] in MEAN_LEVEL]
     if truth.get("rig") != "tilt_table" or not eff:
         return None

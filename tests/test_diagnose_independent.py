@@ -9,7 +9,9 @@ A refused or crashed file is a miss. Asserted, per effect and per rig's nulls:
   the effect is detectable at all: a mean-level tilt effect (drift, nonlinearity, misalignment,
   crosstalk) is scored only where its expected non-centrality, computed from the lab's manifest
   (effect size, noise, ADC step, positions and samples: benchmarks/independent_detectability.py),
-  reaches the 90 % power point of its test; the others are listed in the report with their figures,
+  reaches the 90 % power point of its test, and likewise a turn-table slip-ring ripple (per gyro,
+  against the converter's step and noise) and a timer jitter (the pulse test's simulated power:
+  benchmarks/independent_detectability_turn.py); the others are listed in the report with their figures,
   and at least half of each effect's recordings must be detectable (so the criterion cannot empty);
 - false discoveries on nulls at or below the nominal family-wise rate per record (the rate's
   95 % Clopper-Pearson lower bound must not exceed it, the project's convention in

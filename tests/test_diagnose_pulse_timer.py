@@ -4,7 +4,12 @@ logged as high levels on a sample grid of rate fs."""
 import numpy as np
 import pytest
 
+from imurig.diagnose.dispatch import diagnose
 from imurig.diagnose.pulse_timer import edge_times, pulse_timer_test
+from imurig.kernel.errors import RecordingError
+from imurig.kernel.files import load
+from independent_lab import recording
+from independent_lab.lab import write_csv
 
 PERIODS_S = (2.0137, 1.5061, 3.1013, 2.5071, 1.2049, 2.7023)   # one per plateau; T fs not a whole number
 
@@ -85,3 +90,14 @@ def test_slip_joint_fit_se_includes_the_exponent():
     z = np.array(z)
     assert np.sqrt(np.mean(z**2)) < 1.5, np.sqrt(np.mean(z**2))
     assert abs(np.median(z)) < 0.3
+
+
+def test_a_turn_table_file_without_index_pulses_is_refused_saying_how(tmp_path):
+    """A lab CSV with the dial and the gyros but no pulse column: refused with the project's error,
+    naming the file and the columns that would let the table's rounds be timed."""
+    cols, steps, _ = recording("turn_table", None, 5, 50.0, "24bit_10V")
+    cols.pop("pulse_V")
+    path = tmp_path / "no_pulse.csv"
+    write_csv(path, {"rig": "turn_table", "site": "delft"}, cols, steps)
+    with pytest.raises(RecordingError, match="index pulses.*pulse_V.*event_pulse_"):
+        diagnose(load(path))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from imurig.sensors.effects import SlipRingNoise, TurnSampleView
+from imurig.sensors.effects.slip_rings import rounding_harmonic_bound_V
 from scipy import ndimage
 
 Q16 = 10.0 / 2**16
@@ -50,3 +51,24 @@ def test_no_ripple_no_finding(q):
     """Without ripple (the 1/rev signal only), at an ADC step below and far above the noise: no finding."""
     view, _ = _view(0.0, 200.0, seed=9, q=q)
     assert "finding" not in SlipRingNoise().test(view)
+
+
+def test_ripple_below_the_step_found_where_the_noise_dithers():
+    """A ripple of q / 3 under noise of 0.6 q (dithered): the rounding of the 2 mV 1/rev signal makes
+    harmonics far below it (the bound's exp(-2 pi^2 sigma^2 / q^2)), so it is named; the bound
+    itself stays above what the rounding makes of a 1/rev signal without noise."""
+    q = 20 * Q16
+    view, _ = _view(q / 3, 200.0, seed=4, noise_V=0.6 * q, q=q)
+    rp = SlipRingNoise().test(view)["finding"]["ripple"]
+    assert rp["harmonic"] == 3 and abs(rp["amplitude_V"] - q / 3) < 4 * rp["amplitude_se_V"]
+    assert rp["rounding_bound_V"] < 0.01 * q
+
+
+def test_rounding_bound_holds_without_dither():
+    """Without noise, b + a1 cos(theta) rounded to q: every harmonic 2..5 within the bound, any b."""
+    th = np.linspace(0, 2 * np.pi, 20000, endpoint=False)
+    for a1 in (0.2, 0.8, 3.0):
+        for b in (0.0, 0.3, 0.5):
+            e = np.round(b + a1 * np.cos(th)) - (b + a1 * np.cos(th))
+            for m in (2, 3, 4, 5):
+                assert 2 * abs(np.mean(e * np.exp(-1j * m * th))) <= rounding_harmonic_bound_V(1.0, a1, 0.0, m) + 1e-3

@@ -53,3 +53,37 @@ def test_nonlinearity_is_undetectable_on_the_12_bit_converter_and_plain_on_the_2
     assert np.all((sig_q > 0.03) & (sig_q < 0.06)), sig_q
     white = 5e-6 * math.sqrt(50.0) / math.sqrt(8.0 * 100.0) * 9.80665
     assert np.allclose(hi["sigma_position_m_s2"], white, rtol=0.02)
+
+
+def _turn_truth(effect, fs, conv):
+    from independent_lab import turn
+    _, _, truth = recording("turn_table", effect, 3, fs, conv)
+    return truth, turn
+
+
+def test_slip_ring_ripple_undetectable_under_a_12_bit_step_plain_under_a_16_bit_one():
+    """The lab's 40-80 uV ripple against the 12-bit converter's 4.9 mV step (q/sqrt(12) and 0.3 LSB of
+    input noise: about 2 mV per sample) stays below the test's power point; with the 16-bit one
+    (about 0.1 mV per sample) it is far above. lambda = N A^2 / 2 / sigma^2 per gyro, so the gyros'
+    ratios are their amplitudes' squared."""
+    m = _mod()
+    lo, turn = _turn_truth("slip_ring_noise", 100.0, "12bit_10V")
+    hi, _ = _turn_truth("slip_ring_noise", 100.0, "16bit_5V")
+    d_lo, d_hi = m.detectability(lo, Path("unused.csv"), tilt), m.detectability(hi, Path("unused.csv"), tilt)
+    assert not d_lo["detectable"] and max(d_lo["lambda"].values()) < d_lo["lambda_90"]
+    assert d_hi["detectable"] and min(d_hi["lambda"].values()) > 10 * d_hi["lambda_90"]
+    amp = hi["effects"][0]["parameters"]["ripple_amplitude_V"]
+    assert math.isclose(d_hi["lambda"]["gyro_x"] / d_hi["lambda"]["gyro_z"], (amp[0] / amp[2]) ** 2, rel_tol=1e-9)
+    # N: the whole rounds of the plateaus, a little less than the record's turning time
+    assert 0.5 * 250 * 100 < d_hi["samples"] < 300 * 100
+
+
+def test_timer_jitter_plain_at_1_khz_marginal_at_100_hz():
+    """A 4 ms jitter against the sample grid's dt / sqrt(12): 0.29 ms at 1 kHz (power 1), 2.9 ms at
+    100 Hz (about 30 residuals: power near, not far above, 90 %)."""
+    m = _mod()
+    fast, _ = _turn_truth("timer_quantisation", 1000.0, "24bit_10V")
+    slow, _ = _turn_truth("timer_quantisation", 100.0, "24bit_10V")
+    d_fast, d_slow = m.detectability(fast, Path("unused.csv"), tilt), m.detectability(slow, Path("unused.csv"), tilt)
+    assert d_fast["detectable"] and d_fast["power"] > 0.999
+    assert 0.7 < d_slow["power"] < 0.99 and d_slow["dof"] > 10

@@ -66,6 +66,12 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
     """Diagnose the gyro channels of a turn-table recording against the nominal twin
     (``earth_rate``: whether the twin's reference includes the Earth's vertical rate)."""
     rec.require({"gyro_p": "V", "gyro_q": "V", "gyro_r": "V"})
+    if "pulse" not in rec.channels and not any(k.startswith("pulse_") for k in rec.events):
+        raise RecordingError("the turn-table diagnosis times the table's whole rounds by its index pulses, and "
+                             "this recording has none; add the index pulse as a voltage column 'pulse_V' (high "
+                             "once per revolution; another column by --pulse-channel NAME) or a timer's pulse "
+                             "times as 'event_pulse_<timer>_s'. Without them the table's true rate (mains factor, "
+                             "slip) cannot be told from the gyros' own scale factor")
     rw, rate = round_windows(rec, timer)
     ref = reference_rates(rw, rate)
     mounts = _mounts(rw)

@@ -38,10 +38,12 @@ harmonics alike (Frisch-Waugh-Lovell),
 
 with the residual variance floored at q^2 / 12. Harmonic 1 is a nuisance, projected out too: the
 Earth's horizontal rate, the spin axis' tilt and the gyro's misalignment all put a 1/rev signal
-on a gyro across the spin axis, physics the whole-round twin holds. Where the noise is below the
-ADC step (no dither), the rounding of that 1/rev signal itself makes harmonics of up to about
-q / 2: a ripple must then exceed q / 2 as well. p < alpha names the effect with the largest
-harmonic's amplitude A_k = sqrt(a_k^2 + b_k^2) +- its SE (V) and phase.
+on a gyro across the spin axis, physics the whole-round twin holds. The converter's rounding of
+that 1/rev signal makes harmonics of its own, damped by the noise before the rounding (the
+dither): a ripple must exceed their bound as well (:func:`rounding_harmonic_bound_V`, with the
+1/rev amplitude 3 SE high and the dither from the residual variance less q^2 / 12, low).
+p < alpha names the effect with the largest harmonic's amplitude A_k = sqrt(a_k^2 + b_k^2) +- its
+SE (V) and phase.
 """
 from __future__ import annotations
 
@@ -50,10 +52,28 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from imurig.sensors.effects.base import ChainContext, Effect, Param
 from imurig.sensors.effects.views import TurnSampleView
+
+
+def rounding_harmonic_bound_V(q_V: float, a1_V: float, sigma_V: float, m: int, k_max: int = 2000) -> float:
+    """The largest amplitude (V) at harmonic ``m`` of the table angle that a converter of step q
+    can make by rounding a 1/rev signal b + a1 cos(theta) under Gaussian dither sigma (V), any bias b:
+
+        E[round error | u] = sum_k (-1)^k q / (pi k) exp(-2 pi^2 k^2 sigma^2 / q^2) sin(2 pi k u / q)
+        sin(2 pi k (b + a1 cos theta) / q)  has harmonic m of amplitude 2 |J_m(2 pi k a1 / q)|
+
+    (Jacobi-Anger), so the bound is sum_k 2 q / (pi k) exp(-2 pi^2 k^2 sigma^2 / q^2) |J_m(2 pi k a1 / q)|, summed to
+    ``k_max`` plus the tail with |J_m(x)| <= sqrt(2 / (pi x)). 0 without a step."""
+    if q_V <= 0 or a1_V <= 0:
+        return 0.0
+    k = np.arange(1, k_max + 1, dtype=float)
+    damp = np.exp(-2 * np.pi**2 * k**2 * sigma_V**2 / q_V**2)
+    head = float(np.sum(2 * q_V / (np.pi * k) * damp * np.abs(special.jv(m, 2 * np.pi * k * a1_V / q_V))))
+    tail = 2 * q_V / np.pi * np.sqrt(q_V / (np.pi**2 * a1_V)) * 2.0 / np.sqrt(k_max) * float(damp[-1])
+    return head + tail
 
 
 @dataclass
@@ -238,6 +258,7 @@ class SlipRingNoise(Effect):
             A -= T @ np.linalg.lstsq(T, A, rcond=None)[0]
             s[i], H[i], H1[i] = A[:, 0], A[:, 1:1 + H.shape[1]], A[:, 1 + H.shape[1]:]
         Q1, _ = np.linalg.qr(H1)                   # harmonic 1 off the signal and the tested harmonics
+        c1 = np.linalg.lstsq(H1, s, rcond=None)[0]  # the 1/rev signal (V), whose rounding makes harmonics
         s -= Q1 @ (Q1.T @ s)
         H -= Q1 @ (Q1.T @ H)
         n, p = H.shape
@@ -258,11 +279,16 @@ class SlipRingNoise(Effect):
         g = np.array([a[j], b[j]]) / max(amp[j], 1e-300)
         idx = [j, j + harmonics]
         se = float(np.sqrt(g @ cov[np.ix_(idx, idx)] @ g))
-        # a step above the noise (no dither) distorts the 1/rev signal into harmonics of up to ~q/2
+        # the converter's rounding of the 1/rev signal makes harmonics of its own (module doc): a
+        # ripple must exceed that bound, with the 1/rev amplitude taken 3 SE high and the dither
+        # (the noise before rounding) low, from the residual variance less the rounding's q^2/12
         q = float(view.quantum_V or 0.0)
-        dithered = float(np.sqrt(r @ r / dof)) >= q
-        return {"found": bool(pv < view.alpha and (dithered or amp[j] > 0.5 * q)), "F": float(F), "p_value": pv,
-                "harmonic": int(j + 2), "dithered": dithered,
+        a1 = float(np.hypot(*c1)) + 3.0 * float(np.sqrt(var / np.min(np.sum(H1**2, axis=0))))
+        dither = float(np.sqrt(max(float(r @ r) / dof - q * q / 12.0, 0.0)))
+        bound = rounding_harmonic_bound_V(q, a1, dither, j + 2)
+        return {"found": bool(pv < view.alpha and amp[j] > bound), "F": float(F), "p_value": pv,
+                "harmonic": int(j + 2), "rounding_bound_V": bound, "first_harmonic_V": float(np.hypot(*c1)),
+                "dither_V": dither,
                 "amplitude_V": float(amp[j]), "amplitude_se_V": se,
                 "phase_deg": float(np.degrees(np.arctan2(b[j], a[j]))), "amplitudes_V": amp.tolist(),
                 "noise_V": float(np.sqrt(var))}

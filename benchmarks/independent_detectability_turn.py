@@ -1,0 +1,180 @@
+"""Whether a turn-table effect of the independent lab is detectable at all in one recording: its
+expected non-centrality, from the lab's manifest and schedule, against the one a test needs.
+
+The table's motion is rebuilt with the lab's own functions (dial knots, motor lag, mains factor and
+slip of the manifest) so the index crossings and the whole rounds are those of the recording.
+
+- ``slip_ring_noise`` (a ripple A_j sin(h psi + phi_j) on gyro j, V): tested per gyro by
+  regression on the table angle's harmonics 2..5 in the whole rounds of each dial plateau (from
+  ``SETTLE_S`` after the plateau began, the first round dropped where there are four pulses or more).
+  Its non-centrality is
+
+      lambda_j = N A_j^2 / 2 / sigma_j^2,   sigma_j^2 = s^2 + (lsb q)^2 + q^2 / 12
+
+  (N the samples in those rounds, s the gyro's white noise per sample, lsb q the converter's input
+  noise, q^2/12 its rounding), needed: the 90 % power point of a chi-square test with 2 x 4 degrees
+  of freedom at alpha / 3 (the test's level per gyro). A ripple below what the converter's rounding
+  makes of the Earth's 1/rev signal (a1 = S_j Omega_N) is not detectable either: its lambda is 0 then.
+- ``timer_quantisation`` (jitter j on the index pulse's edge, s): the pulse times on each plateau lie
+  on a line; the edge is known to the interval where the samples around the rising and the falling
+  edge overlap (length dt or, for a pulse width w that is not a whole number of samples, f dt or
+  (1 - f) dt, f = w / dt mod 1). The statistic Q = sum r^2 / v (r the plateau line fits' weighted
+  residuals, v = |interval|^2 / 12) is simulated with the recording's pulses, jittered, at uniform
+  grid phases, against its null as the test draws it (no jitter, uniform phases, each plateau's
+  period drawn within the SE the pulses fix it to, E v = dt^2 ((1 - f)^3 + f^3) / 12); its power at
+  level alpha is expressed as the non-centrality of a chi-square on the same m residual degrees of
+  freedom that has that power, needed: the one with 90 % power.
+
+The mains factor and the slip are read from the table's mean rate over many rounds, far above the
+timer's error at the lab's sizes: always scored (None).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import optimize, special, stats
+
+ALPHA, POWER = 0.01, 0.9
+#: seconds after a dial plateau began before its pulses count (the table's settling)
+SETTLE_S = 2.0
+#: harmonics 2..5 of the table angle (cos and sin): the ripple test's degrees of freedom
+RIPPLE_DOF = 8
+#: the running mean (samples) whose half is cut from each window's ends
+RUNNING_MEAN = 51
+
+
+def lambda_needed(k: int, alpha: float, power: float = POWER) -> float:
+    """The non-centrality giving ``power`` to a chi-square(k) test at level ``alpha``."""
+    crit = stats.chi2.isf(alpha, k)
+    return float(optimize.brentq(lambda lam: stats.ncx2.sf(crit, k, lam) - power, 1e-6, 1e5))
+
+
+def table_motion(turn, truth: dict):
+    """(t, dial, psi_deg, crossing times, plateaus [(start, stop, dial)]) of the recording, rebuilt
+    with the lab's own functions and the manifest's table."""
+    fs, tb = truth["fs_hz"], truth["table"]
+    knots_t, knots_v = turn.dial_knots()
+    t = np.arange(int(knots_t[-1] * fs)) / fs
+    dial = np.interp(t, knots_t, knots_v)
+    r = np.abs(dial * tb["factor"])
+    short = np.where(r > 0.5, tb["slip_s1"] * np.maximum(r, 0.5) ** -tb["slip_alpha"], 0.0)
+    omega = turn.lagged(dial * tb["factor"] * (1 - short), fs, tb["motor_lag_s"])
+    psi = np.concatenate([[0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) / fs)])
+    cross = turn.crossing_times(t, psi)
+    plateaus = [(a, b, v) for a, b, v, v2 in zip(knots_t[:-1], knots_t[1:], knots_v[:-1], knots_v[1:])
+                if v == v2 and v != 0]
+    return t, psi, cross, plateaus
+
+
+def rounding_harmonics_V(q: float, a1: float, sigma: float, m: int, k_max: int = 2000) -> float:
+    """The largest amplitude at harmonic m that rounding to q makes of b + a1 cos(psi) under
+    Gaussian noise sigma, any b: sum_k 2 q / (pi k) exp(-2 pi^2 k^2 sigma^2 / q^2) |J_m(2 pi k a1 / q)|
+    (the quantiser's Fourier series, Jacobi-Anger), the tail past k_max by |J_m(x)| <= sqrt(2 / (pi x)))."""
+    if q <= 0 or a1 <= 0:
+        return 0.0
+    k = np.arange(1, k_max + 1, dtype=float)
+    damp = np.exp(-2 * np.pi**2 * k**2 * sigma**2 / q**2)
+    head = float(np.sum(2 * q / (np.pi * k) * damp * np.abs(special.jv(m, 2 * np.pi * k * a1 / q))))
+    return head + 2 * q / np.pi * math.sqrt(q / (np.pi**2 * a1)) * 2.0 / math.sqrt(k_max) * float(damp[-1])
+
+
+def _rounds(cross: np.ndarray, a: float, b: float) -> np.ndarray:
+    """The pulses of a plateau's whole rounds as the ripple test takes them."""
+    p = cross[(cross >= a + SETTLE_S) & (cross <= b)]
+    return p[1:] if p.size >= 4 else p
+
+
+def slip_ring(truth: dict, effect: dict, turn, motion) -> dict:
+    """lambda per gyro of the ripple (module doc)."""
+    t, _psi, cross, plateaus = motion
+    fs, adc = truth["fs_hz"], truth["adc"]
+    n = 0
+    for a, b, _v in plateaus:
+        p = _rounds(cross, a, b)
+        if p.size >= 2:
+            n += max(int(round((p[-1] - p[0]) * fs)) - 2 * (RUNNING_MEAN // 2), 0)
+    q = adc["step_V"]
+    s2 = truth["gyros"]["noise_V_rms_per_sample"] ** 2 + (adc["input_noise_lsb_rms"] * q) ** 2
+    sigma2 = s2 + q * q / 12
+    lat = math.radians(truth["site"]["latitude_deg"])
+    w_n_dps = math.degrees(7.2921150e-5 * math.cos(lat))
+    amp = effect["parameters"]["ripple_amplitude_V"]
+    h = effect["parameters"]["harmonic_per_turn"]
+    lam = {}
+    for j, a in enumerate("xyz"):
+        a1 = truth["gyros"]["S_V_per_dps"][j] * w_n_dps if j < 2 else 0.0
+        bound = rounding_harmonics_V(q, a1, math.sqrt(s2), h)
+        lam[f"gyro_{a}"] = float(n * amp[j] ** 2 / 2 / sigma2) if amp[j] > bound else 0.0
+    need = lambda_needed(RIPPLE_DOF, ALPHA / 3)
+    return {"effect": effect["effect"], "lambda": lam, "lambda_90": need, "dof": RIPPLE_DOF, "samples": n,
+            "detectable": all(v >= need for v in lam.values())}
+
+
+def _bracket(tau: np.ndarray, dt: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+    """Middle and |interval|^2 / 12 of edges ``tau`` bracketed by the samples around both edges."""
+    a1 = (np.ceil(tau / dt) - 1) * dt
+    a2 = (np.ceil((tau + w) / dt) - 1) * dt - w
+    lo, hi = np.maximum(a1, a2), np.minimum(a1, a2) + dt
+    ok = hi > lo
+    lo, hi = np.where(ok, lo, a1), np.where(ok, hi, a1 + dt)
+    return 0.5 * (lo + hi), (hi - lo) ** 2 / 12.0
+
+
+def _q(n: np.ndarray, tk: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """sum r^2 / v of weighted line fits t = t0 + T n along the last axis."""
+    W = 1.0 / v
+    S0, S1, S2 = W.sum(-1), (W * n).sum(-1), (W * n * n).sum(-1)
+    Y0, Y1 = (W * tk).sum(-1), (W * n * tk).sum(-1)
+    det = S0 * S2 - S1**2
+    b0, b1 = (S2 * Y0 - S1 * Y1) / det, (S0 * Y1 - S1 * Y0) / det
+    return (W * (tk - b0[..., None] - b1[..., None] * n) ** 2).sum(-1)
+
+
+def timer(truth: dict, effect: dict, motion, n_sim: int = 4000, seed: int = 0) -> dict:
+    """The timer test's power, as a chi-square non-centrality (module doc)."""
+    _t, _psi, cross, plateaus = motion
+    dt, w = 1.0 / truth["fs_hz"], truth["table"]["pulse_width_s"]
+    j = effect["parameters"]["jitter_s"]
+    f = (w / dt) % 1.0
+    rng = np.random.default_rng(seed)
+    q0 = np.zeros(n_sim)
+    q1 = np.zeros(n_sim)
+    m = 0
+    for a, b, _v in plateaus:
+        p = cross[(cross >= a + SETTLE_S) & (cross <= b)]
+        if p.size < 3:
+            continue
+        m += p.size - 2
+        k = np.arange(p.size, dtype=float)
+        ph = rng.uniform(0, dt, (2, n_sim, 1))
+        # H1: the recording's crossings, jittered, at a uniform grid phase; H0 as the test draws it:
+        # no jitter, the period within the SE the pulses fix it to (the grid errors' pattern depends
+        # on the period in samples modulo 1, known that far only)
+        T = float(np.polyfit(k, p, 1)[0])
+        v_grid = dt**2 / 12 * ((1 - f) ** 3 + f**3)
+        se_T = math.sqrt(v_grid / np.sum((k - k.mean()) ** 2))
+        tau0 = p[0] + ph[0] + (T + se_T * rng.standard_normal((n_sim, 1))) * k[None, :]
+        tau1 = p[None, :] + ph[1] + j * rng.standard_normal((n_sim, p.size))
+        for out, tau in ((q0, tau0), (q1, tau1)):
+            mid, var = _bracket(tau, dt, w)
+            out += _q(k[None, :], mid, var)
+    crit = float(np.quantile(q0, 1 - ALPHA))
+    power = float(np.mean(q1 > crit))
+    need = lambda_needed(m, ALPHA)
+    c = stats.chi2.isf(ALPHA, m)
+    lam = 1e5 if power >= 1 - 1e-9 else (0.0 if power <= ALPHA else
+                                           float(optimize.brentq(lambda x: stats.ncx2.sf(c, m, x) - power, 1e-9, 1e5)))
+    return {"effect": effect["effect"], "lambda": {"rate": lam}, "lambda_90": need, "dof": m, "power": power,
+            "detectable": power >= POWER}
+
+
+def detectability(truth: dict, turn) -> dict | None:
+    """{lambda, lambda_90, detectable, ...} of a turn-table recording's effect, or None (always scored)."""
+    eff = [e for e in truth.get("effects", []) if e["effect"] in ("slip_ring_noise", "timer_quantisation")]
+    if truth.get("rig") != "turn_table" or not eff:
+        return None
+    motion = table_motion(turn, truth)
+    if eff[0]["effect"] == "slip_ring_noise":
+        return slip_ring(truth, eff[0], turn, motion)
+    return timer(truth, eff[0], motion, seed=int(truth["seed"]))
