@@ -197,10 +197,10 @@ ITEMS = {i.key: i for i in (
          "preset (about 0.005 m/s^2) sit at the lower edge of what the paper's axis allows"),
     Item("paper_fig_4", "paper section 3.1, Fig. 4", "the gyros' calibration residuals over 48 samples (0-300 deg/s "
          "both ways about each axis): the manufacturer's scale factors leave -30..10 deg/s, the own eq. 3 model "
-         "within +-1 deg/s", gyro.paper_fig_4, "the virtual gyros' scale factors lie within +-2 % of the datasheet's "
-         "6 mV/(deg/s), where the paper's -30 deg/s at 300 deg/s mean ~10 % (as the same gyro type's 5.44 mV/(deg/s) "
-         "of Table B.1), and its own residuals of up to 1 deg/s are, as in Fig. 4.21, beyond every seed-documented "
-         "disturbance within its bound", GYRO_FIGURES["paper_fig_4"]),
+         "within +-1 deg/s", gyro.paper_fig_4, "the preset's gyros carry Table B.1's scale factors (5.41-5.44 mV/(deg/s)), "
+         "which predict the manufacturer's envelopes; the own eq. 3 residuals of up to 1 deg/s are, as in Fig. 4.21, "
+         "beyond every seed-documented disturbance within its bound (the virtual ones stay below 0.05 deg/s)",
+         GYRO_FIGURES["paper_fig_4"]),
     Item("paper_fig_5", "paper section 3.2, Fig. 5", "the field's X, Y and norm while the system turns level: with the "
          "own calibration the X and Y sinusoids centre on zero (+-19018 nT) and the norm is constant at ~48723 nT; "
          "with the manufacturer's the norm wanders within 44000-50000 nT", paper.paper_fig_5,
