@@ -58,3 +58,22 @@ def test_turn_preset_chain_carries_the_estimates_and_the_quiet_lab_does_not():
     # the manufacturer's nominal stays the datasheet's (the manufacturer's conversion uses it)
     assert lab.gyros.nominal_scale_V_per_rad_s == NOMINAL_GYRO_SCALE_V_PER_RAD_S
     np.testing.assert_array_equal(quiet.gyros.scale_V_per_rad_s, np.full(3, NOMINAL_GYRO_SCALE_V_PER_RAD_S))
+
+
+def test_thermal_preset_r_gyro_bias_tempco_is_the_fig2_reading():
+    """Fig. 2's r panel (y 6.0-8.5 mV, tick 0.5 mV; x 2.3-3.2 V, tick 0.1 V; 10 mV/K): the slope's bounds
+    2.0 mV / 0.9 V and 2.5 mV / 0.8 V; the preset's kb_r is their middle over Table B.1's S_r, SE the half-width
+    over sqrt(3). The quiet chamber keeps its drawn coefficient (within +-2e-4 deg/s/K)."""
+    from imurig.campaigns.thermal import ThermalCampaign
+
+    lo, hi = 0.01 * 2.0e-3 / 0.9, 0.01 * 2.5e-3 / 0.8            # V/K
+    S, _ = _independent_table_b1_fit()
+    imu = Delft2005Imu.estimated()
+    np.testing.assert_allclose(imu.gyro_r_bias_tempco_rad_s_per_K, (lo + hi) / 2 / S[2], rtol=1e-12)
+    np.testing.assert_allclose(imu.gyro_r_bias_tempco_se_rad_s_per_K, (hi - lo) / 2 / np.sqrt(3) / S[2], rtol=1e-12)
+    _, lab, _ = ThermalCampaign(lab="delft-2005").build()
+    _, quiet, _ = ThermalCampaign().build()
+    assert lab.gyros.bias_tempco_rad_s_per_K[2] == imu.gyro_r_bias_tempco_rad_s_per_K
+    np.testing.assert_array_equal(lab.gyros.bias_tempco_rad_s_per_K[:2], quiet.gyros.bias_tempco_rad_s_per_K[:2])
+    np.testing.assert_array_equal(lab.gyros.scale_V_per_rad_s, imu.gyro_scale_V_per_rad_s)
+    assert abs(quiet.gyros.bias_tempco_rad_s_per_K[2]) <= 2e-4 * DEG

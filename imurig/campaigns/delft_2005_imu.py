@@ -13,6 +13,17 @@ its standard error, the seed's sentence or figure that supports it and the physi
   nominal (three times that variation: a stated choice, not a datasheet number). The estimates sit ~9.5 %
   below nominal, as Fig. 4.19's manufacturer residuals (up to 8 deg/s at 82 deg/s) show.
 
+* the r gyro's bias temperature coefficient kb_r (rad/s/K) from the paper's Fig. 2 (section 3.1: "Fig. 2
+  shows the changes in the outputs of the Z axis accelerometer and r gyroscope with temperature variations";
+  "a ... first order polynomial [was] used" for the gyros). The figure prints no number: a cloud filling its
+  axes (x 2.3-3.2 V, y 6.0-8.5 mV, ticks 0.1 V and 0.5 mV) has an output slope dV/dT between (Y - ty) / X
+  and Y / (X - tx) times the sensor's 10 mV/K (:func:`fig2_slope_V_per_K`). The least squares of one reading
+  is the reading: dV/dT = the interval's middle, SE = its half-width / sqrt(3) (uniform within the bounds),
+  and kb_r = (dV/dT) / S_r with Table B.1's S_r. The sign is not printed (positive here; the item compares
+  |slope|). Bound: the datasheet (A.2) gives none for the bias over temperature (only the 5 % scale-factor
+  variation); the estimate drifts ~0.45 deg/s over the datasheet's -30..+71 C, 0.09 % of the 500 deg/s range.
+  p and q keep their drawn coefficients (the figure shows r alone).
+
 Not estimated here (the seed's figures print no numbers that a model of this project could be fitted to
 without a read-off reading as the sole target): see the report of issue 17.
 """
@@ -35,6 +46,31 @@ NOMINAL_GYRO_SCALE_V_PER_RAD_S = 6e-3 / DEG
 GYRO_SCALE_BOUNDS = (0.85, 1.15)
 
 
+#: paper Fig. 2's panels: (x lo, x hi, x tick, y lo, y hi, y tick) in V; the temperature sensors' 10 mV/K
+#: (1 uA/K into 10 kOhm, appendix A.1; the virtual sensors' load)
+FIG2_ACC = (2.5, 3.2, 0.1, 1.28, 1.29, 0.002)
+FIG2_GYRO = (2.3, 3.2, 0.1, 6e-3, 8.5e-3, 0.5e-3)
+TEMP_V_PER_K = 0.01
+FIG2_SEED_SAYS = ("paper 3.1, Fig. 2: 'the changes in the outputs of the ... r gyroscope with temperature variations' "
+                  "(r gyro 6.0-8.5 mV against the box sensor 2.3-3.2 V); gyros modelled by a first-order polynomial")
+
+
+def fig2_slope_V_per_K(axes) -> tuple[float, float]:
+    """(lo, hi) of |dV_out / dT| (V/K) read off a cloud filling the axes: its x and y extents lie within one tick
+    of the axis spans, so the slope lies between (Y - ty) / X and Y / (X - tx), times TEMP_V_PER_K."""
+    x0, x1, tx, y0, y1, ty = axes
+    X, Y = x1 - x0, y1 - y0
+    return TEMP_V_PER_K * (Y - ty) / X, TEMP_V_PER_K * Y / (X - tx)
+
+
+def fig2_r_gyro_bias_tempco(scale_r_V_per_rad_s: float) -> dict:
+    """kb_r (rad/s/K) and its SE from Fig. 2's reading and the r gyro's scale factor (module doc)."""
+    lo, hi = fig2_slope_V_per_K(FIG2_GYRO)
+    mid, se = (lo + hi) / 2, (hi - lo) / 2 / np.sqrt(3)
+    return {"dV_dT_V_per_K": mid, "dV_dT_se_V_per_K": se, "value_rad_s_per_K": mid / scale_r_V_per_rad_s,
+            "se_rad_s_per_K": se / scale_r_V_per_rad_s}
+
+
 @lru_cache(maxsize=1)
 def table_b1_gyro_scale() -> dict:
     """Per gyro p, q, r the scale factor estimated from Table B.1 (all 25 rows): value and SE in V/(rad/s)
@@ -55,13 +91,19 @@ class Delft2005Imu:
 
     gyro_scale_V_per_rad_s: tuple[float, float, float]
     gyro_scale_se_V_per_rad_s: tuple[float, float, float]
+    #: the r gyro's bias temperature coefficient (rad/s/K) from the paper's Fig. 2, with its SE
+    gyro_r_bias_tempco_rad_s_per_K: float = 0.0
+    gyro_r_bias_tempco_se_rad_s_per_K: float = 0.0
 
     @classmethod
     def estimated(cls) -> "Delft2005Imu":
         """The estimates from the seed's data (module doc)."""
         t = table_b1_gyro_scale()
+        kb = fig2_r_gyro_bias_tempco(t["r"]["value_V_per_rad_s"])
         return cls(gyro_scale_V_per_rad_s=tuple(t[g]["value_V_per_rad_s"] for g in GYROS),
-                   gyro_scale_se_V_per_rad_s=tuple(t[g]["se_V_per_rad_s"] for g in GYROS))
+                   gyro_scale_se_V_per_rad_s=tuple(t[g]["se_V_per_rad_s"] for g in GYROS),
+                   gyro_r_bias_tempco_rad_s_per_K=kb["value_rad_s_per_K"],
+                   gyro_r_bias_tempco_se_rad_s_per_K=kb["se_rad_s_per_K"])
 
     def within_bounds(self) -> bool:
         """Each scale factor inside GYRO_SCALE_BOUNDS x the datasheet's nominal."""
@@ -73,9 +115,19 @@ class Delft2005Imu:
         nominal sensitivity the record states, so a manufacturer's conversion uses the datasheet value."""
         return replace(base, scale_V_per_rad_s=np.asarray(self.gyro_scale_V_per_rad_s, float))
 
+    def thermal_gyros(self, base: FOGTriad) -> FOGTriad:
+        """:meth:`gyros` plus the r gyro's bias temperature coefficient of Fig. 2 (p and q keep ``base``'s)."""
+        kb = np.asarray(base.bias_tempco_rad_s_per_K, float).copy()
+        kb[2] = self.gyro_r_bias_tempco_rad_s_per_K
+        return replace(self.gyros(base), bias_tempco_rad_s_per_K=kb)
+
     def describe(self) -> list[dict]:
         """One row per estimated size: value, SE, source, bound."""
         t = table_b1_gyro_scale()
         return [{"effect": f"gyro {g} scale factor", "size": f"{t[g]['value_mV_per_dps']:.4g} mV/(deg/s)",
                  "fitted": True, "se": t[g]["se_mV_per_dps"], "seed_says": GYRO_SCALE_SEED_SAYS,
-                 "bound": f"{GYRO_SCALE_BOUNDS[0]:g}-{GYRO_SCALE_BOUNDS[1]:g} x 6 mV/(deg/s)"} for g in GYROS]
+                 "bound": f"{GYRO_SCALE_BOUNDS[0]:g}-{GYRO_SCALE_BOUNDS[1]:g} x 6 mV/(deg/s)"} for g in GYROS] + [
+            {"effect": "gyro r bias temperature coefficient (thermal chamber)",
+             "size": f"{self.gyro_r_bias_tempco_rad_s_per_K / DEG:.3g} deg/s/K", "fitted": True,
+             "se": self.gyro_r_bias_tempco_se_rad_s_per_K / DEG, "seed_says": FIG2_SEED_SAYS,
+             "bound": "none in the datasheet (A.2)"}]

@@ -144,6 +144,9 @@ def _thermal_args(p):
     p.add_argument("--step", type=float, default=d.step_C, help="set-point step, C")
     p.add_argument("--cycles", type=int, default=d.cycles, help="temperature cycles of the chamber profile")
     p.add_argument("--soak", type=float, default=d.soak_s, help="soak time per set-point, s")
+    p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
+                   help="the virtual lab: quiet (default) or delft-2005 (the seed's own gyros: Table B.1 scale "
+                        "factors, the paper's Fig. 2 r-gyro bias temperature coefficient)")
     p.add_argument("--no-rrd", action="store_true")
     p.add_argument("--no-recording", action="store_true")
     p.set_defaults(func=_run_thermal)
@@ -227,7 +230,7 @@ def _run_thermal(a):
     prof = ThermalProfile(low_C=a.low, high_C=a.high, step_C=a.step, cycles=a.cycles, soak_s=a.soak)
     prof.validate()
     print(f"imurig: thermal campaign, {len(prof.setpoints())} set-points, seed {a.seed} -> {a.out}", file=sys.stderr)
-    s = run(ThermalCampaign(profile=prof, seed=a.seed), a.out, overwrite=a.overwrite, rrd=not a.no_rrd,
+    s = run(ThermalCampaign(profile=prof, seed=a.seed, lab=a.lab), a.out, overwrite=a.overwrite, rrd=not a.no_rrd,
             save_recording=not a.no_recording)
     _print_params(s["parameters"])
     for k, v in s["hysteresis"].items():
