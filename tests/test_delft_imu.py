@@ -77,3 +77,25 @@ def test_thermal_preset_r_gyro_bias_tempco_is_the_fig2_reading():
     np.testing.assert_array_equal(lab.gyros.bias_tempco_rad_s_per_K[:2], quiet.gyros.bias_tempco_rad_s_per_K[:2])
     np.testing.assert_array_equal(lab.gyros.scale_V_per_rad_s, imu.gyro_scale_V_per_rad_s)
     assert abs(quiet.gyros.bias_tempco_rad_s_per_K[2]) <= 2e-4 * DEG
+
+
+def test_fig5_hard_iron_meets_the_two_norm_readings_within_bounds():
+    """On an ideal fluxgate (no soft iron, unit gains) turning level in the paper's field (H 19018, F 48723 nT),
+    the norm is exactly sqrt(H^2 + b_x^2 + (Z - |b_z|)^2 + 2 H b_x cos psi): the fitted hard iron gives the
+    readings' mean 47000 and extent 4000 nT (two readings, two sizes), each size within the 6000-nT bound
+    and with a finite SE below it."""
+    from imurig.campaigns.delft_2005_imu import HARD_IRON_BOUND_NT, fig5_hard_iron
+    from imurig.sensors.magnetometer import FluxgateTriad
+
+    H, F = 19018.0, 48723.0
+    Z = np.sqrt(F**2 - H**2)
+    psi = np.linspace(0, 2 * np.pi, 3600, endpoint=False)
+    B = np.column_stack([H * np.cos(psi), -H * np.sin(psi), np.full_like(psi, -Z)]) * 1e-9
+    fit = fig5_hard_iron(FluxgateTriad.from_datasheet(), B)
+    bx, _, bz = fit["hard_iron_T"] * 1e9
+    n = np.sqrt(H**2 + bx**2 + (Z - bz) ** 2 + 2 * H * bx * np.cos(psi))
+    assert bz > 0                      # opposing the downward (negative z) field: the norm falls below F
+    assert abs(n.mean() - 47000.0) < 1.0 and abs(np.ptp(n) - 4000.0) < 1.0
+    assert abs(bx) < HARD_IRON_BOUND_NT and abs(bz) < HARD_IRON_BOUND_NT
+    se = fit["se_T"][[0, 2]] * 1e9
+    assert np.all((se > 0) & (se < HARD_IRON_BOUND_NT))
