@@ -99,3 +99,17 @@ def test_fig5_hard_iron_meets_the_two_norm_readings_within_bounds():
     assert abs(bx) < HARD_IRON_BOUND_NT and abs(bz) < HARD_IRON_BOUND_NT
     se = fit["se_T"][[0, 2]] * 1e9
     assert np.all((se > 0) & (se < HARD_IRON_BOUND_NT))
+
+
+def test_tab46_accelerometer_inverse_and_transcription():
+    """The transcribed Tab. 4.6 carries the seed's own-axis scale factors (published_figures [table_4_6]) and
+    its inverse reproduces the reference to rounding on the paper's 120 positions (one mounting)."""
+    from imurig.campaigns.delft_2005_imu import TAB_4_6_BETA, tab46_manufacturer_reading, tab46_regressors
+    from imurig.reports.common import published_figures
+
+    np.testing.assert_array_equal(TAB_4_6_BETA[[1, 3, 5], [0, 1, 2]], published_figures()["table_4_6"]["scale_factor"])
+    th = np.radians(np.repeat(np.arange(0, 100, 10), 12))
+    ph = np.radians(np.tile(np.arange(0, 360, 30), 10))
+    A = 9.81242231 * np.column_stack([-np.cos(ph) * np.sin(th), np.sin(ph) * np.sin(th), np.cos(th)])
+    u = tab46_manufacturer_reading(A)
+    np.testing.assert_allclose(tab46_regressors(u) @ TAB_4_6_BETA, A, rtol=0, atol=1e-12)
