@@ -81,4 +81,4 @@ class Delft2005Turn:
                  "fitted": True, "se": s["gps_jitter_s"]["se"], "seed_says": GPS_JITTER_SEED_SAYS},
                 {"effect": SlipRingNoise.name, "size": f"{self.slip_density_V_rtHz * 1e6:.3g} uV/sqrt(Hz)",
                  "fitted": False, "se": None, "seed_says": SlipRingNoise.seed_says},
-                *Delft2005Imu.estimated().describe()]
+                *[r for r in Delft2005Imu.estimated().describe() if "scale factor" in r["effect"]]]
