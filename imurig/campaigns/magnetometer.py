@@ -53,7 +53,8 @@ class MagnetometerCampaign:
     validation: LevelCircle = field(default_factory=lambda: LevelCircle(turns=1, rate_dps=6, start_heading_deg=17,
                                                                         wobble_deg=0.0, name="validation_circle"))
     site: Site = field(default_factory=Site)
-    #: "quiet" (default) or "delft-2005": the hard iron fitted to the paper's Fig. 5 (:mod:`imurig.campaigns.delft_2005_imu`)
+    #: "quiet" (default) or "delft-2005": the hard iron fitted to the paper's Fig. 5
+    #: (:mod:`imurig.campaigns.delft_2005_imu`)
     lab: str = "quiet"
 
     def to_dict(self) -> dict:
@@ -67,7 +68,8 @@ class MagnetometerCampaign:
                                               random_streams.generator("campaign/magnetometer/rig", self.seed))
         if check_lab(self.lab) == "delft-2005":
             # the seed's installation: hard iron fitted to the paper's Fig. 5 on the validation circle's field
-            B = np.column_stack([rig.truth_signals[f"B_C_{a}"] for a in "xyz"])[manoeuvre_mask(rig, self.validation.name)]
+            on_circle = manoeuvre_mask(rig, self.validation.name)
+            B = np.column_stack([rig.truth_signals[f"B_C_{a}"] for a in "xyz"])[on_circle]
             fit5 = fig5_hard_iron(mag, B)
             mag = replace(mag, hard_iron_T=fit5["hard_iron_T"])
         lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
