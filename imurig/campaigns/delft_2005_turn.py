@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import resources
 
+from imurig.campaigns.delft_2005_imu import Delft2005Imu
 from imurig.kernel.errors import ConfigError
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.effects.gyro_scale_instability import GyroScaleInstability
@@ -64,11 +65,12 @@ class Delft2005Turn:
         return SlipRingNoise(enabled=enabled, rms_V=self.slip_density_V_rtHz * math.sqrt(sample_rate_hz / 2))
 
     def apply(self, lab: ImuLab, sample_rate_hz: float, slip_rings: bool = True) -> ImuLab:
-        """The quiet chain ``lab`` with the preset's slip rings, timers and gyro scale-factor wander."""
+        """The quiet chain ``lab`` with the preset's slip rings, timers, gyro scale-factor wander and the
+        seed's own gyro scale factors (Table B.1, :mod:`imurig.campaigns.delft_2005_imu`)."""
         gps = replace(gps_mark_timer(), jitter_s=self.gps_jitter_s)
         sf = GyroScaleInstability(enabled=True, sigma=self.sf_sigma, tau_s=self.sf_tau_s)
         return replace(lab, slip_rings=self.slip_rings(sample_rate_hz, slip_rings), timers=(gps, hp6700_counter()),
-                       effects=(*lab.effects, sf))
+                       effects=(*lab.effects, sf), gyros=Delft2005Imu.estimated().gyros(lab.gyros))
 
     def describe(self) -> list[dict]:
         """One row per disturbance: size, SE, fitted or not, the seed's sentence."""
@@ -78,4 +80,5 @@ class Delft2005Turn:
                 {"effect": TimerQuantisation.name + " (GPS mark)", "size": f"jitter {self.gps_jitter_s * 1e3:.3g} ms",
                  "fitted": True, "se": s["gps_jitter_s"]["se"], "seed_says": GPS_JITTER_SEED_SAYS},
                 {"effect": SlipRingNoise.name, "size": f"{self.slip_density_V_rtHz * 1e6:.3g} uV/sqrt(Hz)",
-                 "fitted": False, "se": None, "seed_says": SlipRingNoise.seed_says}]
+                 "fitted": False, "se": None, "seed_says": SlipRingNoise.seed_says},
+                *[r for r in Delft2005Imu.estimated().describe() if "scale factor" in r["effect"]]]

@@ -22,6 +22,8 @@ import numpy as np
 
 from imurig.calibration.heading import heading_from_field, wrap_pi
 from imurig.calibration.magnetometer import MagnetometerCalibration
+from imurig.campaigns.delft_2005 import check_lab
+from imurig.campaigns.delft_2005_imu import fig5_hard_iron
 from imurig.kernel import random_streams
 from imurig.kernel.recording import Recording
 from imurig.rigs.mag_rig import CompassSwing, LevelCircle, MagRig, Tumble
@@ -51,6 +53,9 @@ class MagnetometerCampaign:
     validation: LevelCircle = field(default_factory=lambda: LevelCircle(turns=1, rate_dps=6, start_heading_deg=17,
                                                                         wobble_deg=0.0, name="validation_circle"))
     site: Site = field(default_factory=Site)
+    #: "quiet" (default) or "delft-2005": the hard iron fitted to the paper's Fig. 5
+    #: (:mod:`imurig.campaigns.delft_2005_imu`)
+    lab: str = "quiet"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -59,13 +64,22 @@ class MagnetometerCampaign:
         install_rng = random_streams.generator("magnetometer_install", self.seed)
         mag = FluxgateTriad.from_datasheet(install_rng, hard_iron_max_nT=self.hard_iron_max_nT,
                                            soft_iron_max=self.soft_iron_max, noise_nT_rms=self.noise_nT)
-        lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
-                      adc=DAQ6036E(scan_list=MAG + ("temp_box",), sample_rate_hz=100.0, averaging=10))
         rig = MagRig(site=self.site).simulate([self.circle, self.tumble, self.swing, self.validation], self.start_time,
                                               random_streams.generator("campaign/magnetometer/rig", self.seed))
+        if check_lab(self.lab) == "delft-2005":
+            # the seed's installation: hard iron fitted to the paper's Fig. 5 on the validation circle's field
+            on_circle = manoeuvre_mask(rig, self.validation.name)
+            B = np.column_stack([rig.truth_signals[f"B_C_{a}"] for a in "xyz"])[on_circle]
+            fit5 = fig5_hard_iron(mag, B)
+            mag = replace(mag, hard_iron_T=fit5["hard_iron_T"])
+        lab = replace(ImuLab(), magnetometer=mag, pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False),
+                      adc=DAQ6036E(scan_list=MAG + ("temp_box",), sample_rate_hz=100.0, averaging=10))
         rec = lab.measure(rig, random_streams.seed_sequence("campaign/magnetometer/sensor-chain", self.seed))
         rec.meta["campaign"] = {"name": "magnetometer", **self.to_dict()}
         rec.meta["mag_nominal_sensitivity_V_per_T"] = (np.full(3, 4.0e4)).tolist()
+        if self.lab == "delft-2005":
+            rec.meta["delft_2005_hard_iron_fit"] = {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                                                    for k, v in fit5.items()}
         return rec
 
 

@@ -12,6 +12,8 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from imurig.calibration.thermal import ThermalCalibration, branch_gap, step_table
+from imurig.campaigns.delft_2005 import check_lab
+from imurig.campaigns.delft_2005_imu import Delft2005Imu
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ScheduleError
 from imurig.kernel.recording import Recording
@@ -42,6 +44,9 @@ class ThermalCampaign:
     gyro_bias_tempco_dps_per_C: float = 2e-4
     gyro_scale_variation: float = 0.05
     site: Site = field(default_factory=Site)
+    #: "quiet" (default) or "delft-2005": the seed's own gyros (Table B.1 scale factors, Fig. 2's r-gyro bias
+    #: temperature coefficient; :mod:`imurig.campaigns.delft_2005_imu`)
+    lab: str = "quiet"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -55,6 +60,8 @@ class ThermalCampaign:
         gy = replace(base.gyros,
                      bias_tempco_rad_s_per_K=rng.uniform(-1, 1, 3) * self.gyro_bias_tempco_dps_per_C * np.pi / 180,
                      scale_tempco_per_K=rng.uniform(-1, 1, 3) * self.gyro_scale_variation / 101.0)
+        if check_lab(self.lab) == "delft-2005":
+            gy = Delft2005Imu.estimated().thermal_gyros(gy)
         lab = replace(base, gyros=gy, adc=DAQ6036E(scan_list=THERMAL_SCAN, sample_rate_hz=self.profile.sample_rate_hz,
                                    averaging=int(round(1000 / self.profile.sample_rate_hz))),
                       pump=PumpVibration(enabled=False), people=PeopleTransients(enabled=False))

@@ -144,6 +144,9 @@ def _thermal_args(p):
     p.add_argument("--step", type=float, default=d.step_C, help="set-point step, C")
     p.add_argument("--cycles", type=int, default=d.cycles, help="temperature cycles of the chamber profile")
     p.add_argument("--soak", type=float, default=d.soak_s, help="soak time per set-point, s")
+    p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
+                   help="the virtual lab: quiet (default) or delft-2005 (the seed's own gyros: Table B.1 scale "
+                        "factors, the paper's Fig. 2 r-gyro bias temperature coefficient)")
     p.add_argument("--no-rrd", action="store_true")
     p.add_argument("--no-recording", action="store_true")
     p.set_defaults(func=_run_thermal)
@@ -156,6 +159,8 @@ def _magnetometer_args(p):
     p.add_argument("--start-time", default="2005-06-21T10:00:00+02:00", type=_iso_time, help="date and time (for IGRF)")
     p.add_argument("--hard-iron-nT", type=float, default=6000.0, help="largest hard-iron bias per axis")
     p.add_argument("--noise-nT", type=float, default=5.0, help="fluxgate noise, nT rms per sample")
+    p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
+                   help="the virtual lab: quiet (default) or delft-2005 (hard iron fitted to the paper's Fig. 5)")
     p.add_argument("--no-rrd", action="store_true")
     p.add_argument("--no-recording", action="store_true")
     p.set_defaults(func=_run_magnetometer)
@@ -227,7 +232,7 @@ def _run_thermal(a):
     prof = ThermalProfile(low_C=a.low, high_C=a.high, step_C=a.step, cycles=a.cycles, soak_s=a.soak)
     prof.validate()
     print(f"imurig: thermal campaign, {len(prof.setpoints())} set-points, seed {a.seed} -> {a.out}", file=sys.stderr)
-    s = run(ThermalCampaign(profile=prof, seed=a.seed), a.out, overwrite=a.overwrite, rrd=not a.no_rrd,
+    s = run(ThermalCampaign(profile=prof, seed=a.seed, lab=a.lab), a.out, overwrite=a.overwrite, rrd=not a.no_rrd,
             save_recording=not a.no_recording)
     _print_params(s["parameters"])
     for k, v in s["hysteresis"].items():
@@ -241,7 +246,7 @@ def _run_magnetometer(a):
     from imurig.reports.magnetometer import run
 
     camp = MagnetometerCampaign(seed=a.seed, start_time=a.start_time, hard_iron_max_nT=a.hard_iron_nT,
-                                noise_nT=a.noise_nT)
+                                noise_nT=a.noise_nT, lab=a.lab)
     print(f"imurig: magnetometer campaign, seed {a.seed} -> {a.out}", file=sys.stderr)
     s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording)
     ig = s["igrf"]

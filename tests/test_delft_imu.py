@@ -1,0 +1,115 @@
+"""The Delft 2005 preset's own IMU: sizes estimated from the seed's published data (issue 17)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from imurig.campaigns.delft_2005_imu import (GYRO_SCALE_BOUNDS, NOMINAL_GYRO_SCALE_V_PER_RAD_S, Delft2005Imu,
+                                             table_b1_gyro_scale)
+from imurig.campaigns.delft_2005_turn import Delft2005Turn
+from imurig.kernel.units import DEG
+from imurig.sensors.chain import ImuLab
+
+TABLE_B1 = Path(__file__).resolve().parents[1] / ".." / "shared" / "reference" / "simona_gyro_table_b1.csv"
+
+
+def _independent_table_b1_fit() -> tuple[np.ndarray, np.ndarray]:
+    """Scale factors (V per rad/s) and SEs by a plain least squares of the seed's CSV, independent of
+    the project's SIMONA code: rate = 360 / T_round (0 at rest) = b0 + b1 V, S = 1 / b1 (deg -> rad)."""
+    lines = [ln for ln in TABLE_B1.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    head = lines[0].split(",")
+    rows = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    d = {h: rows[:, k] for k, h in enumerate(head)}
+    T = d["measured_round_s"]
+    rate = np.where(T > 0, 360.0 / np.where(T > 0, T, 1.0), 0.0)
+    S, se = [], []
+    for g in "pqr":
+        V = d[f"{g}_V"]
+        X = np.column_stack([np.ones_like(V), V])
+        coef, res, *_ = np.linalg.lstsq(X, rate, rcond=None)
+        s2 = res[0] / (V.size - 2)
+        cov = s2 * np.linalg.inv(X.T @ X)
+        S.append(1.0 / coef[1] / DEG)
+        se.append(np.sqrt(cov[1, 1]) / coef[1] ** 2 / DEG)
+    return np.array(S), np.array(se)
+
+
+def test_preset_gyro_scale_factors_are_table_b1_estimates_within_bounds():
+    """The preset's scale factors equal an independent least squares of Table B.1 (to rounding of the
+    arithmetic), their SEs too, and lie inside the stated physical bound around the datasheet's 6 mV/(deg/s)."""
+    S, se = _independent_table_b1_fit()
+    imu = Delft2005Imu.estimated()
+    np.testing.assert_allclose(imu.gyro_scale_V_per_rad_s, S, rtol=1e-9)
+    np.testing.assert_allclose(imu.gyro_scale_se_V_per_rad_s, se, rtol=1e-6)
+    assert imu.within_bounds()
+    r = S / NOMINAL_GYRO_SCALE_V_PER_RAD_S
+    assert np.all((r > GYRO_SCALE_BOUNDS[0]) & (r < GYRO_SCALE_BOUNDS[1]))
+    # the estimate is far from the datasheet's nominal in units of its own SE (the point of the preset)
+    assert np.all(np.abs(S - NOMINAL_GYRO_SCALE_V_PER_RAD_S) > 100 * se)
+    assert table_b1_gyro_scale()["p"]["n_rows"] == 25
+
+
+def test_turn_preset_chain_carries_the_estimates_and_the_quiet_lab_does_not():
+    imu = Delft2005Imu.estimated()
+    quiet = ImuLab()
+    lab = Delft2005Turn.fitted().apply(quiet, 100.0)
+    np.testing.assert_array_equal(lab.gyros.scale_V_per_rad_s, imu.gyro_scale_V_per_rad_s)
+    # the manufacturer's nominal stays the datasheet's (the manufacturer's conversion uses it)
+    assert lab.gyros.nominal_scale_V_per_rad_s == NOMINAL_GYRO_SCALE_V_PER_RAD_S
+    np.testing.assert_array_equal(quiet.gyros.scale_V_per_rad_s, np.full(3, NOMINAL_GYRO_SCALE_V_PER_RAD_S))
+
+
+def test_thermal_preset_r_gyro_bias_tempco_is_the_fig2_reading():
+    """Fig. 2's r panel (y 6.0-8.5 mV, tick 0.5 mV; x 2.3-3.2 V, tick 0.1 V; 10 mV/K): the slope's bounds
+    2.0 mV / 0.9 V and 2.5 mV / 0.8 V; the preset's kb_r is their middle over Table B.1's S_r, SE the half-width
+    over sqrt(3). The quiet chamber keeps its drawn coefficient (within +-2e-4 deg/s/K)."""
+    from imurig.campaigns.thermal import ThermalCampaign
+
+    lo, hi = 0.01 * 2.0e-3 / 0.9, 0.01 * 2.5e-3 / 0.8            # V/K
+    S, _ = _independent_table_b1_fit()
+    imu = Delft2005Imu.estimated()
+    np.testing.assert_allclose(imu.gyro_r_bias_tempco_rad_s_per_K, (lo + hi) / 2 / S[2], rtol=1e-12)
+    np.testing.assert_allclose(imu.gyro_r_bias_tempco_se_rad_s_per_K, (hi - lo) / 2 / np.sqrt(3) / S[2], rtol=1e-12)
+    _, lab, _ = ThermalCampaign(lab="delft-2005").build()
+    _, quiet, _ = ThermalCampaign().build()
+    assert lab.gyros.bias_tempco_rad_s_per_K[2] == imu.gyro_r_bias_tempco_rad_s_per_K
+    np.testing.assert_array_equal(lab.gyros.bias_tempco_rad_s_per_K[:2], quiet.gyros.bias_tempco_rad_s_per_K[:2])
+    np.testing.assert_array_equal(lab.gyros.scale_V_per_rad_s, imu.gyro_scale_V_per_rad_s)
+    assert abs(quiet.gyros.bias_tempco_rad_s_per_K[2]) <= 2e-4 * DEG
+
+
+def test_fig5_hard_iron_meets_the_two_norm_readings_within_bounds():
+    """On an ideal fluxgate (no soft iron, unit gains) turning level in the paper's field (H 19018, F 48723 nT),
+    the norm is exactly sqrt(H^2 + b_x^2 + (Z - |b_z|)^2 + 2 H b_x cos psi): the fitted hard iron gives the
+    readings' mean 47000 and extent 4000 nT (two readings, two sizes), each size within the 6000-nT bound
+    and with a finite SE below it."""
+    from imurig.campaigns.delft_2005_imu import HARD_IRON_BOUND_NT, fig5_hard_iron
+    from imurig.sensors.magnetometer import FluxgateTriad
+
+    H, F = 19018.0, 48723.0
+    Z = np.sqrt(F**2 - H**2)
+    psi = np.linspace(0, 2 * np.pi, 3600, endpoint=False)
+    B = np.column_stack([H * np.cos(psi), -H * np.sin(psi), np.full_like(psi, -Z)]) * 1e-9
+    fit = fig5_hard_iron(FluxgateTriad.from_datasheet(), B)
+    bx, _, bz = fit["hard_iron_T"] * 1e9
+    n = np.sqrt(H**2 + bx**2 + (Z - bz) ** 2 + 2 * H * bx * np.cos(psi))
+    assert bz > 0                      # opposing the downward (negative z) field: the norm falls below F
+    assert abs(n.mean() - 47000.0) < 1.0 and abs(np.ptp(n) - 4000.0) < 1.0
+    assert abs(bx) < HARD_IRON_BOUND_NT and abs(bz) < HARD_IRON_BOUND_NT
+    se = fit["se_T"][[0, 2]] * 1e9
+    assert np.all((se > 0) & (se < HARD_IRON_BOUND_NT))
+
+
+def test_tab46_accelerometer_inverse_and_transcription():
+    """The transcribed Tab. 4.6 carries the seed's own-axis scale factors (published_figures [table_4_6]) and
+    its inverse reproduces the reference to rounding on the paper's 120 positions (one mounting)."""
+    from imurig.campaigns.delft_2005_imu import TAB_4_6_BETA, tab46_manufacturer_reading, tab46_regressors
+    from imurig.reports.common import published_figures
+
+    np.testing.assert_array_equal(TAB_4_6_BETA[[1, 3, 5], [0, 1, 2]], published_figures()["table_4_6"]["scale_factor"])
+    th = np.radians(np.repeat(np.arange(0, 100, 10), 12))
+    ph = np.radians(np.tile(np.arange(0, 360, 30), 10))
+    A = 9.81242231 * np.column_stack([-np.cos(ph) * np.sin(th), np.sin(ph) * np.sin(th), np.cos(th)])
+    u = tab46_manufacturer_reading(A)
+    np.testing.assert_allclose(tab46_regressors(u) @ TAB_4_6_BETA, A, rtol=0, atol=1e-12)
