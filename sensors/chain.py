@@ -191,27 +191,44 @@ class ImuLab:
                 used.append(group)
         for name, sensor in self.temp_sensors.items():
             if name in scan:
-                analog[name] = sensor.voltage(temps.box if name == "temp_box" else temps.acc, child_rng(seed, name))
+                T, rng = temps.box if name == "temp_box" else temps.acc, child_rng(seed, name)
+                analog[name] = np.empty(np.shape(T))
+                for a, b in _row_chunks(analog[name].shape[0]):  # the same draws, in order, in pieces
+                    analog[name][a:b] = sensor.voltage(T[a:b], rng)
         return analog, slope, used
 
     def _accelerometer_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t = rig.truth_signals, rig.time_s
         acc = self.accelerometers
-        f_C = acc.lever_arm().inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
-        f_C += f_dist
-        v = np.empty_like(f_C)
+        lever = acc.lever_arm()
+        f_C = None
+        if lever.active and "w_C_x" in ts:  # the lever arm's terms need the whole record (dw/dt)
+            f_C = lever.inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
+            f_C += f_dist
+        v = np.empty((t.size, 3))
         for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces, no full-length temporaries
-            v[a:b] = acc.ideal_voltage(f_C[a:b], _rows(temps.acc, a, b), _rows(temps.h_acc, a, b))
+            if f_C is None:
+                f = np.stack([ts[f"f_C_{ax}"][a:b] for ax in AXES], axis=1)
+                f += f_dist[a:b]
+            else:
+                f = f_C[a:b]
+            v[a:b] = acc.ideal_voltage(f, _rows(temps.acc, a, b), _rows(temps.h_acc, a, b))
         del f_C
         d = _gradient_rows(v, t)
-        v += acc.noise_current(t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"),
-                               averaged=bool(rig.meta.get("averaged_logging"))) * acc.load_resistor_ohm
+        noise = acc.current_noise(averaged=bool(rig.meta.get("averaged_logging"))).current(
+            t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"))
+        for a, b in _row_chunks(t.size):
+            v[a:b] += noise[a:b] * acc.load_resistor_ohm
         return v, d
 
     def _magnetometer_volts(self, rig, ctx, f_dist, temps, seed):
-        B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
-        v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"), temps.box)
-        return v, _gradient_rows(v, rig.time_s)  # fluxgate noise is small: no separate noise-free path
+        ts, t = rig.truth_signals, rig.time_s
+        rng = child_rng(seed, "magnetometer")
+        v = np.empty((t.size, 3))
+        for a, b in _row_chunks(t.size):  # the noise drawn row-chunk by row-chunk: the same draws in order
+            B_C = np.stack([ts[f"B_C_{ax}"][a:b] for ax in AXES], axis=1)
+            v[a:b] = self.magnetometer.output_voltage(B_C, rng, _rows(temps.box, a, b))
+        return v, _gradient_rows(v, t)  # fluxgate noise is small: no separate noise-free path
 
     def _gyro_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t, g = rig.truth_signals, rig.time_s, self.gyros
