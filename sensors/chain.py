@@ -233,9 +233,11 @@ class ImuLab:
     def _gyro_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t, g = rig.truth_signals, rig.time_s, self.gyros
         w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
-        f_gyro = (np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1) + f_dist
-                  if np.any(g.g_sensitivity_rad_s_per_m_s2) else None)
-        v = g.ideal_voltage(w_C, temps.gyro, f_gyro)
+        g_sens = bool(np.any(g.g_sensitivity_rad_s_per_m_s2))
+        v = np.empty_like(w_C)
+        for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces
+            f_gyro = np.stack([ts[f"f_C_{ax}"][a:b] for ax in AXES], axis=1) + f_dist[a:b] if g_sens else None
+            v[a:b] = g.ideal_voltage(w_C[a:b], _rows(temps.gyro, a, b), f_gyro)
         d = _gradient_rows(v, t)
         grng = child_rng(seed, "gyros")
         for blk in rig.blocks():  # the bias instability decorrelates over a remount gap

@@ -118,7 +118,12 @@ class SlipRingNoise(Effect):
     def inject(self, v: np.ndarray, ctx: ChainContext, rng: np.random.Generator) -> np.ndarray:
         if not self.enabled:
             return v
-        return v + self.voltage(ctx.truth_signals["spin_angle"], rng)
+        P = self.profile(ctx.truth_signals["spin_angle"])
+        out = np.empty(np.shape(v))
+        for a in range(0, out.shape[0], 1 << 18):  # in row pieces: the draws in order, the values of voltage()
+            b = min(out.shape[0], a + (1 << 18))
+            out[a:b] = v[a:b] + self.rms_V * P[a:b] * rng.standard_normal(b - a)
+        return out
 
     @classmethod
     def from_settings(cls, settings: Mapping) -> "SlipRingNoise":
