@@ -187,7 +187,7 @@ class ImuLab:
             if wanted(prefix, axes):
                 v, d = lines(rig, ctx, f_dist, temps, seed)
                 for j, a in enumerate(axes):
-                    analog[f"{prefix}_{a}"], slope[f"{prefix}_{a}"] = v[:, j], d[:, j]
+                    analog[f"{prefix}_{a}"], slope[f"{prefix}_{a}"] = v[j], d[j]
                 used.append(group)
         for name, sensor in self.temp_sensors.items():
             if name in scan:
@@ -197,6 +197,8 @@ class ImuLab:
                     analog[name][a:b] = sensor.voltage(T[a:b], rng)
         return analog, slope, used
 
+    # each group's lines are three separate (n,) arrays (not the columns of one (n, 3) array), so the
+    # converter frees each line's memory as soon as it has converted it
     def _accelerometer_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t = rig.truth_signals, rig.time_s
         acc = self.accelerometers
@@ -205,43 +207,46 @@ class ImuLab:
         if lever.active and "w_C_x" in ts:  # the lever arm's terms need the whole record (dw/dt)
             f_C = lever.inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
             f_C += f_dist
-        v = np.empty((t.size, 3))
+        v = [np.empty(t.size) for _ in AXES]
         for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces, no full-length temporaries
             if f_C is None:
                 f = np.stack([ts[f"f_C_{ax}"][a:b] for ax in AXES], axis=1)
                 f += f_dist[a:b]
             else:
                 f = f_C[a:b]
-            v[a:b] = acc.ideal_voltage(f, _rows(temps.acc, a, b), _rows(temps.h_acc, a, b))
+            _put_columns(v, a, b, acc.ideal_voltage(f, _rows(temps.acc, a, b), _rows(temps.h_acc, a, b)))
         del f_C
-        d = _gradient_rows(v, t)
+        d = [_gradient_rows(x, t) for x in v]
         noise = acc.current_noise(averaged=bool(rig.meta.get("averaged_logging"))).current(
             t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"))
         for a, b in _row_chunks(t.size):
-            v[a:b] += noise[a:b] * acc.load_resistor_ohm
+            for j, x in enumerate(v):
+                x[a:b] += noise[a:b, j] * acc.load_resistor_ohm[j]
         return v, d
 
     def _magnetometer_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t = rig.truth_signals, rig.time_s
         rng = child_rng(seed, "magnetometer")
-        v = np.empty((t.size, 3))
+        v = [np.empty(t.size) for _ in AXES]
         for a, b in _row_chunks(t.size):  # the noise drawn row-chunk by row-chunk: the same draws in order
             B_C = np.stack([ts[f"B_C_{ax}"][a:b] for ax in AXES], axis=1)
-            v[a:b] = self.magnetometer.output_voltage(B_C, rng, _rows(temps.box, a, b))
-        return v, _gradient_rows(v, t)  # fluxgate noise is small: no separate noise-free path
+            _put_columns(v, a, b, self.magnetometer.output_voltage(B_C, rng, _rows(temps.box, a, b)))
+        return v, [_gradient_rows(x, t) for x in v]  # fluxgate noise is small: no separate noise-free path
 
     def _gyro_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t, g = rig.truth_signals, rig.time_s, self.gyros
-        w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
         g_sens = bool(np.any(g.g_sensitivity_rad_s_per_m_s2))
-        v = np.empty_like(w_C)
+        v = [np.empty(t.size) for _ in GYRO_AXES]
         for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces
+            w_C = np.stack([ts[f"w_C_{ax}"][a:b] for ax in AXES], axis=1)
             f_gyro = np.stack([ts[f"f_C_{ax}"][a:b] for ax in AXES], axis=1) + f_dist[a:b] if g_sens else None
-            v[a:b] = g.ideal_voltage(w_C[a:b], _rows(temps.gyro, a, b), f_gyro)
-        d = _gradient_rows(v, t)
+            _put_columns(v, a, b, g.ideal_voltage(w_C, _rows(temps.gyro, a, b), f_gyro))
+        d = [_gradient_rows(x, t) for x in v]
         grng = child_rng(seed, "gyros")
         for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
-            v[blk] += g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng) * g.scale_V_per_rad_s
+            nz = g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng) * g.scale_V_per_rad_s
+            for j, x in enumerate(v):
+                x[blk] += nz[:, j]
         return v, d
 
     def _analog(self, analog: dict, ctx: ChainContext, seed) -> None:
@@ -325,6 +330,12 @@ def _row_chunks(n: int, chunk: int = ROW_CHUNK):
 def _rows(x, a: int, b: int):
     """Rows a:b of a per-sample array; a scalar (or 0-d array) as it is."""
     return x[a:b] if np.ndim(x) >= 1 else x
+
+
+def _put_columns(cols: list, a: int, b: int, x: np.ndarray) -> None:
+    """Rows a:b of the (n,) arrays ``cols`` from the columns of ``x`` (b - a, len(cols))."""
+    for j, c in enumerate(cols):
+        c[a:b] = x[:, j]
 
 
 def _gradient_rows(v: np.ndarray, t: np.ndarray, chunk: int = ROW_CHUNK) -> np.ndarray:
