@@ -162,7 +162,7 @@ class TiltTable:
     dwell_truth: str = "closed_form"
     #: MuJoCo's time step in the moves (s; None: the sample period). Coarser steps are interpolated
     #: linearly between stepped samples (:mod:`imurig.rigs.tilt_truth`); the windows are exact either way
-    move_step_s: float | None = 0.002
+    move_step_s: float | None = 0.01
 
     def _move_substeps(self, dt: float) -> int:
         """Samples per MuJoCo step in the moves (>= 1)."""

@@ -13,18 +13,19 @@ and the settling to the start of the next window. Moves of equal length are batc
 ``mujoco.rollout`` call (one model per mounting). ``full_truth`` steps every sample instead (the
 reference the stitched truth is tested against).
 
-A move may be stepped at a coarser time step h = k dt (``move_substeps`` k > 1): MuJoCo steps the
-first FINE_HEAD samples of a move at dt (the command's step at the move's start sets off the servo's
-fast transient, pole kv / armature ~ 1e3 /s), then every k-th sample at h, and the truth in between
-is linear in time between the stepped samples (the last interval ends at the next window's first
-sample, the closed form at rest):
+A move may be stepped at a coarser time step h = k dt (``move_substeps`` k > 1): MuJoCo steps at dt
+for FINE_HEAD samples from a move's start (the command's step at the move's start sets off the servo's
+transients: the fast pole kv / armature ~ 1e3 /s and the slow one kp / kv = 20 /s) and around the slew's
+end (where the commanded acceleration jumps), at h elsewhere, and the truth in between is linear in
+time between the stepped samples (the last interval ends at the next window's first sample, the closed
+form at rest):
 
     x(t_a + i dt) = x_j + (i - i_j) / (i_{j+1} - i_j) (x_{j+1} - x_j),   i_j <= i < i_{j+1}
 
-Against k = 1, a 2 ms step (k = 2, the campaign's default) differs by < 6e-4 m/s^2 in f_C (under half
-the accelerometer channel's ADC step) and < 4e-7 rad in the joint angles during a move, and not at all
-in the windows (tests/test_tilt_table.py); the 1 ms step itself differs from a 0.25 ms one by 3e-3 m/s^2
-in the same moves.
+Against k = 1, a 10 ms step (k = 10, the campaign's default) differs by < 5e-4 m/s^2 in f_C (a third
+of the accelerometer channel's ADC step) and < 4e-6 rad in the joint angles (under the table survey's
+2 arcsec) during a move, and not at all in the windows (tests/test_tilt_table.py); the 1 ms step
+itself differs from a 0.25 ms one by 3e-3 m/s^2 in the same moves. MuJoCo steps ~ 9x fewer times.
 """
 from __future__ import annotations
 
@@ -43,8 +44,11 @@ SIGNALS = {"theta_true": ("theta_true", 0), "phi_true": ("phi_true", 0),
            **{f"{s}_{a}": (s, j) for s in ("f_C", "w_C", "B_C") for j, a in enumerate("xyz")}}
 #: bound on the sensor data of one batched rollout call (bytes)
 MAX_BATCH_BYTES = 64 * 2**20
-#: samples stepped at the full rate at the start of each move (the servo's transient to the command's step)
-FINE_HEAD = 50
+#: samples stepped at the full rate at the start of each move and after a slew's end (the servo's transients: its
+#: slow pole kp / kv = 20 /s decays in ~ 50 ms)
+FINE_HEAD = 300
+#: samples stepped at the full rate before a slew's end
+FINE_TAIL = 5
 
 
 def _fill_from_sensordata(out: dict, dst: slice, sd: np.ndarray, sl: dict, earth_W: np.ndarray) -> None:
@@ -135,20 +139,54 @@ def _fill_interpolated(out: dict, dst: slice, sd: np.ndarray, knots: np.ndarray,
         out[name][dst] = np.interp(fine, xk, np.append(x, out[name][dst.stop]))
 
 
-def _step_batch(models, coarse, datas, ctrl, batch, length: int, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """MuJoCo over the moves ``batch`` (equal ``length``): sensor rows (nbatch, m, nsd) and their sample
-    offsets (m,). Every sample for the first FINE_HEAD (the command's step at the move's start sets off the
-    servo's fast transient), then every k-th sample with the models ``coarse`` (time step k dt)."""
+def _plan(length: int, slew_end: int, k: int) -> list[tuple[int, int, int]]:
+    """(start, stop, step) pieces covering a move of ``length`` samples: every sample (step 1) for
+    FINE_HEAD samples from the move's start (the command's step) and around the slew's end
+    (``slew_end``, where the commanded acceleration jumps), every k-th elsewhere; a coarse piece
+    followed by a fine one ends on its own grid."""
+    if k == 1:
+        return [(0, length, 1)]
+    fine = [(0, min(FINE_HEAD, length))]
+    if slew_end > 0:
+        lo, hi = max(0, slew_end - FINE_TAIL), min(length, slew_end + FINE_HEAD)
+        if lo <= fine[-1][1]:
+            fine[-1] = (0, max(fine[-1][1], hi))
+        else:
+            fine.append((lo, hi))
+    plan, pos = [], 0
+    for lo, hi in fine:
+        if lo > pos:
+            q = pos + k * ((lo - pos) // k)
+            if q > pos:
+                plan.append((pos, q, k))
+            lo = q
+        plan.append((lo, hi, 1))
+        pos = hi
+    if pos < length:
+        plan.append((pos, length, k))
+    return plan
+
+
+def _step_batch(models, coarse, datas, ctrl, batch, length: int, slew_end: int, k: int):
+    """MuJoCo over the moves ``batch`` (equal ``length`` and slew end): sensor rows (nbatch, m, nsd) and their
+    sample offsets (m,), stepped piece by piece as :func:`_plan` says (models ``coarse``: time step k dt)."""
     state = np.stack([_rest_state(models[b], q0, ctrl[b, a]) for _, b, a, q0 in batch])
-    head = length if k == 1 else min(FINE_HEAD, length)
     nd = datas[:min(2, len(batch))]
-    st, sd = rollout.rollout([models[b] for _, b, _, _ in batch], nd, state,
-                             np.stack([ctrl[b, a:a + head] for _, b, a, _ in batch]))
-    if head == length:
-        return sd, np.arange(length)
-    c = np.stack([ctrl[b, a + head:a + length:k] for _, b, a, _ in batch])
-    _, sd2 = rollout.rollout([coarse[b] for _, b, _, _ in batch], nd, np.ascontiguousarray(st[:, -1]), c)
-    return np.concatenate([sd, sd2], axis=1), np.concatenate([np.arange(head), head + k * np.arange(c.shape[1])])
+    rows, knots = [], []
+    for lo, hi, step in _plan(length, slew_end, k):
+        ms = [(models if step == 1 else coarse)[b] for _, b, _, _ in batch]
+        c = np.stack([ctrl[b, a + lo:a + hi:step] for _, b, a, _ in batch])
+        st, sd = rollout.rollout(ms, nd, state, c)
+        state = np.ascontiguousarray(st[:, -1])
+        rows.append(sd)
+        knots.append(lo + step * np.arange(c.shape[1]))
+    return np.concatenate(rows, axis=1), np.concatenate(knots)
+
+
+def _slew_end(c: np.ndarray) -> int:
+    """The first sample of the constant tail of a move's command c (L, 2) (0 if it never changes)."""
+    moving = np.flatnonzero(np.any(c[1:] != c[:-1], axis=1))
+    return int(moving[-1]) + 1 if moving.size else 0
 
 
 def _rollout_moves(models, ctrl, moves, out, nstep, sl, earth_W, k: int = 1) -> None:
@@ -157,15 +195,16 @@ def _rollout_moves(models, ctrl, moves, out, nstep, sl, earth_W, k: int = 1) -> 
     nsd = models[0].nsensordata
     coarse = _coarse_models(models, k)
     datas = [mujoco.MjData(models[0]) for _ in range(2)]
-    by_len: dict[int, list] = {}
-    for mv in moves:
-        by_len.setdefault(mv[0], []).append(mv)
+    by_len: dict[tuple, list] = {}
+    for mv in moves:  # batched by length and slew end (the same pieces)
+        length, b, a, _ = mv
+        by_len.setdefault((length, _slew_end(ctrl[b, a:a + length]) if k > 1 else 0), []).append(mv)
     with progress(total=sum(m[0] for m in moves), desc="tilt table moves (MuJoCo)", unit="step") as bar:
-        for length, group in by_len.items():
+        for (length, slew_end), group in by_len.items():
             per = max(1, MAX_BATCH_BYTES // (length * nsd * 8))
             for i in range(0, len(group), per):
                 batch = group[i:i + per]
-                sd, knots = _step_batch(models, coarse, datas, ctrl, batch, length, k)
+                sd, knots = _step_batch(models, coarse, datas, ctrl, batch, length, slew_end, k)
                 for j, (_, b, a, _) in enumerate(batch):
                     _fill_interpolated(out, slice(b * nstep + a, b * nstep + a + length), sd[j], knots, sl, earth_W)
                 bar.update(length * len(batch))
