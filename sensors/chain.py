@@ -244,7 +244,8 @@ class ImuLab:
         d = [_gradient_rows(x, t) for x in v]
         grng = child_rng(seed, "gyros")
         for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
-            nz = g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng) * g.scale_V_per_rad_s
+            nz = g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng)
+            nz *= g.scale_V_per_rad_s
             for j, x in enumerate(v):
                 x[blk] += nz[:, j]
         return v, d

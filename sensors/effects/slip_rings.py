@@ -92,8 +92,10 @@ class SlipRingNoise(Effect):
         cache = getattr(self, "_profile_cache", None)
         if cache is not None and cache[0] is angle_rad and cache[1] == key:
             return cache[2]
-        a = angle_rad[:, None] - np.asarray(self.spots_rad)[None, :]
-        P = 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
+        P = np.empty(angle_rad.shape)
+        for i in range(0, P.shape[0], 1 << 18):  # in row pieces: no (n, spots) temporaries
+            a = angle_rad[i:i + (1 << 18), None] - np.asarray(self.spots_rad)[None, :]
+            P[i:i + (1 << 18)] = 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
         # kept with a reference to the angle array itself: the chain asks once per line of one record
         self._profile_cache = (angle_rad, key, P)
         return P
