@@ -17,9 +17,14 @@ the ratio imurig / peer of samples per wall second (and per CPU second). Medians
 """
 from __future__ import annotations
 
-import argparse
-import json
 import os
+
+# as the CLI does (imurig/cli/__init__.py): one BLAS thread, set before numpy loads
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
 import re
 import resource
 import statistics

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
+import mujoco
 import numpy as np
 
 from imurig.kernel.errors import ConfigError, ScheduleError
@@ -159,6 +160,17 @@ class TiltTable:
     #: the truth in the acquisition windows: "closed_form" (MuJoCo steps only the moves, module
     #: :mod:`imurig.rigs.tilt_truth`) or "mujoco" (MuJoCo steps every sample; same truth to 1e-11 g)
     dwell_truth: str = "closed_form"
+    #: MuJoCo's time step in the moves (s; None: the sample period). Coarser steps are interpolated
+    #: linearly between stepped samples (:mod:`imurig.rigs.tilt_truth`); the windows are exact either way
+    move_step_s: float | None = 0.01
+
+    def _move_substeps(self, dt: float) -> int:
+        """Samples per MuJoCo step in the moves (>= 1)."""
+        if self.move_step_s is None:
+            return 1
+        if not self.move_step_s > 0:
+            raise ConfigError(f"move_step_s must be positive (s) or None, got {self.move_step_s!r}")
+        return max(1, int(round(self.move_step_s / dt)))
 
     def _backlash_offsets(self, set_theta, set_phi, runs) -> dict | None:
         """Per mounting, the (m, 2) rad shift of the true from the read (theta, phi) by the gear
@@ -239,6 +251,9 @@ class TiltTable:
         B_W = self.site.magnetic_field_W(when)
         R_WB = rot_z(np.float64(self.azimuth_deg * DEG)) @ rot_x(np.float64(self.errors.level_x_rad))
         base_model.opt.magnetic[:] = B_W
+        # the joints stay within their ranges (theta within +-95 deg) and nothing touches: no constraint
+        # is ever active, so skipping the constraint stage changes no number (and saves ~15 % per step)
+        base_model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
 
         nt, nphi = len(protocol.theta_deg), len(protocol.phi_deg)
         set_theta = np.repeat(np.asarray(protocol.theta_deg, float) * DEG, nphi)
@@ -255,7 +270,7 @@ class TiltTable:
             truth_signals = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
             truth_signals = stitched_truth(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
-                                           earth_W, B_W)
+                                           earth_W, B_W, self._move_substeps(dt))
         units = {k: {"f": "m/s^2", "w": "rad/s", "B": "T"}.get(k[0], "rad") for k in truth_signals}
 
         # assemble the record: runs one after the other, with the remount time as a gap

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
+import mujoco
 import numpy as np
 
 from imurig.kernel.errors import ScheduleError
@@ -284,6 +285,9 @@ class TurnTable:
         base.opt.timestep = dt
         base.opt.gravity[:] = (0.0, 0.0, -self.site.gravity_m_s2)
         base.opt.magnetic[:] = self.site.magnetic_field_W(when)
+        # a free spindle (no joint range) and nothing touches: no constraint is ever active, so skipping the
+        # constraint stage changes no number (and saves ~15 % per step)
+        base.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
         bid_base, bid_mount = base.body("base").id, base.body("imu_mount").id
         R_WB = rot_x(np.float64(e.level_x_rad)) @ rot_y(np.float64(e.level_y_rad))
         R_PM = e.wobble_rotation()

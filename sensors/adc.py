@@ -133,42 +133,56 @@ class DAQ6036E:
         if missing:
             raise ConfigError(f"scan list names {missing} but no such analog signals exist")
         common = self.common_mode.common(time_s, rng)
-        skew = self.skew
-        c = self.crosstalk.coefficient(self.mux_frequency_hz)
+        n = common.size
         out, saturated = {}, {}
-        held = None  # the previous slot's input, u_{j-1}
-        # one channel at a time (vectorised over time), in place: memory stays at a few (n,) arrays
+        held = None  # the previous slot's input u_{j-1} (n,), where the next slot's crosstalk needs it
+        # one channel at a time, in row chunks (bounded temporaries; the draws in the same order as
+        # one whole-channel draw, so the result does not depend on the chunk size)
         for j, name in enumerate(self.scan_list):
-            slot = 2 * j + 1 if self.ground_between else j
-            u = analog[name] + common
-            if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
-                u = skew.inject(u, ScanSlot(slot, self.mux_frequency_hz, slope_V_s=slope[name]))
-            u_in = u
-            xtalk = self.channel_crosstalk(name)
-            if xtalk.coefficient(self.mux_frequency_hz) > 0:
-                if self.ground_between:  # the grounded slot before it: settles from 0 V
-                    prev = np.zeros_like(u)
-                elif j == 0:  # the first slot follows the last slot of the previous scan
-                    last = analog[self.scan_list[-1]] + common
-                    prev = np.concatenate(([u[0]], last[:-1]))
-                    del last
-                else:
-                    prev = held
-                u = xtalk.inject(u, ScanSlot(slot, self.mux_frequency_hz, prev))
-            held = u_in
+            nxt = self.scan_list[j + 1] if j + 1 < len(self.scan_list) else None
+            keep = nxt is not None and not self.ground_between and \
+                self.channel_crosstalk(nxt).coefficient(self.mux_frequency_hz) > 0
+            held_next = np.empty(n) if keep else None
+            out[name] = np.empty(n)
+            for a, b in _row_chunks(n):
+                out[name][a:b] = self._convert_rows(j, name, a, b, analog, common, slope, held, held_next, rng,
+                                                    saturated)
+            held = held_next
             if consume:
                 analog.pop(name, None)
                 if slope:
                     slope.pop(name, None)
-            nxt = self.scan_list[j + 1] if j + 1 < len(self.scan_list) else None
-            if u is u_in and nxt is not None and not self.ground_between and \
-                    self.channel_crosstalk(nxt).coefficient(self.mux_frequency_hz) > 0:
-                held = u_in.copy()  # the next slot settles from this input; _quantise overwrites u
-            out[name] = self._quantise(u, rng, name, saturated)
+        c = self.crosstalk.coefficient(self.mux_frequency_hz)
         report = {"lsb_V": self.lsb_V, "crosstalk_coefficient": c, "saturated_samples": saturated,
                   "crosstalk_coefficients": {k: self.channel_crosstalk(k).coefficient(self.mux_frequency_hz)
                                              for k in self.scan_list}}
         return out, report
+
+    def _convert_rows(self, j: int, name: str, a: int, b: int, analog: dict, common: np.ndarray, slope, held,
+                      held_next, rng, saturated: dict) -> np.ndarray:
+        """Rows a:b of scan slot j (channel ``name``): u = x + c_mode, the skew, the crosstalk from the
+        previous slot (``held``: its input; the last channel's for j = 0), the noise and the rounding
+        (module doc). Stores this slot's input into ``held_next`` (when given)."""
+        slot = 2 * j + 1 if self.ground_between else j
+        u = analog[name][a:b] + common[a:b]
+        if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
+            u = self.skew.inject(u, ScanSlot(slot, self.mux_frequency_hz, slope_V_s=slope[name][a:b]))
+        if held_next is not None:
+            held_next[a:b] = u
+        xtalk = self.channel_crosstalk(name)
+        if xtalk.coefficient(self.mux_frequency_hz) > 0:
+            if self.ground_between:  # the grounded slot before it: settles from 0 V
+                prev = np.zeros_like(u)
+            elif j == 0:  # the first slot follows the last slot of the previous scan
+                last = self.scan_list[-1]
+                lo = max(a - 1, 0)
+                prev = analog[last][lo:b - 1] + common[lo:b - 1]
+                if a == 0:
+                    prev = np.concatenate((u[:1], prev))
+            else:
+                prev = held[a:b]
+            u = xtalk.inject(u, ScanSlot(slot, self.mux_frequency_hz, prev))
+        return self._quantise(u, rng, name, saturated)
 
     def _quantise(self, u: np.ndarray, rng: np.random.Generator, name: str, saturated: dict) -> np.ndarray:
         """Add the converter noise to ``u`` (a scratch array, overwritten) and quantise: volts (n,)."""
@@ -191,7 +205,7 @@ class DAQ6036E:
         np.clip(u, lo, hi, out=u)
         nsat = int(np.count_nonzero(u == lo) + np.count_nonzero(u == hi))
         if nsat:
-            saturated[name] = nsat
+            saturated[name] = saturated.get(name, 0) + nsat
         u *= q
         return u
 
@@ -203,3 +217,12 @@ class DAQ6036E:
         d["crosstalk_coefficients"] = {k: self.channel_crosstalk(k).coefficient(self.mux_frequency_hz)
                                        for k in self.scan_list}
         return d
+
+
+#: rows per piece of the converter's work (bounded temporaries; the result does not depend on it)
+ROW_CHUNK = 1 << 18
+
+
+def _row_chunks(n: int, chunk: int = ROW_CHUNK):
+    """(start, stop) row ranges covering n rows."""
+    return [(a, min(n, a + chunk)) for a in range(0, n, chunk)]

@@ -187,42 +187,67 @@ class ImuLab:
             if wanted(prefix, axes):
                 v, d = lines(rig, ctx, f_dist, temps, seed)
                 for j, a in enumerate(axes):
-                    analog[f"{prefix}_{a}"], slope[f"{prefix}_{a}"] = v[:, j], d[:, j]
+                    analog[f"{prefix}_{a}"], slope[f"{prefix}_{a}"] = v[j], d[j]
                 used.append(group)
         for name, sensor in self.temp_sensors.items():
             if name in scan:
-                analog[name] = sensor.voltage(temps.box if name == "temp_box" else temps.acc, child_rng(seed, name))
+                T, rng = temps.box if name == "temp_box" else temps.acc, child_rng(seed, name)
+                analog[name] = np.empty(np.shape(T))
+                for a, b in _row_chunks(analog[name].shape[0]):  # the same draws, in order, in pieces
+                    analog[name][a:b] = sensor.voltage(T[a:b], rng)
         return analog, slope, used
 
+    # each group's lines are three separate (n,) arrays (not the columns of one (n, 3) array), so the
+    # converter frees each line's memory as soon as it has converted it
     def _accelerometer_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t = rig.truth_signals, rig.time_s
         acc = self.accelerometers
-        f_C = acc.lever_arm().inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
-        f_C += f_dist
-        v = np.empty_like(f_C)
+        lever = acc.lever_arm()
+        f_C = None
+        if lever.active and "w_C_x" in ts:  # the lever arm's terms need the whole record (dw/dt)
+            f_C = lever.inject(np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1), ctx)
+            f_C += f_dist
+        v = [np.empty(t.size) for _ in AXES]
         for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces, no full-length temporaries
-            v[a:b] = acc.ideal_voltage(f_C[a:b], _rows(temps.acc, a, b), _rows(temps.h_acc, a, b))
+            if f_C is None:
+                f = np.stack([ts[f"f_C_{ax}"][a:b] for ax in AXES], axis=1)
+                f += f_dist[a:b]
+            else:
+                f = f_C[a:b]
+            _put_columns(v, a, b, acc.ideal_voltage(f, _rows(temps.acc, a, b), _rows(temps.h_acc, a, b)))
         del f_C
-        d = _gradient_rows(v, t)
-        v += acc.noise_current(t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"),
-                               averaged=bool(rig.meta.get("averaged_logging"))) * acc.load_resistor_ohm
+        d = [_gradient_rows(x, t) for x in v]
+        noise = acc.current_noise(averaged=bool(rig.meta.get("averaged_logging"))).current(
+            t.size, ctx.sample_rate_hz, child_rng(seed, "accelerometers"))
+        for a, b in _row_chunks(t.size):
+            for j, x in enumerate(v):
+                x[a:b] += noise[a:b, j] * acc.load_resistor_ohm[j]
         return v, d
 
     def _magnetometer_volts(self, rig, ctx, f_dist, temps, seed):
-        B_C = np.stack([rig.truth_signals[f"B_C_{a}"] for a in AXES], axis=1)
-        v = self.magnetometer.output_voltage(B_C, child_rng(seed, "magnetometer"), temps.box)
-        return v, _gradient_rows(v, rig.time_s)  # fluxgate noise is small: no separate noise-free path
+        ts, t = rig.truth_signals, rig.time_s
+        rng = child_rng(seed, "magnetometer")
+        v = [np.empty(t.size) for _ in AXES]
+        for a, b in _row_chunks(t.size):  # the noise drawn row-chunk by row-chunk: the same draws in order
+            B_C = np.stack([ts[f"B_C_{ax}"][a:b] for ax in AXES], axis=1)
+            _put_columns(v, a, b, self.magnetometer.output_voltage(B_C, rng, _rows(temps.box, a, b)))
+        return v, [_gradient_rows(x, t) for x in v]  # fluxgate noise is small: no separate noise-free path
 
     def _gyro_volts(self, rig, ctx, f_dist, temps, seed):
         ts, t, g = rig.truth_signals, rig.time_s, self.gyros
-        w_C = np.stack([ts[f"w_C_{a}"] for a in AXES], axis=1)
-        f_gyro = (np.stack([ts[f"f_C_{a}"] for a in AXES], axis=1) + f_dist
-                  if np.any(g.g_sensitivity_rad_s_per_m_s2) else None)
-        v = g.ideal_voltage(w_C, temps.gyro, f_gyro)
-        d = _gradient_rows(v, t)
+        g_sens = bool(np.any(g.g_sensitivity_rad_s_per_m_s2))
+        v = [np.empty(t.size) for _ in GYRO_AXES]
+        for a, b in _row_chunks(t.size):  # pointwise: in bounded pieces
+            w_C = np.stack([ts[f"w_C_{ax}"][a:b] for ax in AXES], axis=1)
+            f_gyro = np.stack([ts[f"f_C_{ax}"][a:b] for ax in AXES], axis=1) + f_dist[a:b] if g_sens else None
+            _put_columns(v, a, b, g.ideal_voltage(w_C, _rows(temps.gyro, a, b), f_gyro))
+        d = [_gradient_rows(x, t) for x in v]
         grng = child_rng(seed, "gyros")
         for blk in rig.blocks():  # the bias instability decorrelates over a remount gap
-            v[blk] += g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng) * g.scale_V_per_rad_s
+            nz = g.noise_rate(blk.stop - blk.start, ctx.sample_rate_hz, grng)
+            nz *= g.scale_V_per_rad_s
+            for j, x in enumerate(v):
+                x[blk] += nz[:, j]
         return v, d
 
     def _analog(self, analog: dict, ctx: ChainContext, seed) -> None:
@@ -306,6 +331,12 @@ def _row_chunks(n: int, chunk: int = ROW_CHUNK):
 def _rows(x, a: int, b: int):
     """Rows a:b of a per-sample array; a scalar (or 0-d array) as it is."""
     return x[a:b] if np.ndim(x) >= 1 else x
+
+
+def _put_columns(cols: list, a: int, b: int, x: np.ndarray) -> None:
+    """Rows a:b of the (n,) arrays ``cols`` from the columns of ``x`` (b - a, len(cols))."""
+    for j, c in enumerate(cols):
+        c[a:b] = x[:, j]
 
 
 def _gradient_rows(v: np.ndarray, t: np.ndarray, chunk: int = ROW_CHUNK) -> np.ndarray:

@@ -51,6 +51,22 @@ def band_noise(rng: np.random.Generator, shape: tuple[int, ...], fs: float, band
     return y * (np.asarray(rms) / gain)
 
 
+def add_band_noise(out: np.ndarray, rng: np.random.Generator, fs: float, band_hz: tuple[float, float],
+                   rms: float | np.ndarray, chunk: int = 1 << 18) -> None:
+    """``out += band_noise(rng, out.shape, fs, band_hz, rms)``, the same values, in row pieces of
+    ``chunk`` (the white draws in the same order, the shaping filter's state carried from piece
+    to piece): memory for one piece instead of three copies of ``out``."""
+    sos = _shaping_filter(fs, band_hz)
+    scale = np.asarray(rms) if sos is None else np.asarray(rms) / np.sqrt(band_power_gain(fs, band_hz))
+    zi = None if sos is None else np.zeros((sos.shape[0], 2) + out.shape[1:])
+    for a in range(0, out.shape[0], chunk):
+        b = min(out.shape[0], a + chunk)
+        y = rng.standard_normal((b - a,) + out.shape[1:])
+        if sos is not None:
+            y, zi = signal.sosfilt(sos, y, axis=0, zi=zi)
+        out[a:b] += y * scale
+
+
 def _shaping_filter(fs: float, band_hz: tuple[float, float]):
     """The Butterworth shaping filter of :func:`band_noise` for ``band_hz`` (None: white)."""
     lo, hi = band_hz

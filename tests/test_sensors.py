@@ -17,7 +17,7 @@ from imurig.sensors.accelerometer import CurrentTemperatureSensor, QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab, _gradient_rows
 from imurig.sensors.effects import AdcCrosstalk, Effect
-from imurig.sensors.noise import band_noise, band_power_gain, sampled_bands, window_mean_variance
+from imurig.sensors.noise import add_band_noise, band_noise, band_power_gain, sampled_bands, window_mean_variance
 from imurig.kernel.units import G_STANDARD
 
 FS = 1000.0
@@ -238,6 +238,37 @@ def test_converter_consuming_its_lines_gives_the_same_codes_and_frees_them():
     assert rep == rep_ref
     for k in ref:
         np.testing.assert_array_equal(out[k], ref[k])
+
+
+@pytest.mark.parametrize("ground_between", [False, True])
+def test_converter_in_row_pieces_equals_one_piece(monkeypatch, ground_between):
+    """The converter's row pieces (skew, crosstalk from the previous slot across a piece's edge and
+    from the last channel into the first, noise drawn piece by piece) give the volts of one piece,
+    bit for bit."""
+    import imurig.sensors.adc as adc_mod
+    n = 5003
+    t = np.arange(n) / FS
+    rng = np.random.default_rng(5)
+    lines = {k: rng.normal(0, 1, n) for k in ("a", "b", "c")}
+    slope = {k: rng.normal(0, 50, n) for k in ("a", "c")}
+    adc = DAQ6036E(scan_list=("a", "b", "c"), ground_between=ground_between, mux_frequency_hz=200e3)
+    assert adc.crosstalk_coefficient() > 0
+    whole, rep_w = adc.convert(dict(lines), t, np.random.default_rng(9), dict(slope))
+    monkeypatch.setattr(adc_mod, "ROW_CHUNK", 777)
+    pieces, rep_p = adc.convert(dict(lines), t, np.random.default_rng(9), dict(slope))
+    assert rep_p == rep_w
+    for k in whole:
+        np.testing.assert_array_equal(pieces[k], whole[k])
+
+
+@pytest.mark.parametrize("band", [(0.0, 10.0), (10.0, 300.0), (200.0, 500.0), (0.0, 500.0)])
+def test_band_noise_in_row_pieces_equals_one_draw(band):
+    """add_band_noise (white draws piece by piece, the shaping filter's state carried) adds the
+    values of one band_noise draw, bit for bit."""
+    ref = band_noise(np.random.default_rng(3), (10_001, 3), FS, band, np.array([1.0, 2.0, 0.5]))
+    out = np.zeros((10_001, 3))
+    add_band_noise(out, np.random.default_rng(3), FS, band, np.array([1.0, 2.0, 0.5]), chunk=999)
+    np.testing.assert_array_equal(out, ref)
 
 
 def test_sensor_slopes_in_pieces_equal_the_whole_gradient():

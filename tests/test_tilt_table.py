@@ -15,6 +15,7 @@ from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.rigs.tilt_table import (TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, rotate_to_body,
                                     specific_force_C)
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
+from imurig.kernel.units import ARCSEC
 
 G = 9.81242231
 
@@ -45,7 +46,7 @@ def test_stitched_truth_equals_full_mujoco_run():
     that steps every sample: specific force to 1e-11 g, rates to 1e-12 rad/s, field to 1e-11 of
     its size, joint angles to 1e-11 rad; the set-points, segments and times are identical."""
     proto = TiltTableProtocol(theta_deg=(0, 40, 90), phi_deg=(0, 90, 300), dwell_s=0.5, slew_rate_deg_s=30)
-    recs = [TiltTable(errors=TiltTableErrors(), site=Site(), dwell_truth=m).simulate(
+    recs = [TiltTable(errors=TiltTableErrors(), site=Site(), dwell_truth=m, move_step_s=None).simulate(
         proto, "2005-06-14T18:00:00+02:00", np.random.default_rng(3)) for m in ("mujoco", "closed_form")]
     full, fast = recs
     np.testing.assert_array_equal(full.time_s, fast.time_s)
@@ -59,6 +60,26 @@ def test_stitched_truth_equals_full_mujoco_run():
     for name in full.channels:
         np.testing.assert_array_equal(fast.channels[name], full.channels[name])
     assert fast.truth == full.truth
+
+
+def test_coarse_move_steps_keep_the_windows_and_the_moves_within_half_an_adc_step():
+    """MuJoCo at 10 ms in the moves (the default; 1 ms for the servo's transients at each move's start
+    and slew's end, linear in between) leaves the windows' truth bit for bit and keeps f_C within half
+    the accelerometer channel's ADC step (q / sensitivity = 1.5e-3 m/s^2) and the angles within the
+    table survey's 2 arcsec of a run stepped at every sample, with setting errors (the command's steps) on."""
+    proto = TiltTableProtocol(theta_deg=(0, 40, 90), phi_deg=(0, 90, 300), dwell_s=0.5)
+    recs = [TiltTable(errors=TiltTableErrors.draw(np.random.default_rng(1)), site=Site(), move_step_s=h).simulate(
+        proto, "2005-06-14T18:00:00+02:00", np.random.default_rng(3)) for h in (None, 0.01)]
+    fine, coarse = recs
+    win = np.zeros(fine.n, bool)
+    for s in fine.segment_slices():
+        win[s] = True
+    lsb_m_s2 = 10.0 / 2**16 / (1.33e-3 / 9.80665 * 750.0)
+    for name, x in fine.truth_signals.items():
+        np.testing.assert_array_equal(coarse.truth_signals[name][win], x[win], err_msg=name)
+        tol = lsb_m_s2 / 2 if name.startswith("f_C") else 2 * ARCSEC if name.endswith("_true") else np.inf
+        np.testing.assert_allclose(coarse.truth_signals[name], x, rtol=0, atol=tol, err_msg=name)
+    assert np.abs(coarse.truth_signals["f_C_x"] - fine.truth_signals["f_C_x"]).max() > 0  # the moves did differ
 
 
 def test_perfect_table_reproduces_seed_equations():

@@ -168,19 +168,32 @@ def _write_group(grp, arrays: Mapping[str, np.ndarray], units: Mapping[str, str]
             ds.attrs["unit"] = units.get(name, "")
             continue
         q = (quantum or {}).get(name)
-        stored = x
-        if q:
-            codes = np.round(x / q)
-            if np.all(np.abs(codes) < 2**31) and np.array_equal(codes * q, x):
-                # the narrowest integer that holds the codes (a 16-bit converter's fit in int16)
-                stored = codes.astype(np.int16 if np.all(np.abs(codes) < 2**15) else np.int32)
-            else:
-                q = None
+        stored = _codes(x, q) if q else None
+        if stored is None:
+            stored, q = x, None
         kw = dict(compression="gzip", compression_opts=1, shuffle=True) if x.size > 4096 else {}
         ds = grp.create_dataset(name, data=stored, **kw)
         ds.attrs["unit"] = units.get(name, "")
         if q and stored is not x:
             ds.attrs["quantum"] = q
+
+
+def _codes(x: np.ndarray, q: float, chunk: int = 1 << 18) -> np.ndarray | None:
+    """x / q as the narrowest integers that hold them (int16 for a 16-bit converter, else int32) when
+    every x is exactly code * q, else None (stored as floats). Checked in row pieces: memory for one
+    piece, not three full-length temporaries."""
+    if x.dtype.kind != "f" or x.ndim != 1:
+        return None
+    out = np.empty(x.shape, np.int32)
+    lo = hi = 0
+    for a in range(0, x.size, chunk):
+        c = np.round(x[a:a + chunk] / q)
+        if c.size and not (np.all(np.abs(c) < 2**31) and np.array_equal(c * q, x[a:a + chunk])):
+            return None
+        out[a:a + chunk] = c
+        if c.size:
+            lo, hi = min(lo, int(c.min())), max(hi, int(c.max()))
+    return out.astype(np.int16) if -2**15 < lo and hi < 2**15 else out
 
 
 def _read_group(grp, path, where: str, text: bool = False):

@@ -23,7 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from imurig.sensors.effects.base import ChainContext, Effect, Param
-from imurig.sensors.noise import band_noise, sampled_bands, window_mean_variance
+from imurig.sensors.noise import add_band_noise, sampled_bands, window_mean_variance
 
 QFLEX_BANDS = ((0.0, 10.0, 10e-9), (10.0, 500.0, 100e-9), (500.0, 10e3, 2e-6))
 
@@ -54,7 +54,7 @@ class CurrentNoise(Effect):
         if not self.enabled:
             return out
         for lo, hi, rms in sampled_bands(self.bands, fs, self.averaged):
-            out += band_noise(rng, (n, 3), fs, (lo, hi), rms)
+            add_band_noise(out, rng, fs, (lo, hi), rms)  # in row pieces: the same values as band_noise
         return out
 
     def inject(self, v: np.ndarray, ctx: ChainContext, rng: np.random.Generator) -> np.ndarray:

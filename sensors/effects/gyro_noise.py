@@ -45,12 +45,16 @@ class GyroNoise(Effect):
         """Rate noise (n, 3) rad/s: white plus Gauss-Markov bias instability (module doc)."""
         if not self.enabled:
             return np.zeros((n, 3))
-        out = rng.standard_normal((n, 3)) * (self.arw_rad_s_per_sqrt_hz * np.sqrt(fs))
+        out = rng.standard_normal((n, 3))
+        out *= self.arw_rad_s_per_sqrt_hz * np.sqrt(fs)  # in place: the same values, no second copy
         if self.bias_instability_rad_s > 0:
             phi = np.exp(-1.0 / (self.bias_instability_tau_s * fs))
-            drive = rng.standard_normal((n, 3)) * self.bias_instability_rad_s * np.sqrt(1 - phi**2)
+            drive = rng.standard_normal((n, 3))
+            drive *= self.bias_instability_rad_s
+            drive *= np.sqrt(1 - phi**2)
             drive[0] = rng.standard_normal(3) * self.bias_instability_rad_s  # stationary start
-            out += signal.lfilter([1.0], [1.0, -phi], drive, axis=0)
+            for j in range(3):  # one axis at a time: the same recursion, one (n,) temporary
+                out[:, j] += signal.lfilter([1.0], [1.0, -phi], drive[:, j])
         return out
 
     def inject(self, w: np.ndarray, ctx: ChainContext, rng: np.random.Generator) -> np.ndarray:

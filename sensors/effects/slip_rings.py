@@ -112,8 +112,10 @@ class SlipRingNoise(Effect):
         cache = getattr(self, "_profile_cache", None)
         if cache is not None and cache[0] is angle_rad and cache[1] == key:
             return cache[2]
-        a = angle_rad[:, None] - np.asarray(self.spots_rad)[None, :]
-        P = 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
+        P = np.empty(angle_rad.shape)
+        for i in range(0, P.shape[0], 1 << 18):  # in row pieces: no (n, spots) temporaries
+            a = angle_rad[i:i + (1 << 18), None] - np.asarray(self.spots_rad)[None, :]
+            P[i:i + (1 << 18)] = 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
         # kept with a reference to the angle array itself: the chain asks once per line of one record
         self._profile_cache = (angle_rad, key, P)
         return P
@@ -138,7 +140,12 @@ class SlipRingNoise(Effect):
     def inject(self, v: np.ndarray, ctx: ChainContext, rng: np.random.Generator) -> np.ndarray:
         if not self.enabled:
             return v
-        return v + self.voltage(ctx.truth_signals["spin_angle"], rng)
+        P = self.profile(ctx.truth_signals["spin_angle"])
+        out = np.empty(np.shape(v))
+        for a in range(0, out.shape[0], 1 << 18):  # in row pieces: the draws in order, the values of voltage()
+            b = min(out.shape[0], a + (1 << 18))
+            out[a:b] = v[a:b] + self.rms_V * P[a:b] * rng.standard_normal(b - a)
+        return out
 
     @classmethod
     def from_settings(cls, settings: Mapping) -> "SlipRingNoise":
