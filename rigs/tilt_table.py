@@ -147,6 +147,11 @@ def _command_profile(protocol: TiltTableProtocol, set_theta, set_phi, dt: float)
     return np.concatenate(pieces), windows
 
 
+#: the coarse MuJoCo step in the moves and the fastest slew it is validated for ("auto")
+AUTO_MOVE_STEP_S = 0.01
+AUTO_MAX_SLEW_DEG_S = 6.0
+
+
 @dataclass
 class TiltTable:
     """The virtual tilt table: MuJoCo model plus its imperfections and survey."""
@@ -161,16 +166,22 @@ class TiltTable:
     #: :mod:`imurig.rigs.tilt_truth`) or "mujoco" (MuJoCo steps every sample; same truth to 1e-11 g)
     dwell_truth: str = "closed_form"
     #: MuJoCo's time step in the moves (s; None: the sample period). Coarser steps are interpolated
-    #: linearly between stepped samples (:mod:`imurig.rigs.tilt_truth`); the windows are exact either way
-    move_step_s: float | None = 0.01
+    #: linearly between stepped samples (:mod:`imurig.rigs.tilt_truth`); the windows are exact either way.
+    #: "auto": 10 ms where that is validated (slews up to the seed's 6 deg/s: f_C within half an ADC
+    #: step, tests/test_tilt_table.py), the sample period for faster slews (at 30 deg/s a 10 ms step
+    #: leaves ~3e-3 m/s^2 against a 1 ms replay, which the slew analyses would see)
+    move_step_s: float | None | str = "auto"
 
-    def _move_substeps(self, dt: float) -> int:
+    def _move_substeps(self, dt: float, slew_rate_deg_s: float) -> int:
         """Samples per MuJoCo step in the moves (>= 1)."""
-        if self.move_step_s is None:
+        step = self.move_step_s
+        if step == "auto":
+            step = AUTO_MOVE_STEP_S if slew_rate_deg_s <= AUTO_MAX_SLEW_DEG_S else None
+        if step is None:
             return 1
-        if not self.move_step_s > 0:
-            raise ConfigError(f"move_step_s must be positive (s) or None, got {self.move_step_s!r}")
-        return max(1, int(round(self.move_step_s / dt)))
+        if isinstance(step, str) or not step > 0:
+            raise ConfigError(f"move_step_s must be positive (s), 'auto' or None, got {self.move_step_s!r}")
+        return max(1, int(round(step / dt)))
 
     def _backlash_offsets(self, set_theta, set_phi, runs) -> dict | None:
         """Per mounting, the (m, 2) rad shift of the true from the read (theta, phi) by the gear
@@ -270,7 +281,7 @@ class TiltTable:
             truth_signals = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
             truth_signals = stitched_truth(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
-                                           earth_W, B_W, self._move_substeps(dt))
+                                           earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s))
         units = {k: {"f": "m/s^2", "w": "rad/s", "B": "T"}.get(k[0], "rad") for k in truth_signals}
 
         # assemble the record: runs one after the other, with the remount time as a gap
