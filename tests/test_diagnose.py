@@ -158,14 +158,14 @@ def test_unknown_twin_model_refused():
 
 # ------------------------------------------------------------------ turn table
 @pytest.mark.parametrize("effect", ["earth_rate_left_out", "g_sensitivity"])
-def test_turn_table_effects_found_with_truth(effect):
+def test_turn_table_effects_found_with_truth(effect, concealed_records):
     """The Earth's vertical rate left out of the twin's reference, and a gyro g-sensitivity
     (10 deg/h/g) left out of its model, are found on every gyro, named (the Earth's rate with
     the g-sensitivity as its indistinguishable alias on a level table), with the parameter
     within 4 SE of the truth; the complete twin on the same kind of data comes back clean."""
     case = next(c for c in CASES if c.effect == effect)
     seed = 1
-    rec = case.make(seed, case.realistic_size)
+    rec = concealed_records.make(case, seed, case.realistic_size)
     d = diagnose_case(case, rec, seed)
     assert found_effects(d) == case.expected
     est, se = case.found_param(d)
@@ -174,7 +174,7 @@ def test_turn_table_effects_found_with_truth(effect):
         assert all(f["indistinguishable_from"] == "g_sensitivity" for e in d["gyros"].values() for f in e["findings"])
         null = diagnose_case(case, rec, seed, null=True)      # the same data, the twin with the Earth's rate
     else:
-        null = diagnose_case(case, null_recording(case, seed), seed, null=True)
+        null = concealed_records.null_diagnosis(case, seed)
     assert found_effects(null) == set()
 
 
@@ -224,11 +224,11 @@ def test_diagnose_cli_on_thermal_and_turn_table(tmp_path, capsys):
     assert last == f"verdict: {d['verdict']}"
 
 
-def test_slip_ring_noise_found_at_its_angles():
+def test_slip_ring_noise_found_at_its_angles(concealed_records):
     """Slip-ring contact noise (the rig's rough spots at 40, 166, 252 deg) is found on every gyro
     at those table angles, and not on the same schedule without it."""
     case = next(c for c in CASES if c.effect == "slip_ring_noise")
-    rec = case.make(1, case.realistic_size)
+    rec = concealed_records.make(case, 1, case.realistic_size)
     d = diagnose_case(case, rec, 1)
     assert found_effects(d) == case.expected
     spots = np.degrees(rec.truth["chain"]["slip_rings"]["spots_rad"])
@@ -236,4 +236,4 @@ def test_slip_ring_noise_found_at_its_angles():
         angles = np.array(e["scatter"]["finding"]["angles_deg"])
         # every rough spot lies within two 10-degree bins of a flagged angle
         assert all(np.min(np.abs((angles - s + 180) % 360 - 180)) <= 20 for s in spots), (angles, spots)
-    assert found_effects(diagnose_case(case, null_recording(case, 1), 1, null=True)) == set()
+    assert found_effects(concealed_records.null_diagnosis(case, 1)) == set()
