@@ -56,6 +56,25 @@ def small_recording():
     return small_campaign(seed=11).simulate()
 
 
+class SmallRecords:
+    """Small-protocol tilt-table recordings (``small_campaign(seed=..., **kw)``), each simulated
+    once per session; calibration and diagnosis leave a recording as it was, so tests share them."""
+
+    def __init__(self):
+        self._recs = {}
+
+    def get(self, seed: int, **kw):
+        key = (seed, repr(sorted(kw.items())))
+        if key not in self._recs:
+            self._recs[key] = small_campaign(seed=seed, **kw).simulate()
+        return self._recs[key]
+
+
+@pytest.fixture(scope="session")
+def small_records() -> SmallRecords:
+    return SmallRecords()
+
+
 @pytest.fixture(scope="session")
 def short_flight():
     """~43 s airborne at 100 Hz: level, 3-2-1-1, double doublet, S-turns at 30 deg both sides."""
@@ -186,8 +205,10 @@ def every_saved_figure_names_every_line(monkeypatch, request):
 
 def pytest_collection_modifyitems(config, items):
     """Under ``pytest -n 2`` (``--dist loadgroup``, pyproject's addopts) the tests that share
-    :class:`ConcealedRecords` run on one worker, so each record is simulated once per run and not
+    :class:`ConcealedRecords` (or :class:`SmallRecords`) run on one worker, so each record is simulated once per run and not
     once per worker."""
     for item in items:
-        if "concealed_records" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.xdist_group("concealed_records"))
+        for shared in ("concealed_records", "small_records"):
+            if shared in getattr(item, "fixturenames", ()):
+                item.add_marker(pytest.mark.xdist_group(shared))
+                break

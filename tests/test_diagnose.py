@@ -85,8 +85,6 @@ def test_concealed_effects_found_and_named(seed):
 
 
 # ------------------------------------------------------------------- tilt table
-from conftest import SMALL  # noqa: E402
-from imurig.campaigns.tilt_table import TiltTableCampaign  # noqa: E402
 from imurig.diagnose.tilt_table import diagnose_tilt_table  # noqa: E402
 
 
@@ -99,13 +97,13 @@ def _effects(d):
 
 
 @pytest.mark.parametrize("seed", [3, 5])
-def test_tilt_table_null_comes_back_clean(seed):
-    d = diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=seed).simulate(), np.random.default_rng(seed))
+def test_tilt_table_null_comes_back_clean(seed, small_records):
+    d = diagnose_tilt_table(small_records.get(seed), np.random.default_rng(seed))
     assert _effects(d) == set()
 
 
 @pytest.mark.parametrize("seed", [3, 5])
-def test_tilt_table_concealed_effects_named(seed):
+def test_tilt_table_concealed_effects_named(seed, small_records):
     """Each effect present in the recording but absent from the nominal model is found on the
     channels it affects, and named; nothing else is."""
     cases = {
@@ -115,15 +113,15 @@ def test_tilt_table_concealed_effects_named(seed):
         "cable": (dict(loose_cable=True), {("y", "cable_fault_spikes")}),
     }
     for name, (kw, expect) in cases.items():
-        rec = TiltTableCampaign(protocol=SMALL, seed=seed, **kw).simulate()
+        rec = small_records.get(seed, **kw)
         assert _effects(diagnose_tilt_table(rec, np.random.default_rng(seed))) == expect, name
 
 
-def test_crosstalk_coefficient_against_truth():
+def test_crosstalk_coefficient_against_truth(small_records):
     """The fitted leak equals the injected settling residual c = exp(-1/(f_mux tau)). With
     V_y,meas = (1 - c) V_y + c V_prev and the inverse model f = V_y / (s_nom G), its coefficient
     on the neighbour's volts is -c / (s_nom G (1 - c)) (m/s^2 per volt)."""
-    rec = TiltTableCampaign(protocol=SMALL, seed=3, mux_frequency_hz=200e3).simulate()
+    rec = small_records.get(3, mux_frequency_hz=200e3)
     d = diagnose_tilt_table(rec, np.random.default_rng(0))
     f = next(f for f in d["axes"]["y"]["findings"] if f["effect"] == "adc_crosstalk")
     est, se = f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
@@ -148,11 +146,11 @@ def test_model_terms_left_out_of_the_twin(effect, seed):
     assert found_effects(diagnose_case(case, null_recording(case, seed), seed)) == set()
 
 
-def test_unknown_twin_model_refused():
+def test_unknown_twin_model_refused(small_records):
     from imurig.kernel.errors import ConfigError
 
     with pytest.raises(ConfigError, match="twin model"):
-        diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=3).simulate(), np.random.default_rng(0),
+        diagnose_tilt_table(small_records.get(3), np.random.default_rng(0),
                             twin_model="quartic")
 
 
