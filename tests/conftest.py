@@ -1,10 +1,44 @@
 """Shared, session-scoped simulated datasets (small protocols that keep the suite fast)."""
 from __future__ import annotations
 
-import pytest
+import os
+import sys
 
-from imurig.campaigns.tilt_table import TiltTableCampaign
-from imurig.rigs.tilt_table import TiltTableProtocol
+# One BLAS thread per test process: the suite runs as `pytest -n 2` on 2 cores, where BLAS threads
+# only oversubscribe the cores (spinning threads: ~20 % more CPU for the same tests, measured on
+# tests/test_turn_table.py). Set before numpy loads its BLAS; a value the caller set is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+
+def _one_blas_thread_in_loaded_openblas() -> list[str]:
+    """A plugin may have loaded numpy (and its OpenBLAS) before this file: tell every OpenBLAS
+    already mapped into the process to use the thread count set above (what threadpoolctl does)."""
+    import ctypes
+    import re
+
+    try:
+        maps = open("/proc/self/maps").read()   # Linux; elsewhere the environment variable is all
+    except OSError:
+        return []
+    done = []
+    for lib in sorted(set(re.findall(r"(/\S*openblas\S*\.so\S*)", maps))):
+        dll = ctypes.CDLL(lib)
+        for sym in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                    "openblas_set_num_threads64_", "openblas_set_num_threads"):
+            if hasattr(dll, sym):
+                getattr(dll, sym)(int(os.environ["OPENBLAS_NUM_THREADS"]))
+                done.append(f"{lib}:{sym}")
+                break
+    return done
+
+
+BLAS_THREADS_SET = _one_blas_thread_in_loaded_openblas() if "numpy" in sys.modules else []
+
+import pytest  # noqa: E402
+
+from imurig.campaigns.tilt_table import TiltTableCampaign  # noqa: E402
+from imurig.rigs.tilt_table import TiltTableProtocol  # noqa: E402
 
 #: A reduced protocol: 4 tilt angles x 6 rotations x 2 mountings, 4 s per position.
 SMALL = TiltTableProtocol(theta_deg=(0, 30, 60, 90), phi_deg=(0, 60, 120, 180, 240, 300), dwell_s=4.0,
@@ -22,6 +56,25 @@ def small_recording():
     return small_campaign(seed=11).simulate()
 
 
+class SmallRecords:
+    """Small-protocol tilt-table recordings (``small_campaign(seed=..., **kw)``), each simulated
+    once per session; calibration and diagnosis leave a recording as it was, so tests share them."""
+
+    def __init__(self):
+        self._recs = {}
+
+    def get(self, seed: int, **kw):
+        key = (seed, repr(sorted(kw.items())))
+        if key not in self._recs:
+            self._recs[key] = small_campaign(seed=seed, **kw).simulate()
+        return self._recs[key]
+
+
+@pytest.fixture(scope="session")
+def small_records() -> SmallRecords:
+    return SmallRecords()
+
+
 @pytest.fixture(scope="session")
 def short_flight():
     """~43 s airborne at 100 Hz: level, 3-2-1-1, double doublet, S-turns at 30 deg both sides."""
@@ -32,20 +85,74 @@ def short_flight():
     return simulate_flight(plan, progress_bar=False)
 
 
+def _is_plain_turn_null(case) -> bool:
+    """The case's null record is the plain turn-table campaign ``_turn(seed)`` of the suite."""
+    import inspect
+
+    return case.rig == "turn_table" and case.null is not None and \
+        "null=lambda seed: _turn(seed)" in inspect.getsource(case.null)
+
+
+class ConcealedRecords:
+    """The concealed-effect suite's recordings and null diagnoses, each simulated (diagnosed) once per
+    session, whichever test file asks first. Diagnoses do not change the recording they read (the
+    Earth-rate test diagnoses one record with two twins), so sharing a record is safe.
+
+    The turn table's null record is ``_turn(seed)`` for every turn case whose ``null`` says so, and
+    the Earth-rate case at fraction 1.0 is that same record (``_turn(seed, earth_fraction=1.0)``
+    moves no site): one simulation serves them all."""
+
+    def __init__(self):
+        self._recs, self._diags = {}, {}
+
+    def _get(self, key, build):
+        if key not in self._recs:
+            self._recs[key] = build()
+        return self._recs[key]
+
+    def make(self, case, seed: int, size: float | None = None):
+        size = case.realistic_size if size is None else float(size)
+        if case.effect == "earth_rate_left_out" and size == 1.0:
+            return self._get(("turn_table", "null", seed), lambda: case.make(seed, size))
+        return self._get((case.rig, case.effect, seed, size), lambda: case.make(seed, size))
+
+    def null(self, case, seed: int):
+        from imurig.concealed.suite import null_recording
+
+        key = ("turn_table", "null", seed) if _is_plain_turn_null(case) else (case.rig, case.effect, "null", seed)
+        return self._get(key, lambda: null_recording(case, seed))
+
+    def null_diagnosis(self, case, seed: int) -> dict:
+        """The case's null record diagnosed with the case's null twin (shared by cases with the same both)."""
+        from imurig.concealed.suite import diagnose_case
+
+        twin = case.null_twin if case.null_twin is not None else case.twin
+        rec = self.null(case, seed)
+        key = (id(rec), repr(sorted(twin.items())), case.rig, seed)
+        if key not in self._diags:
+            self._diags[key] = diagnose_case(case, rec, seed, null=True)
+        return self._diags[key]
+
+
 @pytest.fixture(scope="session")
-def check_concealed_case():
+def concealed_records() -> ConcealedRecords:
+    return ConcealedRecords()
+
+
+@pytest.fixture(scope="session")
+def check_concealed_case(concealed_records):
     """``check(case, seed, size)``: the diagnosis of the case's recording names exactly the
     expected (channel, effect) pairs with the first parameter within 4 SE of the injected
     truth, and the case's null recording comes back clean. Returns the diagnosis and recording."""
-    from imurig.concealed.suite import diagnose_case, found_effects, null_recording
+    from imurig.concealed.suite import diagnose_case, found_effects
 
     def check(case, seed: int, size: float):
-        rec = case.make(seed, size)
+        rec = concealed_records.make(case, seed, size)
         d = diagnose_case(case, rec, seed)
         assert found_effects(d) == case.expected
         est, se = case.found_param(d)
         assert abs(est - case.truth_param(rec)) < 4 * se
-        assert found_effects(diagnose_case(case, null_recording(case, seed), seed, null=True)) == set()
+        assert found_effects(concealed_records.null_diagnosis(case, seed)) == set()
         return d, rec
 
     return check
@@ -94,3 +201,14 @@ def every_saved_figure_names_every_line(monkeypatch, request):
     monkeypatch.setattr(Figure, "savefig", savefig)
     yield
     assert not problems, "figures whose legend does not name every line:\n" + "\n".join(problems[:20])
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under ``pytest -n 2`` (``--dist loadgroup``, pyproject's addopts) the tests that share
+    :class:`ConcealedRecords` (or :class:`SmallRecords`) run on one worker, so each record is simulated once per run and not
+    once per worker."""
+    for item in items:
+        for shared in ("concealed_records", "small_records"):
+            if shared in getattr(item, "fixturenames", ()):
+                item.add_marker(pytest.mark.xdist_group(shared))
+                break

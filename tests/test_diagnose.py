@@ -85,8 +85,6 @@ def test_concealed_effects_found_and_named(seed):
 
 
 # ------------------------------------------------------------------- tilt table
-from conftest import SMALL  # noqa: E402
-from imurig.campaigns.tilt_table import TiltTableCampaign  # noqa: E402
 from imurig.diagnose.tilt_table import diagnose_tilt_table  # noqa: E402
 
 
@@ -99,13 +97,13 @@ def _effects(d):
 
 
 @pytest.mark.parametrize("seed", [3, 5])
-def test_tilt_table_null_comes_back_clean(seed):
-    d = diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=seed).simulate(), np.random.default_rng(seed))
+def test_tilt_table_null_comes_back_clean(seed, small_records):
+    d = diagnose_tilt_table(small_records.get(seed), np.random.default_rng(seed))
     assert _effects(d) == set()
 
 
 @pytest.mark.parametrize("seed", [3, 5])
-def test_tilt_table_concealed_effects_named(seed):
+def test_tilt_table_concealed_effects_named(seed, small_records):
     """Each effect present in the recording but absent from the nominal model is found on the
     channels it affects, and named; nothing else is."""
     cases = {
@@ -115,15 +113,15 @@ def test_tilt_table_concealed_effects_named(seed):
         "cable": (dict(loose_cable=True), {("y", "cable_fault_spikes")}),
     }
     for name, (kw, expect) in cases.items():
-        rec = TiltTableCampaign(protocol=SMALL, seed=seed, **kw).simulate()
+        rec = small_records.get(seed, **kw)
         assert _effects(diagnose_tilt_table(rec, np.random.default_rng(seed))) == expect, name
 
 
-def test_crosstalk_coefficient_against_truth():
+def test_crosstalk_coefficient_against_truth(small_records):
     """The fitted leak equals the injected settling residual c = exp(-1/(f_mux tau)). With
     V_y,meas = (1 - c) V_y + c V_prev and the inverse model f = V_y / (s_nom G), its coefficient
     on the neighbour's volts is -c / (s_nom G (1 - c)) (m/s^2 per volt)."""
-    rec = TiltTableCampaign(protocol=SMALL, seed=3, mux_frequency_hz=200e3).simulate()
+    rec = small_records.get(3, mux_frequency_hz=200e3)
     d = diagnose_tilt_table(rec, np.random.default_rng(0))
     f = next(f for f in d["axes"]["y"]["findings"] if f["effect"] == "adc_crosstalk")
     est, se = f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
@@ -148,24 +146,24 @@ def test_model_terms_left_out_of_the_twin(effect, seed):
     assert found_effects(diagnose_case(case, null_recording(case, seed), seed)) == set()
 
 
-def test_unknown_twin_model_refused():
+def test_unknown_twin_model_refused(small_records):
     from imurig.kernel.errors import ConfigError
 
     with pytest.raises(ConfigError, match="twin model"):
-        diagnose_tilt_table(TiltTableCampaign(protocol=SMALL, seed=3).simulate(), np.random.default_rng(0),
+        diagnose_tilt_table(small_records.get(3), np.random.default_rng(0),
                             twin_model="quartic")
 
 
 # ------------------------------------------------------------------ turn table
 @pytest.mark.parametrize("effect", ["earth_rate_left_out", "g_sensitivity"])
-def test_turn_table_effects_found_with_truth(effect):
+def test_turn_table_effects_found_with_truth(effect, concealed_records):
     """The Earth's vertical rate left out of the twin's reference, and a gyro g-sensitivity
     (10 deg/h/g) left out of its model, are found on every gyro, named (the Earth's rate with
     the g-sensitivity as its indistinguishable alias on a level table), with the parameter
     within 4 SE of the truth; the complete twin on the same kind of data comes back clean."""
     case = next(c for c in CASES if c.effect == effect)
     seed = 1
-    rec = case.make(seed, case.realistic_size)
+    rec = concealed_records.make(case, seed, case.realistic_size)
     d = diagnose_case(case, rec, seed)
     assert found_effects(d) == case.expected
     est, se = case.found_param(d)
@@ -174,7 +172,7 @@ def test_turn_table_effects_found_with_truth(effect):
         assert all(f["indistinguishable_from"] == "g_sensitivity" for e in d["gyros"].values() for f in e["findings"])
         null = diagnose_case(case, rec, seed, null=True)      # the same data, the twin with the Earth's rate
     else:
-        null = diagnose_case(case, null_recording(case, seed), seed, null=True)
+        null = concealed_records.null_diagnosis(case, seed)
     assert found_effects(null) == set()
 
 
@@ -224,11 +222,11 @@ def test_diagnose_cli_on_thermal_and_turn_table(tmp_path, capsys):
     assert last == f"verdict: {d['verdict']}"
 
 
-def test_slip_ring_noise_found_at_its_angles():
+def test_slip_ring_noise_found_at_its_angles(concealed_records):
     """Slip-ring contact noise (the rig's rough spots at 40, 166, 252 deg) is found on every gyro
     at those table angles, and not on the same schedule without it."""
     case = next(c for c in CASES if c.effect == "slip_ring_noise")
-    rec = case.make(1, case.realistic_size)
+    rec = concealed_records.make(case, 1, case.realistic_size)
     d = diagnose_case(case, rec, 1)
     assert found_effects(d) == case.expected
     spots = np.degrees(rec.truth["chain"]["slip_rings"]["spots_rad"])
@@ -236,4 +234,4 @@ def test_slip_ring_noise_found_at_its_angles():
         angles = np.array(e["scatter"]["finding"]["angles_deg"])
         # every rough spot lies within two 10-degree bins of a flagged angle
         assert all(np.min(np.abs((angles - s + 180) % 360 - 180)) <= 20 for s in spots), (angles, spots)
-    assert found_effects(diagnose_case(case, null_recording(case, 1), 1, null=True)) == set()
+    assert found_effects(concealed_records.null_diagnosis(case, 1)) == set()

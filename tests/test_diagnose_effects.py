@@ -50,12 +50,12 @@ def test_lever_arm_kinematics_closed_form():
 
 
 @pytest.fixture(scope="module")
-def lever_case():
+def lever_case(concealed_records):
     """The lever-arm case's record (seed 1), its dynamic twin (one MuJoCo replay) and the nominal calibration."""
     from imurig.campaigns.tilt_table import calibrate
 
     case = _case("lever_arm")
-    rec = case.make(1, case.realistic_size)
+    rec = concealed_records.make(case, 1, case.realistic_size)
     return case, rec, tilt_table_twin(rec), calibrate(rec)
 
 

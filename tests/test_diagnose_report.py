@@ -57,17 +57,18 @@ def _check_fit_steps(e: dict) -> None:
             assert s["variance_share"] == pytest.approx(f["variance_share"], rel=1e-9)
 
 
-def _diagnosed(tmp_path_factory, rig: str, effect: str):
-    """(recording, diagnosis, report folder) of the suite case at its realistic size, seed 1."""
+def _diagnosed(tmp_path_factory, records, rig: str, effect: str):
+    """(recording, diagnosis, report folder) of the suite case at its realistic size, seed 1
+    (the record shared with the other files that use it)."""
     case = _case(rig, effect)
-    rec = case.make(1, case.realistic_size)
+    rec = records.make(case, 1, case.realistic_size)
     out = tmp_path_factory.mktemp(effect) / "diag"
     return rec, run(rec, out), out
 
 
 @pytest.fixture(scope="module")
-def thermal(tmp_path_factory):
-    return _diagnosed(tmp_path_factory, "thermal", "temperature_hysteresis")
+def thermal(tmp_path_factory, concealed_records):
+    return _diagnosed(tmp_path_factory, concealed_records, "thermal", "temperature_hysteresis")
 
 
 def test_thermal_report_fields_and_numbers(thermal):
@@ -111,9 +112,9 @@ def test_thermal_report_fields_and_numbers(thermal):
 
 
 @pytest.fixture(scope="module")
-def lever(tmp_path_factory):
+def lever(tmp_path_factory, concealed_records):
     """The lever-arm case (dynamic protocol): position means and slews."""
-    return _diagnosed(tmp_path_factory, "tilt_table", "lever_arm")
+    return _diagnosed(tmp_path_factory, concealed_records, "tilt_table", "lever_arm")
 
 
 def test_tilt_report_positions_and_slews(lever):
@@ -156,12 +157,12 @@ def test_tilt_report_positions_and_slews(lever):
     np.testing.assert_allclose(v, j["axes"]["x"]["residuals"]["reference"], rtol=1e-12)
 
 
-def test_turn_report_round_means(tmp_path):
+def test_turn_report_round_means(tmp_path, concealed_records):
     """Earth's rate left out of the twin: per gyro the on-axis steps' before residual sits at
     -Omega_E sin(lat) (the recording senses it, the twin's reference lacks it), the after residual
     at zero; the .rrd's corrected twin gives the after residual in diagnosis.json."""
     case = _case("turn_table", "earth_rate_left_out")
-    rec = case.make(1, 1.0)
+    rec = concealed_records.make(case, 1, 1.0)
     d = run(rec, tmp_path / "diag", twin={"earth_rate": False})
     j = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert (tmp_path / "diag" / "fig_residuals.png").stat().st_size > 1000

@@ -136,10 +136,10 @@ def test_switching_one_effect_leaves_other_stages_unchanged():
 
 # ----------------------------------------------------------- truth recovery
 @pytest.fixture(scope="module")
-def truth_runs():
+def truth_runs(small_records):
     out = []
     for seed in (1, 2, 3, 4, 5):
-        rec = small_campaign(seed=seed).simulate()
+        rec = small_records.get(seed)
         out.append(compare_with_truth(calibrate(rec), rec.truth))
     return out
 
