@@ -272,8 +272,13 @@ def _greedy(y, X, names, candidates, before, rng, alpha, n_sim, cv_blocks, max_e
 
 def _recheck_jointly(findings, y, X0, names0, candidates, rng, alpha, n_sim, noise):
     """Interactions: re-optimise each accepted effect's scanned parameter given the others, then
-    drop any effect that no longer beats its own simulated threshold given the others, and refit
-    the survivors jointly; (findings, X, names)."""
+    drop any effect that no longer beats, given the others, the max-statistic threshold it would
+    face if it were the last one added: the (1 - alpha) critical value of the largest statistic
+    over itself and every candidate not accepted (simulated under the model with the others). An
+    effect that entered early by absorbing part of a later one's signal (a temperature drift,
+    monotonic in time, takes most of a misalignment's column u_z on a table that runs theta by
+    theta) must then stand against the whole library again, not against its own scan alone,
+    which would let a candidate past the family-wise level; (findings, X, names)."""
     lookup = {c.name: c for c in candidates}
     for _ in range(2):
         for i, f in enumerate(findings):
@@ -283,15 +288,19 @@ def _recheck_jointly(findings, y, X0, names0, candidates, rng, alpha, n_sim, noi
             if np.isfinite(F):
                 f.theta, f.statistic = th, float(F)
     kept = []
+    accepted = {g.name for g in findings}
+    rest = [c for c in candidates if c.name not in accepted]
     for i, f in enumerate(findings):
         others = [lookup[g.name].design(g.theta) for j, g in enumerate(findings) if j != i]
         Xo = np.column_stack([X0, *others]) if others else X0
         fit_o = _fit(Xo, y, [f"c{k}" for k in range(Xo.shape[1])])
-        sc_o = _Scanner(Xo, [lookup[f.name]])
+        family = [lookup[f.name], *rest]
+        sc_o = _Scanner(Xo, family)
         sims = np.empty(n_sim)
         for k in range(n_sim):
             rs = sc_o.residual(fit_o.sigma_res * noise(rng, y.size))
-            sims[k] = sc_o.best(0, rs, float(rs @ rs))[0]
+            ss = float(rs @ rs)
+            sims[k] = max(sc_o.best(j, rs, ss)[0] for j in range(len(family)))
         f.threshold = mc_threshold(sims, alpha)
         if f.statistic > f.threshold:
             kept.append(f)
