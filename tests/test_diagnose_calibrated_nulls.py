@@ -17,7 +17,7 @@ from scipy import stats
 
 from imurig.diagnose.engine import mc_threshold
 from imurig.diagnose.position_noise import dither_sd
-from imurig.diagnose.tilt_ramps import despike
+from imurig.diagnose.samples import despike
 from imurig.sensors.effects import RawChannelView
 from imurig.sensors.effects.saturation import Saturation
 

@@ -34,12 +34,11 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg
-import scipy.ndimage
 import scipy.optimize
 import scipy.stats
 
 from imurig.calibration.accelerometer import ACC
-from imurig.diagnose.samples import adc_step
+from imurig.diagnose.samples import SPIKE_SIGMAS, SPIKE_WINDOW, adc_step, despike
 from imurig.diagnose.tilt_dynamics import _ar1_whitener
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
@@ -288,34 +287,6 @@ def _noise_model(win: _Windows, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         e = ra - rho[a] * np.concatenate(([0.0], ra[:-1])) * pair
         sig[a] = float(np.sqrt(np.mean(e[pair] ** 2)))
     return rho, np.maximum(sig, 1e-12)
-
-
-#: a sample whose static residual lies this many robust sigma from its running median is a spike
-SPIKE_SIGMAS = 8.0
-#: the running median's length (samples): odd, and longer than twice a cable fault's 1-3 samples
-SPIKE_WINDOW = 7
-
-
-def despike(f: np.ndarray, r: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, list[int]]:
-    """(f with its spikes replaced, spikes per axis). A loose contact (the library's cable fault
-    spikes) adds steps of a few samples far above the noise; in a 0.1-s block mean through a move
-    one of them weighs like a delay, and the move-clustered SE cannot tell it from one (a 50-Hz
-    record with 0.2-V spikes gave t = 2.8). Per axis, r = f_meas - f_ref(sp) the static residual
-    (smooth through a move but for tau df/dt, a box the running median keeps), its running median
-    m over ``SPIKE_WINDOW`` samples, the robust sigma s = 1.4826 MAD(r - m) (at least q / sqrt(12),
-    q the axis' ADC step in m/s^2); samples with |r - m| > ``SPIKE_SIGMAS`` s are spikes and take
-    f_ref + m. Gaussian noise passes 8 sigma once in 1e15 samples, so a record without spikes is
-    left as it is."""
-    f = np.array(f, float)
-    counts = []
-    for j in range(f.shape[1]):
-        m = scipy.ndimage.median_filter(r[:, j], size=SPIKE_WINDOW, mode="nearest")
-        d = r[:, j] - m
-        sig = max(1.4826 * float(np.median(np.abs(d - np.median(d)))), float(q[j]) / np.sqrt(12), 1e-300)
-        bad = np.abs(d) > SPIKE_SIGMAS * sig
-        f[bad, j] -= d[bad]
-        counts.append(int(bad.sum()))
-    return f, counts
 
 
 def _not_tested(why: str) -> dict:
