@@ -63,19 +63,75 @@ def level_groups(ref: np.ndarray, median_V: np.ndarray, q: float) -> np.ndarray:
     return inv.ravel()
 
 
+def dither_sd(samples_V: np.ndarray, slices, q: float, grid: int = 48) -> float | None:
+    """The converter's noise before the rounding, sigma (V), by maximum likelihood from the codes of
+    every position: the codes c of position k are round(x_k + e) / q, e ~ N(0, sigma^2), one sigma
+    for all, x_k profiled per position:
+
+        log L(sigma) = sum_k max_x sum_c n_kc log(Phi((c + 1/2 - x) q / sigma) - Phi((c - 1/2 - x) q / sigma)).
+
+    sigma on a log grid (0.05 q to 3 q), refined by a parabola in log sigma; x by bounded Newton steps
+    from each position's mean code. Where the noise is near the step, the shared rounding variance
+    depends on sigma as exp(-4 pi^2 sigma^2 / q^2); the moment estimate sqrt(mean(s^2) - q^2 / 12)
+    (Sheppard) is exact only averaged over uniform phases of the positions on the grid, which a few
+    dozen positions sharing a few levels are not (0.23 q to 0.33 q for a true 0.3 q on 12-bit
+    records, i.e. a shared variance wrong by a factor of 0.4 to 2.3). None without two positions of
+    at least 10 samples or when the maximum is at the grid's end (noise far below or above q)."""
+    from scipy.stats import norm   # lazy: only records on a coarse converter need it
+    x = np.asarray(samples_V, float) / q
+    hist = []
+    for sl in slices:
+        c = np.rint(x[sl])
+        if c.size >= 10:
+            k, n = np.unique(c, return_counts=True)
+            hist.append((k - np.rint(c.mean()), n, float(c.mean() - np.rint(c.mean()))))
+    if len(hist) < 2:
+        return None
+    sig = np.exp(np.linspace(np.log(0.05), np.log(3.0), grid))
+    total = np.zeros(sig.size)
+    for k, n, m in hist:
+        def ll(xv):
+            z_hi = (k[None, :] + 0.5 - xv[:, None]) / sig[:, None]
+            p = norm.cdf(z_hi) - norm.cdf(z_hi - 1.0 / sig[:, None])
+            return np.log(np.maximum(p, 1e-300)) @ n.astype(float)
+        # x profiled per sigma by bounded Newton steps from the mean code (the likelihood of an
+        # interval is log-concave in the location, so the maximum is unique)
+        xv, h = np.full(sig.size, m), 1e-4
+        for _ in range(15):
+            f0, fp, fm = ll(xv), ll(xv + h), ll(xv - h)
+            g, H = (fp - fm) / (2 * h), (fp - 2 * f0 + fm) / h ** 2
+            step = np.clip(np.where(H < 0, -g / np.where(H < 0, H, -1.0), np.sign(g) * 0.1), -0.1, 0.1)
+            xv = np.clip(xv + step, m - 1.0, m + 1.0)
+            if np.max(np.abs(step)) < 1e-6:
+                break
+        total += ll(xv)
+    i = int(np.argmax(total))
+    if i == 0 or i == sig.size - 1:
+        return None
+    a, b, c = total[i - 1:i + 2]
+    h = np.log(sig[1] / sig[0])
+    shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c < 0 else 0.0
+    return float(q * np.exp(np.log(sig[i]) + h * shift))
+
+
 def position_noise(y: np.ndarray, X0: np.ndarray, ref: np.ndarray, median_V: np.ndarray, quantum_V: float,
                    sensitivity: float, sd_V: np.ndarray, n_samples: np.ndarray,
-                   decimated: bool = False, phase: bool = True) -> tuple[Callable | None, dict]:
+                   decimated: bool = False, phase: bool = True,
+                   dither_V: float | None = None) -> tuple[Callable | None, dict]:
     """(noise generator for the engine or None for white noise, the model's figures) of one axis
     (module doc). ``sd_V``, ``n_samples``: the samples' sd (V) and number per position, of the
     record the medians were taken from (``decimated``: of the raw record, the medians' being
     low-passed). ``phase``: the rounding errors' covariance from the positions' readings
-    (:func:`_phase_noise`), else the level groups (the module doc's first model)."""
+    (:func:`_phase_noise`), else the level groups (the module doc's first model). ``dither_V``:
+    the converter's noise before the rounding (:func:`dither_sd`) for a decimated or averaged
+    statistic, in place of the moment estimate sqrt(mean(sd^2) - q^2 / 12)."""
     q = float(quantum_V or 0.0)
     if q <= 0 or not sensitivity:
         return None, {"shared_level_errors": False, "why": "the ADC step is unknown"}
     sd = np.asarray(sd_V, float)
-    if decimated:
+    if decimated and dither_V is not None:
+        s_d = float(dither_V)
+    elif decimated:
         s_d = float(np.sqrt(max(np.mean(sd ** 2) - q * q / 12, 0.0)))
     else:
         s_d = float(np.sqrt(np.pi / 2 * np.mean(sd ** 2 / np.maximum(np.asarray(n_samples, float), 1))))
@@ -100,6 +156,27 @@ def position_noise(y: np.ndarray, X0: np.ndarray, ref: np.ndarray, median_V: np.
     def draw(rng: np.random.Generator, m: int) -> np.ndarray:
         return (np.sqrt(sr2) * rng.standard_normal(m) + np.sqrt(sg2) * rng.standard_normal(G)[groups]) / scale
     return draw, info
+
+
+def true_reading(v_V: np.ndarray, q: float, s_d: float, iterations: int = 30) -> np.ndarray:
+    """The readings x (V) whose smoothed rounding gives the statistics v: v = x + E r(x), the mean
+    rounding error of x + e (e ~ N(0, s_d^2)) on a grid of step q,
+
+        E r(x) = q sum_h (-1)^h / (pi h) exp(-2 pi^2 h^2 s_d^2 / q^2) sin(2 pi h x / q),
+
+    solved by the fixed point x <- v - E r(x) (a contraction: |d E r / dx| <= 2 exp(-2 pi^2 s_d^2 / q^2),
+    0.34 at s_d = 0.3 q; no correction where s_d < 0.2 q, where it would not converge). The rounding
+    phase of a position is that of x, not of v: at s_d = 0.3 q they differ by up to 0.34 rad, and
+    the shared errors' covariance from v's phases left a part of them outside the model's span."""
+    v = np.asarray(v_V, float)
+    if s_d < 0.2 * q:
+        return v
+    h = np.arange(1, 21)
+    c = q * (-1.0) ** h / (np.pi * h) * np.exp(-2 * np.pi ** 2 * h ** 2 * s_d ** 2 / q ** 2)
+    x = v.copy()
+    for _ in range(iterations):
+        x = v - np.sin(2 * np.pi * np.outer(x, h) / q) @ c
+    return x
 
 
 def _phase_noise(v_V: np.ndarray, q: float, s_d: float, sensitivity: float, sd_V: np.ndarray,
@@ -127,11 +204,12 @@ def _phase_noise(v_V: np.ndarray, q: float, s_d: float, sensitivity: float, sd_V
     sd, n = np.asarray(sd_V, float), np.maximum(np.asarray(n_samples, float), 1)
     sr2 = max(float(np.mean(sd ** 2 / n)) if decimated else s_d ** 2, 1e-300) / sensitivity ** 2
     info = {"shared_level_errors": bool(sg2 >= MIN_SHARED_FRACTION * sr2), "model": "rounding phase",
+            "dither_sd_V": s_d,
             "harmonics": int(h.size), "sigma_shared_m_s2": float(np.sqrt(sg2)),
             "sigma_independent_m_s2": float(np.sqrt(sr2)), "adc_step_V": q}
     if not info["shared_level_errors"]:
         return None, info
-    ph = 2 * np.pi * np.outer(v, h) / q
+    ph = 2 * np.pi * np.outer(true_reading(v, q, s_d), h) / q
     B = np.hstack([np.cos(ph), np.sin(ph)]) * np.sqrt(np.concatenate([a, a]))[None, :] / sensitivity
     scale = np.sqrt(sr2 + sg2)
 

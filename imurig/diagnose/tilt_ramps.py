@@ -38,6 +38,7 @@ import scipy.optimize
 import scipy.stats
 
 from imurig.calibration.accelerometer import ACC
+from imurig.diagnose.samples import SPIKE_SIGMAS, SPIKE_WINDOW, adc_step, despike
 from imurig.diagnose.tilt_dynamics import _ar1_whitener
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
@@ -305,7 +306,11 @@ def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_
     s = np.asarray(rec.meta["acc_nominal_sensitivity_V_per_m_s2"], float)
     f_meas = cal.predict(rec.stack(list(ACC)) / s)
     g = Site.from_dict(rec.meta.get("site", {})).gravity_m_s2
-    win = _Windows(rec, f_meas, _mounts(rec), g)
+    mounts = _mounts(rec)
+    q_SI = np.array([adc_step(rec, c) for c in ACC]) / s
+    f_meas, n_spikes = despike(f_meas, f_meas - _attitude(sp[:, 0], sp[:, 1], mounts,
+                                                          rec.meta.get("table_survey") or {})[:, :, 2] * g, q_SI)
+    win = _Windows(rec, f_meas, mounts, g)
     if win.nb < 30:
         return _not_tested(f"{win.nb} blocks of {BLOCK_S:g} s in the moves: too few to test a delay")
     nb = win.nb
@@ -352,6 +357,8 @@ def diagnose_setpoint_delay(rec: Recording, cal, alpha: float = 0.01, max_delay_
                                     "static calibration's residual per position interpolated across each move; "
                                     "lever arm as nuisance",
             "findings": [finding] if fired else [], "test": test, "moves": win.n_moves, "blocks": nb,
+            "despiked_samples": {"count": n_spikes, "rule": f"|r - median of {SPIKE_WINDOW}| > {SPIKE_SIGMAS:g} "
+                                                            "robust sigma (floor q / sqrt(12)), r = f_meas - f_ref(sp)"},
             "averaging_s": BLOCK_S,
             "noise_model": {"ar1": rho.tolist(), "innovation_sigma_m_s2": sig.tolist()},
             "lever_arm_m": {"estimate": c1[:3].tolist(), "note": "nuisance (tangential and centripetal accelerations)"},

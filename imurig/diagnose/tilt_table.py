@@ -35,7 +35,7 @@ from imurig.calibration.tilt_reference import calibrate, tilt_table_reference
 from imurig.diagnose.engine import select_effects
 from imurig.diagnose.crosstalk_sources import (TRIAD_LEAK_VS_MISALIGNMENT, absorbed_note, identifiable_sources,
                                                unknown_scan_sources)
-from imurig.diagnose.position_noise import position_noise
+from imurig.diagnose.position_noise import dither_sd, position_noise
 from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, scan_order_known, working_record
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
@@ -226,8 +226,11 @@ def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: 
     sl = src.segment_slices()
     sd = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
     n = np.array([s.stop - s.start for s in sl])
-    return position_noise(y, X0, y, median_V, adc_step(rec, ch), float(sens["xyz".index(ch[-1])]), sd, n,
-                          decimated=rec100 is not rec or averaged)
+    q = adc_step(rec, ch)
+    decimated = rec100 is not rec or averaged
+    dither = dither_sd(x, sl, q) if decimated and q > 0 else None
+    return position_noise(y, X0, y, median_V, q, float(sens["xyz".index(ch[-1])]), sd, n,
+                          decimated=decimated, dither_V=dither)
 
 
 def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:

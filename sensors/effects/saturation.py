@@ -6,11 +6,22 @@ Stage "analog" (applied per line before the converter; the simulator's DAQ clips
 
 Diagnosis (:class:`~imurig.sensors.effects.views.RawChannelView`, the channel as logged): a clip
 is a flat top, a run of samples held at the record's extreme level L (max or min) within
-q / 2 (q: the ADC step; 1e-9 |L| for unquantised values). Without clipping, k equal samples in a
-row at one level have probability about P^(k-1), P = min(1, q / (2 sqrt(pi) s)) the chance that a
-first difference of white noise s (from the second differences, free of a slow signal's slope:
-s = 1.4826 MAD(diff2) / sqrt(6), floored at q / sqrt(12)) rounds to zero; runs of at least k_min = max(3, 1 + log(alpha / n) / log P)
-samples are flat tops. Where the step exceeds the noise (P near 1: every sample repeats its code)
+q / 2 (q: the ADC step; 1e-9 |L| for unquantised values). Without clipping, a sample x + e (e white,
+sd sigma before the rounding) repeats the code L of the one before with probability
+p_L = Phi((L + q/2 - x) / sigma) - Phi((L - q/2 - x) / sigma), at most P = 2 Phi(q / (2 sigma)) - 1
+(x at the code's centre, the worst phase), so k equal samples in a row at L have probability at
+most P^(k-1); runs of at least k_min = max(3, 1 + log(alpha / n) / log P) samples are flat tops (up to P = ``MAX_REPEAT``).
+sigma is the noise before the rounding, bounded from below by the noise as logged, s: a position's
+codes x + e + r (r the rounding error, |r| <= q / 2) have sd at most sigma + q / 2 whatever the
+phase of x on the grid, so sigma >= s - q / 2 (an underestimated sigma only raises P: the bound
+keeps the level; Sheppard's sigma^2 = s^2 - q^2 / 12 holds only averaged over uniform phases,
+which a few dozen positions are not: on 12-bit records with sigma = 0.3 q it gave 0.35 q).
+s^2 = var(diff2) / 6 from the second differences (free of a slow signal's slope), their mean
+square within 5 robust sigma of the median (a slew's corners and spikes cut). (The
+earlier P = q / (2 sqrt(pi) s), the chance that a first difference rounds to zero averaged over
+the phase, with s from the MAD of the differences, which is a whole number of steps where the
+noise is near q, gave runs of 22 where codes repeat with probability 0.9: a 12-bit record whose
+converter noise is 0.3 q named a flat top at an unclipped position.) Where the step exceeds the noise (P near 1: every sample repeats its code)
 a run proves nothing, and only the converter's known range can: the level must lie within 1.5 q
 of +-range_V. The finding reports the level (V), the clipped fraction of the record, the number
 of runs and the first clipped time.
@@ -43,6 +54,11 @@ from scipy.stats import norm
 
 from imurig.sensors.effects.base import Candidate, ChainContext, Effect, Param, PositionView
 from imurig.sensors.effects.views import RawChannelView
+
+
+#: above this chance that a sample repeats the code before it, a run of equal codes proves nothing
+#: (k_min would exceed ~1000 samples at alpha / n = 1e-7) and only the converter's range can
+MAX_REPEAT = 0.985
 
 
 def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -116,10 +132,9 @@ class Saturation(Effect):
         if n < 10:
             return {}
         q = float(view.quantum_V or 0.0)
-        d2 = np.diff(x, 2)                    # a slow signal's slope drops out; white noise: var 6 s^2
-        s = max(1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6), q / np.sqrt(12))
-        P = 1.0 if s <= 0 else min(1.0, q / (2 * np.sqrt(np.pi) * s)) if q > 0 else 0.0
-        k_min = 3 if P <= 0 else (np.inf if P >= 0.5 else max(3, int(np.ceil(1 + np.log(view.alpha / n) / np.log(P)))))
+        s, sigma = _noise_before_rounding(x, q)
+        P = (1.0 if sigma <= 0 else float(2 * norm.cdf(q / (2 * sigma)) - 1)) if q > 0 else 0.0
+        k_min = 3 if P <= 0 else (np.inf if P >= MAX_REPEAT else max(3, int(np.ceil(1 + np.log(view.alpha / n) / np.log(P)))))
         out = {"saturation_noise_V": s, "saturation_min_run": None if not np.isfinite(k_min) else int(k_min)}
         best = None
         for L in (float(np.max(x)), float(np.min(x))):
@@ -141,6 +156,21 @@ class Saturation(Effect):
         elif not np.isfinite(k_min) and view.range_V is None:
             out["saturation_tested"] = "no: the ADC step exceeds the noise and the converter's range is unknown"
         return out
+
+
+def _noise_before_rounding(x: np.ndarray, q: float) -> tuple[float, float]:
+    """(s, sigma) (V) of samples x on a grid of step q (0: unquantised): s the noise as logged, from
+    the second differences (var 6 s^2 for white noise), their mean square within 5 robust sigma of
+    the median (a slew's corners and spikes cut; the robust sigma at least q, as a MAD of whole
+    steps can be 0); sigma = max(s - q / 2, 0), a lower bound of the noise before the rounding
+    (module doc)."""
+    d2 = np.diff(x, 2)
+    c = np.median(d2)
+    cut = 5 * max(1.4826 * float(np.median(np.abs(d2 - c))), q)
+    inner = d2[np.abs(d2 - c) <= cut] if cut > 0 else d2
+    s2 = float(np.mean((inner - c) ** 2)) / 6 if inner.size else 0.0
+    s = float(np.sqrt(max(s2, q * q / 12)))
+    return s, max(s - q / 2, 0.0)
 
 
 def hinge(y: np.ndarray, side: float, limit: float) -> np.ndarray:
