@@ -35,6 +35,10 @@ import math
 import numpy as np
 from scipy import optimize, special, stats
 
+# the timer test's own edge bracketing and line-fit statistic, so the power is that of the test the diagnosis runs
+from imurig.diagnose.pulse_timer import _bracket
+from imurig.diagnose.pulse_timer import _wls_q as _q
+
 ALPHA, POWER = 0.01, 0.9
 #: seconds after a dial plateau began before its pulses count (the table's settling)
 SETTLE_S = 2.0
@@ -109,26 +113,6 @@ def slip_ring(truth: dict, effect: dict, turn, motion) -> dict:
     need = lambda_needed(RIPPLE_DOF, ALPHA / 3)
     return {"effect": effect["effect"], "lambda": lam, "lambda_90": need, "dof": RIPPLE_DOF, "samples": n,
             "detectable": all(v >= need for v in lam.values())}
-
-
-def _bracket(tau: np.ndarray, dt: float, w: float) -> tuple[np.ndarray, np.ndarray]:
-    """Middle and |interval|^2 / 12 of edges ``tau`` bracketed by the samples around both edges."""
-    a1 = (np.ceil(tau / dt) - 1) * dt
-    a2 = (np.ceil((tau + w) / dt) - 1) * dt - w
-    lo, hi = np.maximum(a1, a2), np.minimum(a1, a2) + dt
-    ok = hi > lo
-    lo, hi = np.where(ok, lo, a1), np.where(ok, hi, a1 + dt)
-    return 0.5 * (lo + hi), (hi - lo) ** 2 / 12.0
-
-
-def _q(n: np.ndarray, tk: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """sum r^2 / v of weighted line fits t = t0 + T n along the last axis."""
-    W = 1.0 / v
-    S0, S1, S2 = W.sum(-1), (W * n).sum(-1), (W * n * n).sum(-1)
-    Y0, Y1 = (W * tk).sum(-1), (W * n * tk).sum(-1)
-    det = S0 * S2 - S1**2
-    b0, b1 = (S2 * Y0 - S1 * Y1) / det, (S0 * Y1 - S1 * Y0) / det
-    return (W * (tk - b0[..., None] - b1[..., None] * n) ** 2).sum(-1)
 
 
 def timer(truth: dict, effect: dict, motion, n_sim: int = 4000, seed: int = 0) -> dict:
