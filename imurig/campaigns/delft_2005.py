@@ -54,15 +54,21 @@ SETTING_ERROR_SEED_SAYS = ("4.3.1: the angles can be set 'with an accuracy of 0.
                            "'0.25 arcmin' (paper)")
 
 
-@lru_cache(maxsize=1)
-def fitted_sizes() -> dict:
-    """The fit's record (sizes, standard errors, bounds, chi^2) from the package assets."""
+@lru_cache(maxsize=None)
+def fit_record(asset: str, refit_module: str) -> dict:
+    """A preset fit's record (sizes, standard errors, bounds, chi^2) from the package assets; a
+    missing record is refused naming the module that writes it."""
     try:
-        text = resources.files("imurig.assets").joinpath(FIT_ASSET).read_text()
+        text = resources.files("imurig.assets").joinpath(asset).read_text()
     except FileNotFoundError:
-        raise ConfigError(f"the Delft 2005 preset's fit record {FIT_ASSET} is missing from the package assets; "
-                          "run 'python -m imurig.montecarlo.delft_fit' to write it") from None
+        raise ConfigError(f"the Delft 2005 preset's fit record {asset} is missing from the package assets; "
+                          f"run 'python -m {refit_module}' to write it") from None
     return json.loads(text)
+
+
+def fitted_sizes() -> dict:
+    """The tilt table's fit record (Tab. 4.2-4.3 and the final campaign)."""
+    return fit_record(FIT_ASSET, "imurig.montecarlo.delft_fit")
 
 
 def check_lab(lab: str) -> str:

@@ -15,14 +15,11 @@ its sensor chain through :meth:`Delft2005Turn.apply`.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, replace
-from functools import lru_cache
-from importlib import resources
 
+from imurig.campaigns.delft_2005 import fit_record
 from imurig.campaigns.delft_2005_imu import Delft2005Imu
-from imurig.kernel.errors import ConfigError
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.effects.gyro_scale_instability import GyroScaleInstability
 from imurig.sensors.effects.slip_rings import SlipRingNoise
@@ -34,15 +31,9 @@ GPS_JITTER_SEED_SAYS = ("4.4.3: 'The GPS board internal clock is corrected by th
                         "higher accuracy as the time measurement with the ADC card'")
 
 
-@lru_cache(maxsize=1)
 def fitted_turn_sizes() -> dict:
-    """The turn-table fit's record (sizes, standard errors, bounds, chi^2) from the package assets."""
-    try:
-        text = resources.files("imurig.assets").joinpath(FIT_ASSET).read_text()
-    except FileNotFoundError:
-        raise ConfigError(f"the Delft 2005 turn-table fit record {FIT_ASSET} is missing from the package assets; "
-                          "run 'python -m imurig.montecarlo.delft_fit_turn' to write it") from None
-    return json.loads(text)
+    """The turn-table fit's record (Fig. 4.20)."""
+    return fit_record(FIT_ASSET, "imurig.montecarlo.delft_fit_turn")
 
 
 @dataclass(frozen=True)
