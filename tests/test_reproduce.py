@@ -101,3 +101,24 @@ def test_paper_fig_8_from_the_van_ground_test():
     (r,) = R.ITEMS["paper_fig_8"].run()
     # the manufacturer's (datasheet) conversion moves the compass heading by degrees, not by hundredths
     assert 1.0 < r["imurig"] < 30.0 and r["seed"] == 10
+
+
+def test_the_preset_van_carries_the_fig_5_fluxgate_and_the_rest_of_the_drawn_imu():
+    """``FlightOptions(lab="delft-2005")``: the fluxgate is the magnetometer campaign's preset one (hard iron
+    fitted to paper Fig. 5, within the project's 6000 nT bound, with SEs), the inertial sensors the drawn ones."""
+    import numpy as np
+
+    from imurig.campaigns.flight import FlightOptions, flight_lab
+    from imurig.campaigns.magnetometer import delft_2005_fluxgate
+    from imurig.kernel.errors import ConfigError
+
+    mag, fit = delft_2005_fluxgate(2005)
+    b = np.asarray(fit["hard_iron_T"]) * 1e9
+    assert np.all(np.abs(b) <= 6000.0) and fit["se_T"][0] > 0 and fit["chi"] < 1e-3     # two readings, two sizes
+    assert abs(fit["norm_mean_nT"] - 47000.0) < 1.0 and abs(fit["norm_extent_nT"] - 4000.0) < 1.0
+    quiet, preset = flight_lab(2005), flight_lab(2005, "delft-2005")
+    assert np.array_equal(preset.magnetometer.hard_iron_T, mag.hard_iron_T)
+    assert not np.array_equal(quiet.magnetometer.hard_iron_T, mag.hard_iron_T)
+    assert np.array_equal(preset.gyros.scale_V_per_rad_s, quiet.gyros.scale_V_per_rad_s)
+    with pytest.raises(ConfigError, match="delft-2005"):
+        FlightOptions(flight="van", lab="delft-2004").validate()

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 import tracemalloc
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -60,6 +60,8 @@ from imurig.campaigns.flight_priors import (
     mag_heading_error_model_datasheet,
     mag_iron_prior_datasheet,
 )
+from imurig.campaigns.delft_2005 import check_lab
+from imurig.campaigns.magnetometer import delft_2005_fluxgate
 from imurig.flights import ekf
 from imurig.flights.gps import GpsReceiver
 from imurig.flights.imu import measure_flight
@@ -100,12 +102,17 @@ class FlightOptions:
     mag_iron_states: bool = True
     # the filter's states (FILTER_VARIANTS): the paper's 18, or the extended sets of each run
     filter: str = "paper18"
+    #: "quiet" (default: every sensor drawn from its datasheet) or "delft-2005": the fluxgate installation of
+    #: the Delft 2005 preset (:func:`imurig.campaigns.magnetometer.delft_2005_fluxgate`, hard iron fitted to the
+    #: paper's Fig. 5); the inertial sensors stay the drawn ones, which the rig calibrations of ``seed`` calibrate
+    lab: str = "quiet"
 
     def validate(self):
         if self.flight not in ("default", "static", "van"):
             raise ConfigError(f"unknown flight {self.flight!r}; choose 'default', 'static' or 'van'")
         if self.filter not in FILTER_VARIANTS:
             raise ConfigError(f"unknown filter {self.filter!r}; choose one of {', '.join(FILTER_VARIANTS)}")
+        check_lab(self.lab)
         if self.gps_rate_hz > self.imu_rate_hz:
             raise ConfigError(f"GPS rate {self.gps_rate_hz:g} Hz above the IMU rate {self.imu_rate_hz:g} Hz")
         if not (0 < self.nav_rate_hz <= self.imu_rate_hz):
@@ -132,9 +139,14 @@ def flight_truth(opt: FlightOptions):
     return tr
 
 
-def flight_lab(seed: int) -> ImuLab:
-    """The IMU that flies: the lab drawn from ``seed`` as every campaign of that seed draws it."""
-    return ImuLab.draw(random_streams.generator("sensor_errors", seed))
+def flight_lab(seed: int, lab: str = "quiet") -> ImuLab:
+    """The IMU that flies: the lab drawn from ``seed`` as every campaign of that seed draws it; under
+    ``lab="delft-2005"`` its fluxgate is the preset's (the magnetometer campaign's of ``seed``, hard iron
+    fitted to the paper's Fig. 5), so the van's heading items predict from that fit."""
+    drawn = ImuLab.draw(random_streams.generator("sensor_errors", seed))
+    if check_lab(lab) == "delft-2005":
+        return replace(drawn, magnetometer=delft_2005_fluxgate(seed)[0])
+    return drawn
 
 
 def measure_volts(truth, lab: ImuLab, seed: int) -> dict:
@@ -218,7 +230,7 @@ def study_summary(opt: FlightOptions, truth, gps, runs: dict, cals: dict, t_filt
     duration = float(truth.time_s[-1] - truth.time_s[0])
     summary = {"flight": opt.flight, "seed": opt.seed, "duration_s": duration, "vehicle": truth.vehicle,
                "imu_rate_hz": truth.rate_hz, "nav_rate_hz": opt.nav_rate_hz, "gps_mode": getattr(gps, "mode", ""),
-               "filter": opt.filter,
+               "filter": opt.filter, "lab": opt.lab,
                "n_states": {k: len(r.state_names) for k, (r, _e, _s) in runs.items()},
                "states": {k: list(r.state_names) for k, (r, _e, _s) in runs.items()},
                "runs": {k: summarise(e, r) for k, (r, e, _) in runs.items()},
@@ -245,7 +257,7 @@ def fly(opt: FlightOptions) -> FlightStudy:
         truth = flight_truth(opt)
         if abs(truth.rate_hz - opt.imu_rate_hz) > 1e-9:
             opt.imu_rate_hz = truth.rate_hz
-        lab = flight_lab(opt.seed)
+        lab = flight_lab(opt.seed, opt.lab)
         volts = measure_volts(truth, lab, opt.seed)
         gps = gps_fixes(truth, opt, opt.seed)
         ekf.check_gps(gps, truth.rate_hz)

@@ -83,6 +83,23 @@ class MagnetometerCampaign:
         return rec
 
 
+def delft_2005_fluxgate(seed: int = 2005) -> tuple[FluxgateTriad, dict]:
+    """The Delft 2005 preset's fluxgate installation, as ``MagnetometerCampaign(seed=seed, lab="delft-2005")``
+    has it: drawn from the datasheet on the stream ``magnetometer_install``, then the hard iron fitted to the
+    paper's Fig. 5 (:func:`imurig.campaigns.delft_2005_imu.fig5_hard_iron`) on the validation circle's true
+    field. The rig runs that circle alone (each manoeuvre starts afresh and the circle has no wobble, so its
+    field is the full campaign's). Returns (fluxgate, the fit: hard_iron_T, se_T, norm mean and extent).
+    Other vehicles carry it (the van of paper Fig. 8: ``imurig flight --flight van --lab delft-2005``)."""
+    c = MagnetometerCampaign(seed=seed, lab="delft-2005")
+    mag = FluxgateTriad.from_datasheet(random_streams.generator("magnetometer_install", seed),
+                                       hard_iron_max_nT=c.hard_iron_max_nT, soft_iron_max=c.soft_iron_max,
+                                       noise_nT_rms=c.noise_nT)
+    rig = MagRig(site=c.site).simulate([c.validation], c.start_time,
+                                       random_streams.generator("campaign/magnetometer/rig", seed))
+    fit5 = fig5_hard_iron(mag, np.column_stack([rig.truth_signals[f"B_C_{a}"] for a in "xyz"]))
+    return replace(mag, hard_iron_T=fit5["hard_iron_T"]), fit5
+
+
 def indicated_field(rec: Recording) -> np.ndarray:
     """m = V / s_nom (n, 3) tesla: the manufacturer's calibration."""
     rec.require({c: "V" for c in MAG})

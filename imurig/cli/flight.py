@@ -25,6 +25,9 @@ def add_flight_parser(sub) -> None:
                         "'iron' = hard/soft iron as 12 random-constant "
                         "states (compass updates heading, gyro biases, iron); 'gauss-markov' = one heading-error "
                         "state, Gauss-Markov in the rotation angle (consistent, but far too cautious)")
+    p.add_argument("--lab", default="quiet", choices=["quiet", "delft-2005"],
+                   help="'delft-2005': the fluxgate installation of the Delft 2005 preset (hard iron fitted to the "
+                        "paper's Fig. 5), e.g. for the van's heading of paper Fig. 8; the inertial sensors stay drawn")
     p.add_argument("--full-calibration", action="store_true", help="full campaign protocols instead of reduced ones")
     p.add_argument("--out", default="imurig-out/flight")
     p.add_argument("--overwrite", action="store_true")
@@ -38,7 +41,7 @@ def _run(args) -> int:
 
     opt = FlightOptions(flight=args.flight, seed=args.seed, duration_s=args.duration, nav_rate_hz=args.nav_rate,
                         gps_rate_hz=args.gps_rate, quick_calibration=not args.full_calibration,
-                        mag_iron_states=args.compass_model == "iron", filter=args.filter).validate()
+                        mag_iron_states=args.compass_model == "iron", filter=args.filter, lab=args.lab).validate()
     with open_folder(args.out, overwrite=args.overwrite) as folder:   # refuses an existing --out before flying
         s = write_report(folder, fly(opt))
     u, c = s["runs"]["uncalibrated"], s["runs"]["calibrated"]

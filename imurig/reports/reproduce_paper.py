@@ -1,7 +1,7 @@
 """Items of ``imurig reproduce`` from the EUCASS paper appended to the seed (Lorga, Schubert, Chu,
-Mulder 2005): its static tests (Figs. 6-7) and the van's ground test (Fig. 9), on the runs of
-``imurig flight --flight static`` and ``--flight van`` (one run each per process, shared with paper
-Fig. 8: :func:`imurig.reports.reproduce_lab.flight_study`).
+Mulder 2005): its static tests (Figs. 6-7) on the run of ``imurig flight --flight static`` (one run per
+process: :func:`imurig.reports.reproduce_lab.flight_study`), and its Figs. 2, 3 and 5 on the thermal, tilt
+and magnetometer campaigns. The van's Figs. 8-9 and Table 1: :mod:`imurig.reports.reproduce_paper_nav`.
 
 The paper's figures print no numbers. A quantity read off a figure is the data's extent inside an
 axis whose limits enclose the data: the extent lies between the limit less one tick and the limit,
@@ -23,8 +23,6 @@ STATIC_SKIP_S = 5.0
 #: Fig. 6's panels of the angle that is ~0 deg: (phase, angle, axis limit, tick) in deg
 FIG6_PANELS = (("static_roll+0_pitch+0", "roll", 0.05, 0.05), ("static_roll+0_pitch+0", "pitch", 0.5, 0.5),
                ("static_roll-30_pitch+0", "pitch", 1.0, 0.5), ("static_roll+0_pitch-30", "roll", 0.2, 0.1))
-#: Fig. 9's axes (deg): pitch -5..0 and roll -3..4, ticks 1 deg
-FIG9_AXES = (("pitch", -5.0, 0.0, 1.0), ("roll", -3.0, 4.0, 1.0))
 
 
 def _phase_index(st, phase: str) -> np.ndarray:
@@ -79,26 +77,6 @@ def paper_fig_7() -> list[dict]:
                         "unit": "-", "seed": "yes", "imurig": ours, "tolerance": None,
                         "verdict": "match" if ours == "yes" else "differs",
                         "note": f"mean |bias| {m['uncalibrated']:.3g} before, {m['calibrated']:.3g} after ({unit})"})
-    return out
-
-
-def paper_fig_9() -> list[dict]:
-    """Paper section 4.3, Fig. 9: the filter's roll and pitch over the van's run, near constant on flat
-    ground, with the hard braking and the final ramp. Quantity: the extent max - min of each angle's
-    estimate (calibrated run) over the run; the seed's axes (pitch -5..0, roll -3..4 deg, 1-deg ticks)
-    enclose the curve, whose extent lies between the axis span less two ticks and the span: seed value
-    span - tick, tolerance one tick."""
-    st = flight_study("van")
-    res = st.runs["calibrated"][0]
-    from imurig.flights import earth   # lazy: the flight stack
-    r, p, _ = earth.euler_from_q(res.q_NB)
-    est = {"roll": np.asarray(r) / DEG, "pitch": np.asarray(p) / DEG}
-    out = []
-    for angle, lo, hi, tick in FIG9_AXES:
-        x = est[angle]
-        out.append(row("paper_fig_9", f"{angle} estimate extent over the run", "deg", hi - lo - tick,
-                       float(x.max() - x.min()), tick, f"axis {lo:g}..{hi:g} deg, tick {tick:g}; imurig's range "
-                       f"{x.min():.2f}..{x.max():.2f} deg"))
     return out
 
 
