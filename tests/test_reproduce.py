@@ -37,7 +37,7 @@ def test_cli_writes_the_report_and_refuses_misuse(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_paper_table_1_from_the_gramian():
-    rows = R.paper_table_1()
+    rows = R.ITEMS["paper_table_1"].run()
     assert {r["quantity"]: r["imurig"] for r in rows}["gyro biases observable"] == "yes"
     assert sum(r["verdict"] == "match" for r in rows) >= 5
 
