@@ -53,12 +53,13 @@ class VanRamp:
     name: str = "parked_on_ramp"
 
 
-def default_van_phases() -> tuple:
+def default_van_phases(ramp_angle_deg: float = 5.0) -> tuple:
     """The paper's ground test (section 4.3): straight runs, circles both ways, hard braking, and
-    parked on a ramp at the end (~4 min)."""
+    parked on a ramp at the end (~4 min); the paper calls it "a small ramp" and gives no angle (the
+    Delft 2005 preset fits it to Fig. 9: :mod:`imurig.montecarlo.delft_fit_van`)."""
     return (VanParked(20.0), VanStraight(20.0, 10.0), VanCircle(20.0, 6.0, 2.0, "right"), VanStraight(15.0, 12.0),
             VanCircle(15.0, 5.0, 1.0, "left"), VanStraight(10.0, 10.0), VanHardBrake(14.0), VanParked(5.0),
-            VanStraight(15.0, 8.0), VanRamp(), )
+            VanStraight(15.0, 8.0), VanRamp(angle_deg=ramp_angle_deg), )
 
 
 @dataclass(frozen=True)

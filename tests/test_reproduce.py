@@ -122,3 +122,40 @@ def test_the_preset_van_carries_the_fig_5_fluxgate_and_the_rest_of_the_drawn_imu
     assert np.array_equal(preset.gyros.scale_V_per_rad_s, quiet.gyros.scale_V_per_rad_s)
     with pytest.raises(ConfigError, match="delft-2005"):
         FlightOptions(flight="van", lab="delft-2004").validate()
+
+
+def test_tab_4_7_pace_is_fitted_to_the_tables_two_totals():
+    """The setting time per position and the remount are the exact solution of the 120- and 280-min rows; the
+    tilt campaign's setting constant is that fit; the 12-position row is the fitted pace's prediction."""
+    from imurig.montecarlo.tilt import SEED_SETTING_OVERHEAD_S
+    from imurig.reports.reproduce_budget import fitted_pace
+
+    f = fitted_pace()
+    assert f["setting_s"] == SEED_SETTING_OVERHEAD_S == 45.0 and f["remount_s"] == 25 * 60.0
+    # SEs from the rounding: 5/sqrt(3) min over 120 positions; sqrt(1 + 4) x that plus the warm-up's for the remount
+    assert abs(f["setting_se_s"] - 5 / 3 ** 0.5 * 60 / 120) < 1e-12 and 6.0 * 60 < f["remount_se_s"] < 7.0 * 60
+    t = {r["quantity"]: r for r in R.ITEMS["tab_4_7"].run()}
+    assert t["complete calibration (2 mountings)"]["imurig"] == 280.0
+    assert t["12 positions in the phi plane"]["imurig"] == 12.0 and "PREDICTION" in t["12 positions in the phi plane"]["note"]
+
+
+def test_the_van_ramp_record_is_the_fig_9_fit_within_its_bound():
+    from imurig.campaigns.delft_2005_van import delft_2005_van_plan, describe, fitted_van_sizes
+    from imurig.flights.van import VanRamp
+
+    r = fitted_van_sizes()
+    assert r["within_bounds"] and 0 < r["ramp_angle_deg"] < 15 and r["se_deg"] > 0
+    # exactly determined: the fitted angle's extent is the reading, well inside the reading's SE
+    assert abs(r["extent_at_fit_deg"] - r["reading_deg"]) < 0.1 * r["reading_se_deg"]
+    (ramp,) = [p for p in delft_2005_van_plan().phases if isinstance(p, VanRamp)]
+    assert ramp.angle_deg == r["ramp_angle_deg"] and describe()[0]["fitted"]
+
+
+@pytest.mark.slow
+def test_the_van_ramp_fit_reproduces_its_record():
+    """The van simulator at the recorded angle gives the recorded extent (the record is not stale)."""
+    from imurig.campaigns.delft_2005_van import fitted_van_sizes
+    from imurig.montecarlo.delft_fit_van import pitch_extent_deg
+
+    r = fitted_van_sizes()
+    assert abs(pitch_extent_deg(r["ramp_angle_deg"]) - r["extent_at_fit_deg"]) < 1e-6

@@ -61,6 +61,7 @@ from imurig.campaigns.flight_priors import (
     mag_iron_prior_datasheet,
 )
 from imurig.campaigns.delft_2005 import check_lab
+from imurig.campaigns.delft_2005_van import delft_2005_van_plan
 from imurig.campaigns.magnetometer import delft_2005_fluxgate
 from imurig.flights import ekf
 from imurig.flights.gps import GpsReceiver
@@ -104,7 +105,9 @@ class FlightOptions:
     filter: str = "paper18"
     #: "quiet" (default: every sensor drawn from its datasheet) or "delft-2005": the fluxgate installation of
     #: the Delft 2005 preset (:func:`imurig.campaigns.magnetometer.delft_2005_fluxgate`, hard iron fitted to the
-    #: paper's Fig. 5); the inertial sensors stay the drawn ones, which the rig calibrations of ``seed`` calibrate
+    #: paper's Fig. 5) and, for the van, the ramp angle fitted to the paper's Fig. 9
+    #: (:mod:`imurig.campaigns.delft_2005_van`); the inertial sensors stay the drawn ones, which the rig
+    #: calibrations of ``seed`` calibrate
     lab: str = "quiet"
 
     def validate(self):
@@ -131,7 +134,8 @@ def flight_truth(opt: FlightOptions):
     if opt.flight == "static":
         tr = static_tests_truth(rate_hz=opt.imu_rate_hz)
     elif opt.flight == "van":
-        tr = simulate_van(VanPlan(rate_hz=opt.imu_rate_hz))
+        plan = delft_2005_van_plan(opt.imu_rate_hz) if opt.lab == "delft-2005" else VanPlan(rate_hz=opt.imu_rate_hz)
+        tr = simulate_van(plan)
     else:
         tr = simulate_flight(progress_bar=True)
     if opt.duration_s is not None:
