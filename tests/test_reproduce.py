@@ -159,3 +159,24 @@ def test_the_van_ramp_fit_reproduces_its_record():
 
     r = fitted_van_sizes()
     assert abs(pitch_extent_deg(r["ramp_angle_deg"]) - r["extent_at_fit_deg"]) < 1e-6
+
+
+@pytest.mark.slow
+def test_table_b1_nonlinearity_is_significant_alike_and_recovered_from_the_virtual_simona():
+    """k2 of Table B.1: the same sign and size in the three gyros (one type), many SEs from 0; the virtual SIMONA
+    experiment carrying it gives it back within 3 of the seed's SE (the estimator on the simulator's truth)."""
+    import numpy as np
+
+    from imurig.calibration.simona import GYROS, SimonaCalibration
+    from imurig.campaigns.delft_2005_imu import table_b1_gyro_k2
+    from imurig.reports.reproduce_gyro_simona import simona_runs
+
+    k2 = table_b1_gyro_k2()
+    v = np.array([k2[g]["value_per_dps"] for g in GYROS])
+    se = np.array([k2[g]["se_per_dps"] for g in GYROS])
+    assert np.all(v / se < -5) and np.ptp(v) < 3 * np.sqrt(np.sum(se ** 2))
+    virt = SimonaCalibration().fit(simona_runs()[1]).summary_
+    for g, k, s in zip(GYROS, v, se):
+        V, w = np.abs(virt[g]["voltage_V"]), np.abs(virt[g]["reference_rate_dps"])
+        b = np.linalg.lstsq(np.column_stack([np.ones_like(w), w, w ** 2]), V, rcond=None)[0]
+        assert abs(b[2] / b[1] - k) < 3 * s, g

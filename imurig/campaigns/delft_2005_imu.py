@@ -104,6 +104,36 @@ def table_b1_gyro_scale() -> dict:
     return out
 
 
+#: the seed's support for the gyros' scale-factor nonlinearity
+GYRO_K2_SEED_SAYS = ("report 4.4.4, eq. 4.39-4.41: the own gyro models carry 'the second-order coefficients ... beta_2' "
+                     "(and the paper's eq. 3 a cubic); appendix B, Table B.1: the SIMONA gyros' linear-fit residuals "
+                     "curve with the rate (+0.05 deg/s at rest, -0.11 at 25, +0.17 at 82 deg/s)")
+
+
+@lru_cache(maxsize=1)
+def table_b1_gyro_k2() -> dict:
+    """Per gyro p, q, r the scale-factor nonlinearity k2 (the FOG model's w' = w + k2 w^2) estimated from Table
+    B.1: the least squares V = c + S w + S k2 w^2 over the table's 25 rows (w the stopwatch's reference rate,
+    V the voltmeter reading), k2 = beta_2 / beta_1 with its delta-method SE. What the table cannot
+    separate: one voltmeter read all three gyros, so a nonlinearity of the meter would look the same (its
+    range change is not it: :mod:`imurig.reports.reproduce_gyro_simona`). Bound: the datasheet (A.2) gives
+    none."""
+    s = SimonaCalibration().fit(read_simona()).summary_
+    out = {}
+    for g in GYROS:
+        V, w = np.abs(np.asarray(s[g]["voltage_V"])), np.abs(np.asarray(s[g]["reference_rate_dps"]))
+        X = np.column_stack([np.ones_like(w), w, w**2])
+        b, *_ = np.linalg.lstsq(X, V, rcond=None)
+        r = V - X @ b
+        cov = (r @ r / (w.size - 3)) * np.linalg.inv(X.T @ X)
+        k2 = b[2] / b[1]
+        grad = np.array([0.0, -b[2] / b[1] ** 2, 1.0 / b[1]])
+        se = float(np.sqrt(grad @ cov @ grad))
+        out[g] = {"value_per_dps": float(k2), "se_per_dps": se, "value_per_rad_s": float(k2) / DEG,
+                  "se_per_rad_s": se / DEG}
+    return out
+
+
 @dataclass(frozen=True)
 class Delft2005Imu:
     """The preset's own IMU errors (SI): per gyro scale factor (V per rad/s) with its SE."""

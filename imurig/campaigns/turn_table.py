@@ -269,6 +269,9 @@ class SimonaSetup:
     stopwatch_resolution_s: float = 1e-6
     printed_round_decimals: int | None = 2   # Table B.1 prints round times to 0.01 s
     table: TurnTableErrors = field(default_factory=TurnTableErrors)
+    #: the gyros' scale-factor nonlinearity k2 (1/(rad/s), FOGTriad's w + k2 w^2) or None: the drawn one (the
+    #: Delft 2005 preset's, fitted to Table B.1: :func:`imurig.campaigns.delft_2005_imu.table_b1_gyro_k2`)
+    k2_per_rad_s: tuple | None = None
 
 
 def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Recording:
@@ -281,6 +284,8 @@ def simona_virtual(seed: int = 2005, setup: SimonaSetup | None = None) -> Record
                               min_window_s=1.0, sample_rate_hz=s.sample_rate_hz)
     rig = table.simulate(proto, "2005-05-20T10:00:00+02:00", rng)
     gy = FOGTriad.from_datasheet(rng, scale_mV_per_dps=s.scale_mV_per_dps, scale_spread=s.scale_spread)
+    if s.k2_per_rad_s is not None:
+        gy = replace(gy, k2_per_rad_s=np.asarray(s.k2_per_rad_s, float))
     w = np.repeat(rig.truth_signals["w_C_z"][:, None], 3, axis=1)  # all three axes on the spin axis
     v = gy.output_voltage(w, s.sample_rate_hz, rng)
     n_int = max(1, int(round(s.voltmeter.integration_s * s.sample_rate_hz)))
