@@ -33,6 +33,11 @@ its standard error, the seed's sentence or figure that supports it and the physi
   horizontal direction is not in the figure (b along x is a choice; the norm depends on |b_h| only, up to the
   soft iron). Bound: no datasheet figure; the quiet lab's 6000 nT per axis (the project's range).
 
+* the gyros' scale-factor nonlinearity k2 (w' = w + k2 w^2) from Table B.1 (:func:`table_b1_gyro_k2`): its
+  linear-fit residuals curve with the rate alike in the three gyros, and the seed's own gyro models carry the
+  term (eq. 4.39-4.41's beta_2). Carried by the virtual SIMONA of Fig. 4.19 only (``SimonaSetup.k2_per_rad_s``);
+  the MiniSAR gyros of the turn-table preset keep their drawn k2 (the items fitted on them would change).
+
 * NOT YET IN THE PRESET, the accelerometers of Tab. 4.6 (seed 4.3.5, "the final models of the
   accelerometers' calibration"): A_a = X(u) beta_a with X = [1, u_x, u_x^2, u_y, u_y^2, u_z, u_z^2, u_x u_z]
   maps the manufacturer's reading u (m/s^2) to the reference, so the seed's own unit reads u = X^-1(A) on
