@@ -24,7 +24,9 @@ from imurig.reports.common import published_figures
 from imurig.reports.reproduce_lab import row
 
 N_REPEAT = 4
-N_REPEAT_42 = 2
+#: Tab. 4.2's labs: the pump's mean direction is drawn per lab and moves one lab's raw x : z split by ~12 %
+#: (medians ~7 %), so 8 labs put imurig's own scatter (given in the note) at ~4 % (~2.5 %) of the expectation
+N_REPEAT_42 = 8
 #: each setting is its own run of the table (the seed's five runs): its own labs' seeds
 BASE_SEED = 2005
 
@@ -65,13 +67,14 @@ def tab_4_2() -> list[dict]:
     seed = fit_42.seed_table(published_figures()["table_4_2"])
     s = fitted_sizes()["table_4_2"]["sizes"]
     w, pump, off = (s[k]["value"] for k in ("setting_error_arcmin", "pump_rms_m_s2", "cable_offset_V"))
-    ours = np.sqrt(np.mean([fit_42.simulate_sigmas(w, pump, off, BASE_SEED + 500 + k) ** 2
-                            for k in range(N_REPEAT_42)], axis=0))
+    labs = np.array([fit_42.simulate_sigmas(w, pump, off, BASE_SEED + 500 + k) for k in range(N_REPEAT_42)])
+    ours = np.sqrt(np.mean(labs ** 2, axis=0))
+    own_se = np.std(labs, axis=0, ddof=1) / math.sqrt(N_REPEAT_42)   # the labs' own spread, not the seed's 4.6 %
     rows = []
     for i, stat in enumerate(("raw 15 s data", "per-position medians")):
         for a, ax in enumerate("xyz"):
-            note = (f"tolerance 2 x sigma/sqrt(2(240-4)); imurig's own SE "
-                    f"{fit_42.REL_SE * ours[i, a] / math.sqrt(N_REPEAT_42):.2g} ({N_REPEAT_42} labs)")
+            note = (f"tolerance 2 x sigma/sqrt(2(240-4)); imurig's own SE {own_se[i, a]:.2g} "
+                    f"(spread of {N_REPEAT_42} labs)")
             rows.append(row("tab_4_2", f"sigma_{ax}, {stat}", "m/s^2", seed[i, a], ours[i, a],
                             2 * fit_42.REL_SE * seed[i, a], note))
     return rows
