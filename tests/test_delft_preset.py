@@ -187,3 +187,42 @@ def test_the_final_campaign_fit_recovers_sizes_from_simulator_output():
     s = delft_fit_44.fit(y, _final_design())["sizes"]
     assert abs(s["reference_phi_error_arcmin"]["value"] - delta) < 3 * s["reference_phi_error_arcmin"]["se"]
     assert abs(s["setting_error_arcmin"]["value"] - w) < 3 * s["setting_error_arcmin"]["se"]
+
+
+def test_no_sum_of_exponentials_leaks_more_through_a_grounded_slot_than_the_50_khz_share_allows():
+    """Jensen: per exponential L / U = l(G / U) with l convex, so any mixture has L / U >= l(G / U); one
+    exponential is the equality. 200 random mixtures of 1-4 exponentials, none below the bound."""
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        k = rng.integers(1, 5)
+        lk = delft_fit.slot_leaks(rng.exponential(size=k), rng.uniform(0.01, 0.99, size=k))
+        assert lk["L"] / lk["U"] >= delft_fit.fifty_khz_share(lk["G"] / lk["U"]) * (1 - 1e-12)
+    one = delft_fit.slot_leaks([1.0], [0.3])
+    assert one["L"] / one["U"] == pytest.approx(delft_fit.fifty_khz_share(one["G"] / one["U"]), rel=1e-12)
+
+
+def test_the_seed_s_grounded_y_asks_a_50_khz_leak_the_seed_does_not_show():
+    """On the seed's Tab. 4.3: the grounded share r = 0.61 needs sigma_y(50 kHz) >= 0.0035 (seed 0.00176);
+    the 50 kHz y at its 2-SE edge caps the grounded y below the seed's value but inside its 2-SE band."""
+    rec = fitted_sizes()
+    table, floor_y = np.array(rec["seed_table"]), rec["model"][1][1]
+    b = delft_fit.grounded_slot_bound(table, floor_y)
+    assert b["ratio_needed"] == pytest.approx(0.609, abs=0.005)
+    assert b["sigma_y_50khz_at_least"] > table[1, 1] * (1 + 2 * delft_fit.REL_SE)
+    assert table[3, 1] * (1 - 2 * delft_fit.REL_SE) < b["sigma_y_grounded_at_most"] < table[3, 1]
+
+
+def test_the_slow_tail_check_recovers_a_known_settling_from_tables_made_with_it():
+    """Exact y sigmas made by the closed-form model at (c, alpha, y_s) = (0, 0.012, 0.40) are fitted back; the
+    seed's own y needs the tail (chi^2 well below one exponential's)."""
+    rec = fitted_sizes()
+    floor_y, k_y = rec["model"][1][1], rec["design"]["K"][0][1]
+    a, ys = 0.012, 0.40
+    lk = delft_fit.slot_leaks([1 - a, a], [0.0, ys])
+    leaks = [lk["U"], lk["L"], a * (ys ** 10 - ys ** 20), lk["G"], a * (ys ** 8 - ys ** 12)]
+    table = np.zeros((5, 3))
+    table[:, 1] = np.sqrt(floor_y ** 2 + k_y * np.square(leaks))
+    got = delft_fit.slow_tail_fit(table, floor_y, k_y)
+    assert got["alpha"][0] == pytest.approx(0.012, rel=1e-3) and got["decay_per_slot"][0] == pytest.approx(0.40, rel=1e-3)
+    seed = delft_fit.slow_tail_fit(np.array(rec["seed_table"]), floor_y, k_y)
+    assert seed["chi2"] < seed["chi2_one_exponential"] / 2 and max(abs(z) for z in seed["z"]) < 2

@@ -158,6 +158,71 @@ def fit(table: np.ndarray, d: dict) -> dict:
             "model": model_sigmas(res.x, d).tolist(), "correlation": (cov / np.outer(sd, sd)).tolist()}
 
 
+def slot_leaks(weights, decay_per_slot) -> dict:
+    """Leaks of the data channel P before y into y's sample for a settling that is a sum of exponentials.
+
+    A linear settling with the step remainder s(t) = sum_i w_i e^(-t / tau_i) samples slot j as
+    u_j + sum_k (u_(j-k) - u_(j-k+1)) s(k T). With y_i = e^(-T / tau_i) at T = 1 / 200 kHz, P's coefficient is
+    U = sum w_i y_i (1 - y_i) at 200 kHz with P just before y, G = sum w_i y_i^2 (1 - y_i) with a grounded
+    slot between (P two slots back; the grounded slot leaks nothing), and L = sum w_i (y_i^4 - y_i^8) at
+    50 kHz (T' = 4 T)."""
+    w, y = np.asarray(weights, float), np.asarray(decay_per_slot, float)
+    return {"U": float(np.sum(w * y * (1 - y))), "G": float(np.sum(w * y ** 2 * (1 - y))),
+            "L": float(np.sum(w * (y ** 4 - y ** 8)))}
+
+
+def fifty_khz_share(r: float) -> float:
+    """l(r) = r^3 (1 + r)(1 + r^2): per exponential, L / U = l(y) and G / U = y; l is convex and increasing on
+    [0, 1], so for any sum of exponentials (Jensen) L / U >= l(G / U)."""
+    return r ** 3 * (1 + r) * (1 + r * r)
+
+
+def grounded_slot_bound(table: np.ndarray, floor_y: float, rel_se: float = REL_SE) -> dict:
+    """Why no linear settling reproduces Tab. 4.3's y with the grounded slot (the seed's 0.00407).
+
+    The excess over the floor, e = sqrt(sigma^2 - floor^2), is proportional to P's leak (one predecessor
+    swing, as :func:`model_sigmas`): the seed's grounded / ungrounded y at 200 kHz need G / U = r =
+    e_g / e_u, and then (:func:`fifty_khz_share`) the 50 kHz y carries at least l(r) e_u. Conversely, the
+    50 kHz y at the seed's value + 2 SE allows L / U <= l_max, so r <= l^-1(l_max) and the grounded y at
+    most sqrt(floor^2 + (r_max e_u)^2). Returns these numbers."""
+    sy = table[:, 1]
+    e = lambda s: math.sqrt(max(s * s - floor_y ** 2, 0.0))   # noqa: E731
+    e_u, e_g = e(sy[0]), e(sy[3])
+    r = e_g / e_u
+    need_50 = math.hypot(floor_y, fifty_khz_share(r) * e_u)
+    l_max = e(sy[1] * (1 + 2 * rel_se)) / e_u
+    grid = np.linspace(0.0, 1.0, 100001)
+    r_max = float(grid[np.searchsorted(fifty_khz_share(grid), l_max) - 1])
+    return {"floor_y": floor_y, "ratio_needed": r, "fifty_khz_share_needed": fifty_khz_share(r),
+            "sigma_y_50khz_at_least": need_50, "sigma_y_50khz_seed": float(sy[1]), "ratio_allowed": r_max,
+            "sigma_y_grounded_at_most": math.hypot(floor_y, r_max * e_u), "sigma_y_grounded_seed": float(sy[3])}
+
+
+def slow_tail_fit(table: np.ndarray, floor_y: float, k_y: float, rel_se: float = REL_SE) -> dict:
+    """What Tab. 4.3's y asks of a two-exponential settling of the y line: the weighted least squares of the
+    five y sigmas (relative SE ``rel_se``) with sigma^2 = floor^2 + k_y leak^2 (one predecessor swing, k_y from
+    the design) and the leaks of :func:`slot_leaks` for s(t) = (1 - alpha) e^(-t / tau_f) + alpha e^(-t / tau_s),
+    decays c = e^(-5 us / tau_f) and y_s per 200 kHz slot (20 kHz: y^10 - y^20; 50 kHz grounded: y^8 - y^12).
+    A closed-form check of the settling's shape, not a preset size: the converter's crosstalk keeps one slot."""
+    sy = table[:, 1]
+
+    def model(p):
+        c, a, ys = p
+        w, y = np.array([1.0 - a, a]), np.array([c, ys])
+        lk = slot_leaks(w, y)
+        leak = np.array([lk["U"], lk["L"], np.sum(w * (y ** 10 - y ** 20)), lk["G"], np.sum(w * (y ** 8 - y ** 12))])
+        return np.sqrt(floor_y ** 2 + k_y * leak ** 2)
+
+    res = least_squares(lambda p: (model(p) - sy) / (rel_se * sy), x0=[2e-3, 5e-3, 0.45],
+                        bounds=([0.0, 0.0, 0.0], [0.1, 1.0, 0.999]))
+    sd = np.sqrt(np.diag(np.linalg.pinv(res.jac.T @ res.jac)))
+    one = least_squares(lambda p: (model([p[0], 0.0, 0.5]) - sy) / (rel_se * sy), x0=[2e-3])
+    return {"c_fast": [float(res.x[0]), float(sd[0])], "alpha": [float(res.x[1]), float(sd[1])],
+            "decay_per_slot": [float(res.x[2]), float(sd[2])], "tau_slow_s": -1.0 / (F_REF * math.log(res.x[2])),
+            "model": model(res.x).tolist(), "z": ((model(res.x) - sy) / (rel_se * sy)).tolist(),
+            "chi2": float(np.sum(res.fun ** 2)), "chi2_one_exponential": float(np.sum(one.fun ** 2))}
+
+
 def within_bounds(sizes: dict) -> dict:
     """Per bounded size: value, bounds, source, and ``within`` when the size's two-SE interval meets them.
     The taus are judged through their coefficients (tau is flat in c near c = 0): the interval
