@@ -141,7 +141,8 @@ class Delft2005:
                  "seed_says": AdcCrosstalk.seed_says},
                 {"effect": AdcSlowSettling.name, "size": f"y line: alpha {self.slow_tail_alpha:.3g}, "
                  f"tau {self.slow_tail_tau_s:.3g} s", "fitted": True,
-                 "se": [rec["slow_tail_alpha"]["se"], rec["slow_tail_tau_s"]["se"]], "seed_says": AdcSlowSettling.seed_says}]
+                 "se": [rec["slow_tail_alpha"]["se"], rec["slow_tail_tau_s"]["se"]],
+                 "seed_says": AdcSlowSettling.seed_says}]
         fin = fitted_sizes()["final_campaign"]["sizes"]
         rows += [{"effect": ReferencePhiError.name, "size": f"{self.reference_phi_error_rad / ARCMIN:.3g} arcmin "
                   "(final campaign, both mountings)", "fitted": True, "se": fin["reference_phi_error_arcmin"]["se"],

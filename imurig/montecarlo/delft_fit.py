@@ -104,7 +104,8 @@ def simulate_record(w_arcmin: float, tau_s: float, tau_y_s: float, f_mux_hz: flo
                        slow_tail_alpha=tail[0], slow_tail_tau_s=tail[1])
     adc = replace(lab.adc, scan_list=GROUND_SCAN if ground else DEFAULT_SCAN, ground_between=ground,
                   settling_tau_s=tau_s, crosstalk_enabled=tau_s > 0 or tau_y_s > 0,
-                  channel_settling_tau_s=preset.channel_settling(), channel_slow_settling=preset.channel_slow_settling())
+                  channel_settling_tau_s=preset.channel_settling(),
+                  channel_slow_settling=preset.channel_slow_settling())
     lab = replace(lab, adc=adc, effects=preset.effects(cable_fault=False))
     rig = static_rig(p, errors, survey, child_generator(ss, "run/rig"), Site())
     rig.meta["averaged_logging"] = True
@@ -269,7 +270,8 @@ def within_bounds(sizes: dict) -> dict:
     a, ys = sizes["slow_tail_alpha"], sizes["slow_tail_decay"]
     hi = 1.0 / (20e3 * math.log(max(a["value"], 2.0 ** -15) * 2 ** 16))
     d_lo, d_hi = max(ys["value"] - 2 * ys["se"], 0.0), min(ys["value"] + 2 * ys["se"], 0.999)
-    out["slow_tail_tau_s"] = {"value": sizes["slow_tail_tau_s"]["value"], "two_se_interval": [tau_for(d_lo), tau_for(d_hi)],
+    out["slow_tail_tau_s"] = {"value": sizes["slow_tail_tau_s"]["value"],
+                              "two_se_interval": [tau_for(d_lo), tau_for(d_hi)],
                               "lower": 0.0, "upper": hi, "within": bool(tau_for(d_lo) <= hi),
                               "source": "the seed's 20 kHz y is clean: alpha exp(-50 us / tau) <= 2^-16 (1 LSB of a "
                                         "step) at the fitted alpha"}

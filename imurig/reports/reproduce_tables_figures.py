@@ -76,9 +76,9 @@ def fig_4_14(out: OutputFolder) -> str:
     return name
 
 
-_Z_FLOOR = ("z is a prediction and falls short: the seed's z floor (0.0078 m/s^2) needs 3.0x the variance of x's and "
-            "y's fresh part (0.0045), while a table setting error puts at most 2x into z (theta's: g^2 sin^2 theta into "
-            "z against g^2 cos^2 theta cos^2 phi into x, 1/2 : 1/4 over the positions; phi's: none), and no other "
+_Z_FLOOR = ("z is a prediction and falls short: the seed's z floor (0.0078 m/s^2) needs 3.0x the variance of x's "
+            "and y's fresh part (0.0045), while a table setting error puts at most 2x into z (theta's: g^2 sin^2 theta "
+            "into z against g^2 cos^2 theta cos^2 phi into x, 1/2 : 1/4 over the positions; phi's: none), and no other "
             "documented error acts on z alone")
 #: the items of :mod:`imurig.reports.reproduce_tables` as keyword arguments of ``reproduce.Item``
 ITEM_SPECS = (

@@ -42,7 +42,8 @@ def preset_sigmas(n_repeat: int = N_REPEAT, base_seed: int = BASE_SEED) -> np.nd
     out = np.empty((n_repeat, len(SETTINGS), 3))
     for i, (f, g) in enumerate(SETTINGS):
         for k in range(n_repeat):
-            out[k, i] = simulate_sigmas(w, pre.settling_tau_s, pre.settling_tau_y_s, f, g, base_seed + 100 * i + k, tail)
+            out[k, i] = simulate_sigmas(w, pre.settling_tau_s, pre.settling_tau_y_s, f, g,
+                                        base_seed + 100 * i + k, tail)
     return out
 
 

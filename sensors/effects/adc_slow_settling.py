@@ -44,9 +44,9 @@ class AdcSlowSettling(Effect):
     physics: ClassVar[str] = ("a slow tail of a channel's settling in the multiplexed scan: the sample remembers the "
                               "slots before the previous one, through a grounded slot too")
     seed_section: ClassVar[str] = "4.3.4, Table 4.3"
-    seed_says: ClassVar[str] = ("the y channel's coupling to the previous ADC channel; 'the hopping to a ground channel "
-                                "did not lead to a significant improvement' (0.00622 -> 0.00407 m/s^2) while a lower "
-                                "multiplexing frequency 'gives the multiplexer enough time to recover'")
+    seed_says: ClassVar[str] = ("the y channel's coupling to the previous ADC channel; 'the hopping to a ground "
+                                "channel did not lead to a significant improvement' (0.00622 -> 0.00407 m/s^2) "
+                                "while a lower multiplexing frequency 'gives the multiplexer enough time to recover'")
     params: ClassVar[tuple] = (Param("alpha", "-", note="the tail's share of a step"),
                                Param("tau_s", "s", note="the tail's time constant"))
     views: ClassVar[tuple] = ()
