@@ -21,7 +21,9 @@ with f_mux because the amplifier has less time to settle (seed Table 4.3).
 
 Options of seed 4.3.4: ``ground_between`` converts a slot wired to the card's ground before every
 data slot (u_{j-1} = 0 V, so the leak is a pure scale factor c on u_j); ``channel_settling_tau_s``
-gives a channel its own tau (a higher source impedance, e.g. a faulty connector in its line).
+gives a channel its own tau (a higher source impedance, e.g. a faulty connector in its line);
+``channel_slow_settling`` gives a channel a slow settling tail (alpha, tau_s) that remembers the slots
+before the previous one, through a grounded slot too (:mod:`imurig.sensors.effects.adc_slow_settling`).
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ import numpy as np
 from imurig.kernel.errors import ConfigError
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
 from imurig.sensors.effects.adc_quantisation import variance_V2
+from imurig.sensors.effects.adc_slow_settling import AdcSlowSettling
 from imurig.sensors.effects.base import ScanSlot
 from imurig.sensors.effects.common_mode_noise import CommonModeNoise
 from imurig.sensors.effects.channel_skew import ChannelSkew
@@ -61,6 +64,8 @@ class DAQ6036E:
     #: per-channel settling time constants (s) where a channel's source impedance differs from the
     #: card's (e.g. a faulty connector's series resistance); the others settle with settling_tau_s
     channel_settling_tau_s: dict | None = None
+    #: per-channel slow settling tails {channel: (alpha, tau_s)} (module doc)
+    channel_slow_settling: dict | None = None
 
     def validate(self):
         if self.grounding not in GROUNDINGS:
@@ -72,10 +77,11 @@ class DAQ6036E:
             raise ConfigError(f"{slots} scan slots do not fit: 16 single-ended or 8 differential"
                               + (" (a grounded slot before each channel doubles the slots)" if self.ground_between
                                  else ""))
-        unknown = set(self.channel_settling_tau_s or {}) - set(self.scan_list)
-        if unknown:
-            raise ConfigError(f"channel_settling_tau_s names {sorted(unknown)}, which are not in the scan list "
-                              f"{list(self.scan_list)}")
+        for opt in ("channel_settling_tau_s", "channel_slow_settling"):
+            unknown = set(getattr(self, opt) or {}) - set(self.scan_list)
+            if unknown:
+                raise ConfigError(f"{opt} names {sorted(unknown)}, which are not in the scan list "
+                                  f"{list(self.scan_list)}")
         if slots / self.mux_frequency_hz > 1 / self.sample_rate_hz:
             raise ConfigError(f"scanning {slots} slots at {self.mux_frequency_hz:g} Hz takes "
                              f"longer than one sample period at {self.sample_rate_hz:g} Hz; raise f_mux or "
@@ -91,6 +97,24 @@ class DAQ6036E:
         """The settling crosstalk into channel ``name`` (its own time constant where one is given)."""
         tau = (self.channel_settling_tau_s or {}).get(name, self.settling_tau_s)
         return AdcCrosstalk(settling_tau_s=tau, enabled=self.crosstalk_enabled)
+
+    def slow_tails(self, analog: dict, common: np.ndarray) -> dict:
+        """{channel: (its AdcSlowSettling, r (n,) V)} for the channels with a slow tail: r from the inputs of the
+        slots before it in the scan (grounded slots 0 V) and the previous scan's last slot as the idle input."""
+        out = {}
+        for name, (alpha, tau_s) in (self.channel_slow_settling or {}).items():
+            tail = AdcSlowSettling(alpha=float(alpha), tau_s=float(tau_s))
+            j = self.scan_list.index(name)
+            before = []
+            for k in range(j - 1, -1, -1):   # nearest first; with grounded slots: G_(k+1), then channel k
+                before += [None, analog[self.scan_list[k]] + common] if self.ground_between else \
+                    [analog[self.scan_list[k]] + common]
+            if self.ground_between:
+                before.append(None)   # the grounded slot before the scan's first channel
+            last = analog[self.scan_list[-1]] + common
+            idle = np.concatenate((last[:1], last[:-1]))
+            out[name] = (tail, tail.reservoir(before, idle, self.mux_frequency_hz))
+        return out
 
     @property
     def lsb_V(self) -> float:
@@ -136,6 +160,7 @@ class DAQ6036E:
         n = common.size
         out, saturated = {}, {}
         held = None  # the previous slot's input u_{j-1} (n,), where the next slot's crosstalk needs it
+        tails = self.slow_tails(analog, common) if self.channel_slow_settling else {}
         # one channel at a time, in row chunks (bounded temporaries; the draws in the same order as
         # one whole-channel draw, so the result does not depend on the chunk size)
         for j, name in enumerate(self.scan_list):
@@ -146,7 +171,7 @@ class DAQ6036E:
             out[name] = np.empty(n)
             for a, b in _row_chunks(n):
                 out[name][a:b] = self._convert_rows(j, name, a, b, analog, common, slope, held, held_next, rng,
-                                                    saturated)
+                                                    saturated, tails.get(name))
             held = held_next
             if consume:
                 analog.pop(name, None)
@@ -159,10 +184,11 @@ class DAQ6036E:
         return out, report
 
     def _convert_rows(self, j: int, name: str, a: int, b: int, analog: dict, common: np.ndarray, slope, held,
-                      held_next, rng, saturated: dict) -> np.ndarray:
+                      held_next, rng, saturated: dict, tail=None) -> np.ndarray:
         """Rows a:b of scan slot j (channel ``name``): u = x + c_mode, the skew, the crosstalk from the
-        previous slot (``held``: its input; the last channel's for j = 0), the noise and the rounding
-        (module doc). Stores this slot's input into ``held_next`` (when given)."""
+        previous slot (``held``: its input; the last channel's for j = 0), the slow tail (``tail``: its effect
+        and r, :meth:`slow_tails`), the noise and the rounding (module doc). Stores this slot's input into
+        ``held_next`` (when given)."""
         slot = 2 * j + 1 if self.ground_between else j
         u = analog[name][a:b] + common[a:b]
         if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
@@ -182,6 +208,8 @@ class DAQ6036E:
             else:
                 prev = held[a:b]
             u = xtalk.inject(u, ScanSlot(slot, self.mux_frequency_hz, prev))
+        if tail is not None:
+            u = tail[0].inject(u, ScanSlot(slot, self.mux_frequency_hz, tail[1][a:b]))
         return self._quantise(u, rng, name, saturated)
 
     def _quantise(self, u: np.ndarray, rng: np.random.Generator, name: str, saturated: dict) -> np.ndarray:

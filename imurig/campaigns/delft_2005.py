@@ -8,7 +8,8 @@ sentence that supports it (``seed_says``):
   (rig error ``TiltTableErrors.setting_resolution_rad``; seed 4.3.1: "0.25 arcsec" (report) /
   "0.25 arcmin" (paper)),
 * ADC settling crosstalk (``adc_crosstalk``) with the card's time constant ``settling_tau_s`` and the
-  y channel's own ``settling_tau_y_s`` (its line's source impedance; seed 4.3.4),
+  y channel's own ``settling_tau_y_s`` (its line's source impedance; seed 4.3.4), and the y line's slow
+  settling tail (``adc_slow_settling``: ``slow_tail_alpha``, ``slow_tail_tau_s``; Tab. 4.3's grounded row),
 * the day-time sources that the seed switched off for its evening runs (``air_conditioning``,
   ``transformer_hum``), ship passages on the canals (``ship_passages``, evening too), the warm-up
   transient and vibration rectification at their datasheet bounds (no published table constrains
@@ -38,6 +39,7 @@ import numpy as np
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.units import ARCMIN
 from imurig.sensors.effects.adc_crosstalk import AdcCrosstalk
+from imurig.sensors.effects.adc_slow_settling import AdcSlowSettling
 from imurig.sensors.effects.air_conditioning import AirConditioningVibration
 from imurig.sensors.effects.building_vibration import PumpVibration
 from imurig.sensors.effects.persistent_cable_fault import PersistentCableFault
@@ -90,6 +92,9 @@ class Delft2005:
     #: the final campaign's setting-error width and the phi-plane error its reference leaves out (Tabs. 4.4-4.5)
     final_setting_error_rad: float = 0.0
     reference_phi_error_rad: float = 0.0
+    #: the y line's slow settling tail (share of a step, time constant; Tab. 4.3's grounded row)
+    slow_tail_alpha: float = 0.0
+    slow_tail_tau_s: float = 0.0
 
     @classmethod
     def fitted(cls) -> "Delft2005":
@@ -100,6 +105,7 @@ class Delft2005:
         fin = rec["final_campaign"]["sizes"]
         return cls(setting_error_rad=s["setting_error_arcmin"]["value"] * ARCMIN,
                    settling_tau_s=s["settling_tau_s"]["value"], settling_tau_y_s=s["settling_tau_y_s"]["value"],
+                   slow_tail_alpha=s["slow_tail_alpha"]["value"], slow_tail_tau_s=s["slow_tail_tau_s"]["value"],
                    cable_offset_V=s42["cable_offset_V"]["value"], pump_rms_m_s2=s42["pump_rms_m_s2"]["value"],
                    final_setting_error_rad=fin["setting_error_arcmin"]["value"] * ARCMIN,
                    reference_phi_error_rad=fin["reference_phi_error_arcmin"]["value"] * ARCMIN)
@@ -111,6 +117,10 @@ class Delft2005:
     def channel_settling(self) -> dict:
         """Per-channel settling for :class:`imurig.sensors.adc.DAQ6036E` (the y line's own tau)."""
         return {"acc_y": self.settling_tau_y_s}
+
+    def channel_slow_settling(self) -> dict | None:
+        """The y line's slow settling tail for :class:`imurig.sensors.adc.DAQ6036E` (None without one)."""
+        return {"acc_y": (self.slow_tail_alpha, self.slow_tail_tau_s)} if self.slow_tail_alpha > 0 else None
 
     def effects(self, cable_fault: bool = False, rng: np.random.Generator | None = None) -> tuple:
         """The lab's own effects (stages specific_force and analog) of the preset."""
@@ -128,7 +138,11 @@ class Delft2005:
                  "fitted": True, "se": rec["setting_error_arcmin"]["se"], "seed_says": SETTING_ERROR_SEED_SAYS},
                 {"effect": AdcCrosstalk.name, "size": f"tau {self.settling_tau_s:.3g} s, y {self.settling_tau_y_s:.3g} s",
                  "fitted": True, "se": [rec["settling_tau_s"]["se"], rec["settling_tau_y_s"]["se"]],
-                 "seed_says": AdcCrosstalk.seed_says}]
+                 "seed_says": AdcCrosstalk.seed_says},
+                {"effect": AdcSlowSettling.name, "size": f"y line: alpha {self.slow_tail_alpha:.3g}, "
+                 f"tau {self.slow_tail_tau_s:.3g} s", "fitted": True,
+                 "se": [rec["slow_tail_alpha"]["se"], rec["slow_tail_tau_s"]["se"]],
+                 "seed_says": AdcSlowSettling.seed_says}]
         fin = fitted_sizes()["final_campaign"]["sizes"]
         rows += [{"effect": ReferencePhiError.name, "size": f"{self.reference_phi_error_rad / ARCMIN:.3g} arcmin "
                   "(final campaign, both mountings)", "fitted": True, "se": fin["reference_phi_error_arcmin"]["se"],

@@ -92,7 +92,8 @@ class TiltTableCampaign:
                        grounding=self.grounding, crosstalk_enabled=self.crosstalk)
         effects = tuple(self.lab_effects)
         if preset is not None:
-            adc = replace(adc, settling_tau_s=preset.settling_tau_s, channel_settling_tau_s=preset.channel_settling())
+            adc = replace(adc, settling_tau_s=preset.settling_tau_s, channel_settling_tau_s=preset.channel_settling(),
+                          channel_slow_settling=preset.channel_slow_settling())
             effects = effects + preset.effects()
         lab = replace(base, adc=adc,
                       pump=PumpVibration(enabled=self.pump, **({"rms_m_s2": preset.pump_rms_m_s2} if preset else {})),

@@ -41,6 +41,11 @@ REL_SE = 1.0 / math.sqrt(2 * (N_POS - N_PAR))
 PROTOCOL = {"theta_deg": list(THETA_SEED), "phi_deg": list(PHI_12), "mounts": ["z_down", "z_up"],
             "start_time": "2005-06-14T10:00:00+02:00", "model": "linear", "people": True}
 REF = {"w": 2.0, "s": 0.03, "o": 0.05}
+#: the design's labs. The pump's mean direction is drawn per lab (``building_vibration``), which moves one
+#: lab's raw x : z split by ~12 % (its expectation is isotropic); with 2 labs the design's pump terms P_x, P_z
+#: were 0.40, 0.71 (that draw's split, chi^2 26.9 on 3 dof); 8 labs bring the design's Monte-Carlo error of
+#: P to ~4 %, below the seed's relative SE of 4.6 %.
+DESIGN_SEEDS = tuple(range(1, 9))
 
 
 def seed_table(pub: dict) -> np.ndarray:
@@ -78,7 +83,7 @@ def raw_and_median_sigmas(rec) -> np.ndarray:
     return out
 
 
-def design(seeds=(1, 2)) -> dict:
+def design(seeds=DESIGN_SEEDS) -> dict:
     """F, and S, P, A per unit squared size, each (2, 3), averaged over ``seeds``."""
     terms = {"F": [], "S": [], "P": [], "A": []}
     for sd in seeds:

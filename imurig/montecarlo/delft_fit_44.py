@@ -76,7 +76,7 @@ def final_lab(seed: int, w_arcmin: float, delta_arcmin: float, params: dict = FI
     errors, survey, lab = TILT_TABLE.draw_lab(p, ss)
     errors = ReferencePhiError(delta_phi_rad=delta_arcmin * ARCMIN).apply_to_table(errors)
     adc = replace(lab.adc, settling_tau_s=pre.settling_tau_s, crosstalk_enabled=True,
-                  channel_settling_tau_s=pre.channel_settling())
+                  channel_settling_tau_s=pre.channel_settling(), channel_slow_settling=pre.channel_slow_settling())
     lab = replace(lab, adc=adc, effects=pre.effects(cable_fault=False),
                   pump=replace(lab.pump, rms_m_s2=pre.pump_rms_m_s2))
     rig = static_rig(p, errors, survey, child_generator(ss, "run/rig"), Site())
