@@ -17,8 +17,9 @@ in [0, pulse_width); its rising edges are the once-per-round events.
 The mains factor and the slip are the effects ``mains_rate_factor`` and ``table_slip`` of
 :mod:`imurig.sensors.effects` (which own their diagnosis and truth maps); the table applies them.
 
-Truth at the IMU comes from MuJoCo's site sensors; the Earth's rotation is added to the
-gyro truth (MuJoCo's world does not rotate).
+Truth at the IMU: MuJoCo's site sensors for the ramps between rates, their closed form while a
+rate is held (:mod:`imurig.rigs.turn_truth`); the Earth's rotation is added to the gyro truth
+(MuJoCo's world does not rotate).
 """
 from __future__ import annotations
 
@@ -28,10 +29,11 @@ from dataclasses import asdict, dataclass, field
 import mujoco
 import numpy as np
 
-from imurig.kernel.errors import ScheduleError
+from imurig.kernel.errors import ConfigError, ScheduleError
 from imurig.kernel.recording import Recording
-from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
-from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y, rotate_to_body
+from imurig.rigs.mujoco_rig import load_model, sensor_slices
+from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y
+from imurig.rigs.turn_truth import full_truth, stitched_truth
 from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCSEC, DEG
 from imurig.sensors.effects.mains_rate_factor import MainsRateFactor
@@ -218,29 +220,34 @@ class TurnTable:
     site: Site = field(default_factory=Site)
     radius_measurement_sigma_m: float = 1e-4  # how well the lab knows the arm radius
 
-    def _truth_sink(self, sl, sizes):
-        """The record's truth arrays, filled chunk by chunk from the rollout (``rollout_servo``'s
-        ``sink``): mountings one after the other, each trimmed to its length; f_C, w_C (Earth rate
-        added, R_CW Omega_W, row by row) and the spin angle. Only these are kept, never the whole
-        sensordata of every mounting (11 of its 15 columns are not kept)."""
-        off = np.concatenate(([0], np.cumsum(sizes)))
+    #: the truth: "closed_form" (MuJoCo steps the ramps between rates, the closed form holds each rate,
+    #: :mod:`imurig.rigs.turn_truth`) or "mujoco" (MuJoCo steps every sample; the same truth to ~1e-15)
+    truth: str = "closed_form"
+
+    def _truth(self, models, profiles, windows, sl, dt) -> tuple[dict, np.ndarray]:
+        """The record's truth arrays, mountings one after the other, each trimmed to its length: f_C,
+        w_C (n, 3) (Earth rate added) and the spin angle (n,); and the mountings' row offsets."""
+        e = self.errors
+        if self.truth not in ("closed_form", "mujoco"):
+            raise ConfigError(f"truth must be 'closed_form' or 'mujoco', got {self.truth!r}")
+        ctrls = []
+        for p in profiles:  # once-per-round ripple: needs the angle, which the mean rate integrates to
+            ctrls.append(p * (1 + e.ripple * np.sin(np.cumsum(p) * dt + e.ripple_phase_rad)) if e.ripple else p)
+        off = np.concatenate(([0], np.cumsum([p.size for p in profiles])))
         arrays = {"f_C": np.empty((off[-1], 3)), "w_C": np.empty((off[-1], 3)), "spin_angle": np.empty(off[-1])}
         earth_W = self.site.earth_rate_W()
-
-        def sink(a, b, sd):
-            for k, n in enumerate(sizes):
-                z = min(b, n)
-                if z <= a:
-                    continue
-                rows, dst = sd[k, :z - a], slice(off[k] + a, off[k] + z)
-                arrays["f_C"][dst] = rows[:, sl["f_C"]]
-                arrays["w_C"][dst] = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
-                arrays["spin_angle"][dst] = rows[:, sl["spin_angle"]][:, 0]
-
-        return arrays, off, sink
+        if self.truth == "mujoco":
+            ctrl = np.zeros((len(models), max(p.size for p in profiles), 1))
+            for b, c in enumerate(ctrls):
+                ctrl[b, :c.size, 0] = c
+            full_truth(models, ctrl, arrays, off, sl, earth_W)
+        else:  # a ramp starts each step and ends the record (the spin-down)
+            ramps = [[0] + [z for _, z in w] for w in windows]
+            stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W)
+        return arrays, off
 
     def _assemble(self, arrays, off, mounts, steps, profiles, windows, dt, remount_s):
-        """One record from the rollouts' truth (:meth:`_truth_sink`): per mounting the times, the
+        """One record from the rollouts' truth (:meth:`_truth`): per mounting the times, the
         segments (one per step), the dial's reading and the true pulse edges."""
         e = self.errors
         parts_t, seg = [], {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
@@ -304,17 +311,7 @@ class TurnTable:
             mm.body_quat[bid_mount] = _quat_wxyz(R_PM @ MOUNTS[m])
             mm.body_pos[bid_mount] = (protocol.radius_m, 0.0, 0.1)
             models.append(mm)
-        nstep = max(p.size for p in profiles)
-        ctrl = np.zeros((len(mounts), nstep, 1))
-        for b, p in enumerate(profiles):
-            ctrl[b, :p.size, 0] = p
-        # once-per-round ripple: needs the angle, which the mean rate integrates to
-        if e.ripple:
-            ang = np.cumsum(ctrl[:, :, 0], axis=1) * dt
-            ctrl[:, :, 0] *= 1 + e.ripple * np.sin(ang + e.ripple_phase_rad)
-        arrays, off, sink = self._truth_sink(sensor_slices(base), [p.size for p in profiles])
-        rollout_servo(models, np.zeros((len(mounts), 1)), ctrl, desc="turn table (MuJoCo)", sink=sink)
-        del ctrl
+        arrays, off = self._truth(models, profiles, windows, sensor_slices(base), dt)
 
         # one record: mountings one after the other (remount gaps), each trimmed to its length
         parts_t, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, profiles, windows, dt,
