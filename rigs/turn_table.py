@@ -225,8 +225,8 @@ class TurnTable:
     truth: str = "closed_form"
 
     def _truth(self, models, profiles, windows, sl, dt) -> tuple[dict, np.ndarray]:
-        """The record's truth arrays, mountings one after the other, each trimmed to its length: f_C,
-        w_C (n, 3) (Earth rate added) and the spin angle (n,); and the mountings' row offsets."""
+        """The record's truth signals, mountings one after the other, each trimmed to its length: f_C_x/y/z,
+        w_C_x/y/z (Earth rate added) and the spin angle, each (n,); and the mountings' row offsets."""
         e = self.errors
         if self.truth not in ("closed_form", "mujoco"):
             raise ConfigError(f"truth must be 'closed_form' or 'mujoco', got {self.truth!r}")
@@ -234,7 +234,7 @@ class TurnTable:
         for p in profiles:  # once-per-round ripple: needs the angle, which the mean rate integrates to
             ctrls.append(p * (1 + e.ripple * np.sin(np.cumsum(p) * dt + e.ripple_phase_rad)) if e.ripple else p)
         off = np.concatenate(([0], np.cumsum([p.size for p in profiles])))
-        arrays = {"f_C": np.empty((off[-1], 3)), "w_C": np.empty((off[-1], 3)), "spin_angle": np.empty(off[-1])}
+        arrays = {k: np.empty(off[-1]) for k in (*(f"{s}_{a}" for s in ("f_C", "w_C") for a in "xyz"), "spin_angle")}
         earth_W = self.site.earth_rate_W()
         if self.truth == "mujoco":
             ctrl = np.zeros((len(models), max(p.size for p in profiles), 1))
@@ -321,13 +321,8 @@ class TurnTable:
         wrapped = np.mod(spin, 2 * np.pi)
         pulse = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
         del wrapped
-        tsig = {"spin_angle": spin, "pulse": pulse}
-        tunits = {"spin_angle": "rad", "pulse": "V"}
-        for name, unit in (("f_C", "m/s^2"), ("w_C", "rad/s")):
-            arr = arrays[name]
-            for j, ax in enumerate("xyz"):
-                tsig[f"{name}_{ax}"] = arr[:, j]
-                tunits[f"{name}_{ax}"] = unit
+        tsig = {"spin_angle": spin, "pulse": pulse, **{k: v for k, v in arrays.items() if k != "spin_angle"}}
+        tunits = {k: {"f": "m/s^2", "w": "rad/s", "p": "V" if k == "pulse" else "rad"}.get(k[0], "rad") for k in tsig}
         segments = {k: np.array(v) for k, v in seg.items()}
         radius_known = protocol.radius_m + (rng.normal(0, self.radius_measurement_sigma_m)
                                             if protocol.radius_m > 0 else 0.0)

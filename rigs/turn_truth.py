@@ -107,31 +107,38 @@ class Spindle:
         steps[0] = theta0
         return np.cumsum(steps), omega
 
-    def sensors(self, theta: np.ndarray, omega: np.ndarray, c: np.ndarray, f_C: np.ndarray, w_C: np.ndarray) -> None:
-        """Fill f_C, w_C (n, 3) with the site sensors at (theta, omega, c) (n,) (module doc)."""
-        px, py = self.p_S[0], self.p_S[1]
+    def sensors(self, theta: np.ndarray, omega: np.ndarray, c: np.ndarray, out: dict, dst: slice) -> None:
+        """Write f_C_x/y/z, w_C_x/y/z at rows ``dst`` of ``out`` from (theta, omega, c) (n,) (module doc).
+
+        Each output is a fixed combination, per axis j of C, of cos theta, sin theta, omegadot, omega^2
+        (f_C) or omega (w_C) and a constant: the rows of R_SC^T applied to the terms of f_S and w_S."""
+        u, e, R, (px, py) = self.g_up_B, self.earth_B, self.R_SC, self.p_S[:2]
+        # f_S = (cos u_x + sin u_y - domega p_y - omega^2 p_x, cos u_y - sin u_x + domega p_x - omega^2 p_y, u_z)
+        f_terms = np.array([[u[0], u[1], 0.0], [u[1], -u[0], 0.0], [-py, px, 0.0], [-px, -py, 0.0],
+                            [0.0, 0.0, u[2]]]) @ R        # rows: cos, sin, domega, omega^2, 1
+        # w_S = (cos e_x + sin e_y, cos e_y - sin e_x, e_z + omega)
+        w_terms = np.array([[e[0], e[1], 0.0], [e[1], -e[0], 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, e[2]]]) @ R
+        start = dst.start
         for a in range(0, theta.size, ROW_CHUNK):
             b = min(theta.size, a + ROW_CHUNK)
-            th, om = theta[a:b], omega[a:b]
-            cs, sn = np.cos(th), np.sin(th)
-            dom = (self.kv * c[a:b] - self.kv * om) / self.M
+            om = omega[a:b]
+            cs, sn = np.cos(theta[a:b]), np.sin(theta[a:b])
+            dom = self.kv * c[a:b]
+            dom -= self.kv * om
+            dom /= self.M
             om2 = om * om
-            f_S = self._rz_t(cs, sn, self.g_up_B)
-            f_S[:, 0] += -dom * py - om2 * px
-            f_S[:, 1] += dom * px - om2 * py
-            w_S = self._rz_t(cs, sn, self.earth_B)
-            w_S[:, 2] += om
-            f_C[a:b] = f_S @ self.R_SC
-            w_C[a:b] = w_S @ self.R_SC
+            rows = slice(start + a, start + b)
+            for j, ax in enumerate("xyz"):
+                _combine(out[f"f_C_{ax}"][rows], f_terms[:, j], (cs, sn, dom, om2))
+                _combine(out[f"w_C_{ax}"][rows], w_terms[:, j], (cs, sn, om))
 
-    @staticmethod
-    def _rz_t(cs: np.ndarray, sn: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Rz(theta)^T v for each theta: (n, 3)."""
-        out = np.empty((cs.size, 3))
-        out[:, 0] = cs * v[0] + sn * v[1]
-        out[:, 1] = cs * v[1] - sn * v[0]
-        out[:, 2] = v[2]
-        return out
+
+def _combine(dst: np.ndarray, k: np.ndarray, terms) -> None:
+    """dst = sum_i k_i terms_i + k_last, in place (terms with a zero coefficient skipped)."""
+    dst[...] = k[-1]
+    for ki, x in zip(k[:-1], terms):
+        if ki != 0.0:
+            dst += ki * x
 
 
 def _state(model, theta: float, omega: float, c: float) -> np.ndarray:
@@ -152,7 +159,7 @@ def _qpos_qvel(model, state: np.ndarray) -> tuple[float, float]:
 
 
 def stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W) -> None:
-    """Fill ``arrays`` (f_C, w_C (n, 3), spin_angle (n,); mounting b at rows off[b]:off[b + 1]): MuJoCo for the
+    """Fill ``arrays`` (f_C_x/y/z, w_C_x/y/z, spin_angle, each (n,); mounting b at rows off[b]:off[b + 1]): MuJoCo for the
     ramps, the closed form for the holds between them (module doc).
 
     ``ctrls``: each mounting's rate commands (rad/s); ``ramps``: each mounting's ramp starts (sample
@@ -173,9 +180,7 @@ def stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W) -> None:
             for i, b in enumerate(batch):
                 a = ramps[b][k]
                 rows, dst = sd[i], slice(off[b] + a, off[b] + a + n_ramp)
-                arrays["f_C"][dst] = rows[:, sl["f_C"]]
-                arrays["w_C"][dst] = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
-                arrays["spin_angle"][dst] = rows[:, sl["spin_angle"]][:, 0]
+                _put_rows(arrays, dst, rows, sl, earth_W)
                 pos[b] = _qpos_qvel(models[b], st[i, -1])
                 stop = ramps[b][k + 1] if k + 1 < len(ramps[b]) else a + n_ramp
                 if stop > a + n_ramp:
@@ -188,9 +193,19 @@ def stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W) -> None:
 def _hold(sp: Spindle, start: tuple[float, float], c: np.ndarray, arrays: dict, dst: slice) -> tuple[float, float]:
     """The closed form over one hold (commands c, rows ``dst``); returns the state after it."""
     theta, omega = sp.hold(start[0], start[1], c)
-    sp.sensors(theta[:-1], omega[:-1], c, arrays["f_C"][dst], arrays["w_C"][dst])
+    sp.sensors(theta[:-1], omega[:-1], c, arrays, dst)
     arrays["spin_angle"][dst] = theta[:-1]
     return float(theta[-1]), float(omega[-1])
+
+
+def _put_rows(arrays: dict, dst: slice, rows: np.ndarray, sl: dict, earth_W: np.ndarray) -> None:
+    """MuJoCo sensor rows (n, nsensordata) into the truth columns at ``dst``; the gyro gets the Earth rate
+    R_CW Omega_W added (MuJoCo's world does not turn)."""
+    w = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
+    for j, ax in enumerate("xyz"):
+        arrays[f"f_C_{ax}"][dst] = rows[:, sl["f_C"].start + j]
+        arrays[f"w_C_{ax}"][dst] = w[:, j]
+    arrays["spin_angle"][dst] = rows[:, sl["spin_angle"].start]
 
 
 def full_truth(models, ctrl, arrays, off, sl, earth_W) -> None:
@@ -204,8 +219,6 @@ def full_truth(models, ctrl, arrays, off, sl, earth_W) -> None:
             if z <= a:
                 continue
             rows, dst = sd[k, :z - a], slice(off[k] + a, off[k] + z)
-            arrays["f_C"][dst] = rows[:, sl["f_C"]]
-            arrays["w_C"][dst] = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
-            arrays["spin_angle"][dst] = rows[:, sl["spin_angle"]][:, 0]
+            _put_rows(arrays, dst, rows, sl, earth_W)
 
     rollout_servo(models, np.zeros((len(models), 1)), ctrl, desc="turn table (MuJoCo)", sink=sink)
