@@ -246,20 +246,20 @@ class TurnTable:
             stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W)
         return arrays, off
 
-    def _assemble(self, arrays, off, mounts, steps, profiles, windows, dt, remount_s):
-        """One record from the rollouts' truth (:meth:`_truth`): per mounting the times, the
-        segments (one per step), the dial's reading and the true pulse edges."""
+    def _assemble(self, arrays, off, mounts, steps, windows, dt, remount_s):
+        """One record from the truth (:meth:`_truth`): the times, the segments (one per step), the dial's
+        reading (mountings one after the other, filled in place) and the true pulse edges."""
         e = self.errors
-        parts_t, seg = [], {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
-        dial_cmd, pulse_true = [], []
+        seg = {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
+        time_s, dial_all, pulse_true = np.empty(off[-1]), np.zeros(off[-1]), []
         t0 = 0.0
         for b, m in enumerate(mounts):
-            n = profiles[b].size
-            t = t0 + np.arange(n) * dt
-            parts_t.append(t)
+            n = off[b + 1] - off[b]
+            t = time_s[off[b]:off[b + 1]]
+            t[:] = t0 + np.arange(n) * dt
             pulse_true.append(rising_edges(arrays["spin_angle"][off[b]:off[b + 1]], t, e.pulse_width_rad))
             st = [s for s in steps if s.mount == m]
-            dial = np.zeros(n)
+            dial = dial_all[off[b]:off[b + 1]]
             for s, (a, z) in zip(st, windows[b]):
                 seg["start_s"].append(t0 + a * dt)
                 seg["stop_s"].append(t0 + z * dt)
@@ -270,9 +270,8 @@ class TurnTable:
             starts = [0] + [z for _, z in windows[b][:-1]]
             for s, a in zip(st, starts):
                 dial[a:] = s.dial_dps * DEG
-            dial_cmd.append(dial)
             t0 = t[-1] + dt + remount_s
-        return parts_t, seg, dial_cmd, pulse_true
+        return time_s, seg, dial_all, pulse_true
 
     def simulate(self, protocol: TurnTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
         """Run the schedule; Recording with set-points, the index-pulse line, true events and truth.
@@ -313,14 +312,15 @@ class TurnTable:
             models.append(mm)
         arrays, off = self._truth(models, profiles, windows, sensor_slices(base), dt)
 
+        del profiles
         # one record: mountings one after the other (remount gaps), each trimmed to its length
-        parts_t, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, profiles, windows, dt,
-                                                            protocol.remount_s)
-        time_s = np.concatenate(parts_t)
+        time_s, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, windows, dt,
+                                                           protocol.remount_s)
         spin = arrays["spin_angle"]
-        wrapped = np.mod(spin, 2 * np.pi)
-        pulse = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
-        del wrapped
+        pulse = np.empty(spin.size)
+        for a in range(0, spin.size, 1 << 18):  # in pieces: no full-length temporaries
+            wrapped = np.mod(spin[a:a + (1 << 18)], 2 * np.pi)
+            pulse[a:a + (1 << 18)] = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
         tsig = {"spin_angle": spin, "pulse": pulse, **{k: v for k, v in arrays.items() if k != "spin_angle"}}
         tunits = {k: {"f": "m/s^2", "w": "rad/s", "p": "V" if k == "pulse" else "rad"}.get(k[0], "rad") for k in tsig}
         segments = {k: np.array(v) for k, v in seg.items()}
@@ -338,7 +338,7 @@ class TurnTable:
                            "arm_radius_m": protocol.radius_m,
                            "true_mean_rate_dps": [float(e.true_rate_dps(s.dial_dps, set_err[s.mount][i]))
                                                   for i, s in enumerate(steps)]}}
-        return Recording(time_s=time_s, channels={"rate_dial": np.concatenate(dial_cmd)},
+        return Recording(time_s=time_s, channels={"rate_dial": dial_cmd},
                          units={"rate_dial": "rad/s"}, segments=segments,
                          segment_units={"start_s": "s", "stop_s": "s", "run": "1", "rate_dial": "rad/s", "mount": ""},
                          meta=meta, truth=truth_d, truth_signals=tsig, truth_units=tunits,
