@@ -268,8 +268,8 @@ class TurnTable:
                 seg["mount"].append(m)
             # the dial shows the setting from the start of each ramp to the next
             starts = [0] + [z for _, z in windows[b][:-1]]
-            for s, a in zip(st, starts):
-                dial[a:] = s.dial_dps * DEG
+            for s, a, z in zip(st, starts, starts[1:] + [n]):
+                dial[a:z] = s.dial_dps * DEG
             t0 = t[-1] + dt + remount_s
         return time_s, seg, dial_all, pulse_true
 

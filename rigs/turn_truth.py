@@ -39,7 +39,7 @@ from imurig.rigs.mujoco_rig import rollout_servo
 from imurig.rigs.tilt_kinematics import rotate_to_body
 
 #: rows per piece of the closed form's kinematics (bounded temporaries; results do not depend on it)
-ROW_CHUNK = 1 << 18
+ROW_CHUNK = 1 << 16
 
 
 def _mat(quat: np.ndarray) -> np.ndarray:
@@ -119,26 +119,32 @@ class Spindle:
         # w_S = (cos e_x + sin e_y, cos e_y - sin e_x, e_z + omega)
         w_terms = np.array([[e[0], e[1], 0.0], [e[1], -e[0], 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, e[2]]]) @ R
         start = dst.start
+        n = min(theta.size, ROW_CHUNK)
+        cs, sn, dom, om2, tmp = (np.empty(n) for _ in range(5))  # scratch, reused piece after piece
         for a in range(0, theta.size, ROW_CHUNK):
             b = min(theta.size, a + ROW_CHUNK)
+            m = b - a
             om = omega[a:b]
-            cs, sn = np.cos(theta[a:b]), np.sin(theta[a:b])
-            dom = self.kv * c[a:b]
-            dom -= self.kv * om
-            dom /= self.M
-            om2 = om * om
+            np.cos(theta[a:b], out=cs[:m])
+            np.sin(theta[a:b], out=sn[:m])
+            np.multiply(c[a:b], self.kv, out=dom[:m])
+            np.multiply(om, self.kv, out=tmp[:m])
+            dom[:m] -= tmp[:m]
+            dom[:m] /= self.M
+            np.multiply(om, om, out=om2[:m])
             rows = slice(start + a, start + b)
             for j, ax in enumerate("xyz"):
-                _combine(out[f"f_C_{ax}"][rows], f_terms[:, j], (cs, sn, dom, om2))
-                _combine(out[f"w_C_{ax}"][rows], w_terms[:, j], (cs, sn, om))
+                _combine(out[f"f_C_{ax}"][rows], f_terms[:, j], (cs[:m], sn[:m], dom[:m], om2[:m]), tmp[:m])
+                _combine(out[f"w_C_{ax}"][rows], w_terms[:, j], (cs[:m], sn[:m], om), tmp[:m])
 
 
-def _combine(dst: np.ndarray, k: np.ndarray, terms) -> None:
-    """dst = sum_i k_i terms_i + k_last, in place (terms with a zero coefficient skipped)."""
+def _combine(dst: np.ndarray, k: np.ndarray, terms, tmp: np.ndarray) -> None:
+    """dst = sum_i k_i terms_i + k_last, in place (terms with a zero coefficient skipped; ``tmp``: scratch)."""
     dst[...] = k[-1]
     for ki, x in zip(k[:-1], terms):
         if ki != 0.0:
-            dst += ki * x
+            np.multiply(x, ki, out=tmp)
+            dst += tmp
 
 
 def _state(model, theta: float, omega: float, c: float) -> np.ndarray:
