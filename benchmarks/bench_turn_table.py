@@ -83,7 +83,8 @@ def main(argv=None) -> dict:
             r.update(cli_wall_s=wall, cli_cpu_s=cpu, cli_peak_rss_MB=rss)
         runs.append(r)
         print(json.dumps(r), flush=True)
-    summary = {"repeats": a.repeat, "mounts": a.mounts or "all", "truth": a.truth, "load_before": [round(x, 2) for x in load0],
+    summary = {"repeats": a.repeat, "mounts": a.mounts or "all", "truth": a.truth,
+               "load_before": [round(x, 2) for x in load0],
                "load_after": [round(x, 2) for x in os.getloadavg()], "samples_1kHz": runs[-1]["samples_1kHz"]}
     for k in runs[-1]:
         if k != "samples_1kHz":

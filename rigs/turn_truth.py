@@ -165,8 +165,8 @@ def _qpos_qvel(model, state: np.ndarray) -> tuple[float, float]:
 
 
 def stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W) -> None:
-    """Fill ``arrays`` (f_C_x/y/z, w_C_x/y/z, spin_angle, each (n,); mounting b at rows off[b]:off[b + 1]): MuJoCo for the
-    ramps, the closed form for the holds between them (module doc).
+    """Fill ``arrays`` (f_C_x/y/z, w_C_x/y/z, spin_angle, each (n,); mounting b at rows off[b]:off[b + 1]):
+    MuJoCo for the ramps, the closed form for the holds between them (module doc).
 
     ``ctrls``: each mounting's rate commands (rad/s); ``ramps``: each mounting's ramp starts (sample
     indices), every ramp ``n_ramp`` = the length of the last one (the spin-down, which ends the record)
