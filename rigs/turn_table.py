@@ -277,7 +277,7 @@ class TurnTable:
         """Run the schedule; Recording with set-points, the index-pulse line, true events and truth.
 
         Channels: ``rate_dial`` (commanded dial rate, rad/s, signed). Truth signals:
-        ``f_C_*`` (m/s^2), ``w_C_*`` (rad/s, with Earth rate), ``B_C_*`` (T), ``spin_angle``
+        ``f_C_*`` (m/s^2), ``w_C_*`` (rad/s, with Earth rate), ``spin_angle``
         (rad), ``pulse`` (V, the index sensor's output, an analog line for the ADC).
         Events: ``pulse_true`` (true rising-edge times, s).
         """
