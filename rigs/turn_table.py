@@ -17,8 +17,9 @@ in [0, pulse_width); its rising edges are the once-per-round events.
 The mains factor and the slip are the effects ``mains_rate_factor`` and ``table_slip`` of
 :mod:`imurig.sensors.effects` (which own their diagnosis and truth maps); the table applies them.
 
-Truth at the IMU comes from MuJoCo's site sensors; the Earth's rotation is added to the
-gyro truth (MuJoCo's world does not rotate).
+Truth at the IMU: MuJoCo's site sensors for the ramps between rates, their closed form while a
+rate is held (:mod:`imurig.rigs.turn_truth`); the Earth's rotation is added to the gyro truth
+(MuJoCo's world does not rotate).
 """
 from __future__ import annotations
 
@@ -28,10 +29,11 @@ from dataclasses import asdict, dataclass, field
 import mujoco
 import numpy as np
 
-from imurig.kernel.errors import ScheduleError
+from imurig.kernel.errors import ConfigError, ScheduleError
 from imurig.kernel.recording import Recording
-from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
-from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y, rotate_to_body
+from imurig.rigs.mujoco_rig import load_model, sensor_slices
+from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y
+from imurig.rigs.turn_truth import full_truth, stitched_truth
 from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCSEC, DEG
 from imurig.sensors.effects.mains_rate_factor import MainsRateFactor
@@ -218,41 +220,46 @@ class TurnTable:
     site: Site = field(default_factory=Site)
     radius_measurement_sigma_m: float = 1e-4  # how well the lab knows the arm radius
 
-    def _truth_sink(self, sl, sizes):
-        """The record's truth arrays, filled chunk by chunk from the rollout (``rollout_servo``'s
-        ``sink``): mountings one after the other, each trimmed to its length; f_C, w_C (Earth rate
-        added, R_CW Omega_W, row by row) and the spin angle. Only these are kept, never the whole
-        sensordata of every mounting (11 of its 15 columns are not kept)."""
-        off = np.concatenate(([0], np.cumsum(sizes)))
-        arrays = {"f_C": np.empty((off[-1], 3)), "w_C": np.empty((off[-1], 3)), "spin_angle": np.empty(off[-1])}
-        earth_W = self.site.earth_rate_W()
+    #: the truth: "closed_form" (MuJoCo steps the ramps between rates, the closed form holds each rate,
+    #: :mod:`imurig.rigs.turn_truth`) or "mujoco" (MuJoCo steps every sample; the same truth to ~1e-15)
+    truth: str = "closed_form"
 
-        def sink(a, b, sd):
-            for k, n in enumerate(sizes):
-                z = min(b, n)
-                if z <= a:
-                    continue
-                rows, dst = sd[k, :z - a], slice(off[k] + a, off[k] + z)
-                arrays["f_C"][dst] = rows[:, sl["f_C"]]
-                arrays["w_C"][dst] = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
-                arrays["spin_angle"][dst] = rows[:, sl["spin_angle"]][:, 0]
-
-        return arrays, off, sink
-
-    def _assemble(self, arrays, off, mounts, steps, profiles, windows, dt, remount_s):
-        """One record from the rollouts' truth (:meth:`_truth_sink`): per mounting the times, the
-        segments (one per step), the dial's reading and the true pulse edges."""
+    def _truth(self, models, profiles, windows, sl, dt) -> tuple[dict, np.ndarray]:
+        """The record's truth signals, mountings one after the other, each trimmed to its length: f_C_x/y/z,
+        w_C_x/y/z (Earth rate added) and the spin angle, each (n,); and the mountings' row offsets."""
         e = self.errors
-        parts_t, seg = [], {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
-        dial_cmd, pulse_true = [], []
+        if self.truth not in ("closed_form", "mujoco"):
+            raise ConfigError(f"truth must be 'closed_form' or 'mujoco', got {self.truth!r}")
+        ctrls = []
+        for p in profiles:  # once-per-round ripple: needs the angle, which the mean rate integrates to
+            ctrls.append(p * (1 + e.ripple * np.sin(np.cumsum(p) * dt + e.ripple_phase_rad)) if e.ripple else p)
+        off = np.concatenate(([0], np.cumsum([p.size for p in profiles])))
+        arrays = {k: np.empty(off[-1]) for k in (*(f"{s}_{a}" for s in ("f_C", "w_C") for a in "xyz"), "spin_angle")}
+        earth_W = self.site.earth_rate_W()
+        if self.truth == "mujoco":
+            ctrl = np.zeros((len(models), max(p.size for p in profiles), 1))
+            for b, c in enumerate(ctrls):
+                ctrl[b, :c.size, 0] = c
+            full_truth(models, ctrl, arrays, off, sl, earth_W)
+        else:  # a ramp starts each step and ends the record (the spin-down)
+            ramps = [[0] + [z for _, z in w] for w in windows]
+            stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W)
+        return arrays, off
+
+    def _assemble(self, arrays, off, mounts, steps, windows, dt, remount_s):
+        """One record from the truth (:meth:`_truth`): the times, the segments (one per step), the dial's
+        reading (mountings one after the other, filled in place) and the true pulse edges."""
+        e = self.errors
+        seg = {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
+        time_s, dial_all, pulse_true = np.empty(off[-1]), np.zeros(off[-1]), []
         t0 = 0.0
         for b, m in enumerate(mounts):
-            n = profiles[b].size
-            t = t0 + np.arange(n) * dt
-            parts_t.append(t)
+            n = off[b + 1] - off[b]
+            t = time_s[off[b]:off[b + 1]]
+            t[:] = t0 + np.arange(n) * dt
             pulse_true.append(rising_edges(arrays["spin_angle"][off[b]:off[b + 1]], t, e.pulse_width_rad))
             st = [s for s in steps if s.mount == m]
-            dial = np.zeros(n)
+            dial = dial_all[off[b]:off[b + 1]]
             for s, (a, z) in zip(st, windows[b]):
                 seg["start_s"].append(t0 + a * dt)
                 seg["stop_s"].append(t0 + z * dt)
@@ -261,17 +268,16 @@ class TurnTable:
                 seg["mount"].append(m)
             # the dial shows the setting from the start of each ramp to the next
             starts = [0] + [z for _, z in windows[b][:-1]]
-            for s, a in zip(st, starts):
-                dial[a:] = s.dial_dps * DEG
-            dial_cmd.append(dial)
+            for s, a, z in zip(st, starts, starts[1:] + [n]):
+                dial[a:z] = s.dial_dps * DEG
             t0 = t[-1] + dt + remount_s
-        return parts_t, seg, dial_cmd, pulse_true
+        return time_s, seg, dial_all, pulse_true
 
     def simulate(self, protocol: TurnTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
         """Run the schedule; Recording with set-points, the index-pulse line, true events and truth.
 
         Channels: ``rate_dial`` (commanded dial rate, rad/s, signed). Truth signals:
-        ``f_C_*`` (m/s^2), ``w_C_*`` (rad/s, with Earth rate), ``B_C_*`` (T), ``spin_angle``
+        ``f_C_*`` (m/s^2), ``w_C_*`` (rad/s, with Earth rate), ``spin_angle``
         (rad), ``pulse`` (V, the index sensor's output, an analog line for the ADC).
         Events: ``pulse_true`` (true rising-edge times, s).
         """
@@ -304,33 +310,19 @@ class TurnTable:
             mm.body_quat[bid_mount] = _quat_wxyz(R_PM @ MOUNTS[m])
             mm.body_pos[bid_mount] = (protocol.radius_m, 0.0, 0.1)
             models.append(mm)
-        nstep = max(p.size for p in profiles)
-        ctrl = np.zeros((len(mounts), nstep, 1))
-        for b, p in enumerate(profiles):
-            ctrl[b, :p.size, 0] = p
-        # once-per-round ripple: needs the angle, which the mean rate integrates to
-        if e.ripple:
-            ang = np.cumsum(ctrl[:, :, 0], axis=1) * dt
-            ctrl[:, :, 0] *= 1 + e.ripple * np.sin(ang + e.ripple_phase_rad)
-        arrays, off, sink = self._truth_sink(sensor_slices(base), [p.size for p in profiles])
-        rollout_servo(models, np.zeros((len(mounts), 1)), ctrl, desc="turn table (MuJoCo)", sink=sink)
-        del ctrl
+        arrays, off = self._truth(models, profiles, windows, sensor_slices(base), dt)
 
+        del profiles
         # one record: mountings one after the other (remount gaps), each trimmed to its length
-        parts_t, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, profiles, windows, dt,
-                                                            protocol.remount_s)
-        time_s = np.concatenate(parts_t)
+        time_s, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, windows, dt,
+                                                           protocol.remount_s)
         spin = arrays["spin_angle"]
-        wrapped = np.mod(spin, 2 * np.pi)
-        pulse = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
-        del wrapped
-        tsig = {"spin_angle": spin, "pulse": pulse}
-        tunits = {"spin_angle": "rad", "pulse": "V"}
-        for name, unit in (("f_C", "m/s^2"), ("w_C", "rad/s")):
-            arr = arrays[name]
-            for j, ax in enumerate("xyz"):
-                tsig[f"{name}_{ax}"] = arr[:, j]
-                tunits[f"{name}_{ax}"] = unit
+        pulse = np.empty(spin.size)
+        for a in range(0, spin.size, 1 << 18):  # in pieces: no full-length temporaries
+            wrapped = np.mod(spin[a:a + (1 << 18)], 2 * np.pi)
+            pulse[a:a + (1 << 18)] = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
+        tsig = {"spin_angle": spin, "pulse": pulse, **{k: v for k, v in arrays.items() if k != "spin_angle"}}
+        tunits = {k: {"f": "m/s^2", "w": "rad/s", "p": "V" if k == "pulse" else "rad"}.get(k[0], "rad") for k in tsig}
         segments = {k: np.array(v) for k, v in seg.items()}
         radius_known = protocol.radius_m + (rng.normal(0, self.radius_measurement_sigma_m)
                                             if protocol.radius_m > 0 else 0.0)
@@ -346,7 +338,7 @@ class TurnTable:
                            "arm_radius_m": protocol.radius_m,
                            "true_mean_rate_dps": [float(e.true_rate_dps(s.dial_dps, set_err[s.mount][i]))
                                                   for i, s in enumerate(steps)]}}
-        return Recording(time_s=time_s, channels={"rate_dial": np.concatenate(dial_cmd)},
+        return Recording(time_s=time_s, channels={"rate_dial": dial_cmd},
                          units={"rate_dial": "rad/s"}, segments=segments,
                          segment_units={"start_s": "s", "stop_s": "s", "run": "1", "rate_dial": "rad/s", "mount": ""},
                          meta=meta, truth=truth_d, truth_signals=tsig, truth_units=tunits,
