@@ -12,12 +12,9 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 
-import numpy as np
-
 from imurig.campaigns.turn_table import round_time_error_at, simona_virtual
-from imurig.calibration.simona import GYROS, SimonaCalibration, read_simona
+from imurig.calibration.simona import read_simona
 from imurig.kernel.site import Site
-from imurig.montecarlo.tilt import TILT_TABLE, table_47
 from imurig.reports.common import published_figures
 
 #: WGS-84 normal gravity (Somigliana), its free-air gradient [1/s^2], for the site check
@@ -70,9 +67,6 @@ def timer_resolution() -> list[dict]:
     return out
 
 
-def _sigma_se(sigma: float, dof: int) -> float:
-    """Sampling standard error of a residual standard deviation with ``dof`` degrees of freedom."""
-    return sigma / math.sqrt(2 * dof)
 
 
 @lru_cache(maxsize=1)
@@ -81,22 +75,6 @@ def _simona():
     return read_simona(), simona_virtual()
 
 
-def fig_4_19() -> list[dict]:
-    """The SIMONA quick calibration (seed appendix B, Fig. 4.19). The seed's values are the project's
-    fit of the seed's own Table B.1; imurig's are the same fit of the virtual SIMONA experiment
-    (virtual C181 with its mains factor and slip, stopwatch printed to 0.01 s, autoscaling voltmeter).
-    Compared: each gyro's own-calibration residual sigma (what the figure's middle panel shows)."""
-    real, virt = (SimonaCalibration().fit(r).summary_ for r in _simona())
-    out = []
-    for g in GYROS:
-        s_r, s_v = real[g]["sigma_res_dps"], virt[g]["sigma_res_dps"]
-        dof_r, dof_v = len(real[g]["rows"]) - 2, len(virt[g]["rows"]) - 2
-        tol = 2 * math.hypot(_sigma_se(s_r, dof_r), _sigma_se(s_v, dof_v))
-        out.append(row("fig_4_19", f"{g} gyro own-calibration residual sigma", "deg/s", s_r, s_v, tol,
-                       f"manufacturer's residuals reach {real[g]['manufacturer_max_abs_dps']:.1f} (seed data) and "
-                       f"{virt[g]['manufacturer_max_abs_dps']:.1f} deg/s (virtual); the virtual gyros' 5.44 mV/(deg/s) "
-                       "is set from Table B.1"))
-    return out
 
 
 def b_1_round_times() -> list[dict]:
@@ -115,25 +93,6 @@ def b_1_round_times() -> list[dict]:
     return out
 
 
-def tab_4_7() -> list[dict]:
-    """Seed Table 4.7, the time needed for the accelerometer calibration (minutes), for the seed's
-    schedule (10 tilt angles x 12 phi positions x 2 mountings, 15 s dwell). The rows follow the lab's
-    pace: 15 s dwell plus 45 s to set a position by the hand wheels, a number taken from the seed's
-    own 120-minute row (so that row agrees by construction). Tolerance: the seed's rounding (5 min)."""
-    p = TILT_TABLE.default_params()
-    rows = table_47(TILT_TABLE, p)
-    seed = published_figures()["calibration_time"]
-    pairs = (("warm_up", "warm-up", 1 / 60), ("twelve_phi_positions", "12 positions in the phi plane", 1 / 60),
-             ("ten_theta_angles", "10 tilt angles (one mounting)", 1 / 60),
-             ("complete_twenty_angles", "complete calibration (2 mountings)", 1 / 60))
-    out = []
-    for key, ours, scale in pairs:
-        note = "by construction (45 s per position from this row)" if key == "ten_theta_angles" else (
-            "the seed's warm-up, taken as given" if key == "warm_up" else "lab pace: 15 s dwell + 45 s setting")
-        out.append(row("tab_4_7", ours, "min", seed[key], rows[ours] * scale, 5.0, note))
-    out.append(row("tab_4_7", "acquiring time per position", "s", seed["acquire_per_position_s"],
-                   rows["acquiring time per position"], 0.5, "the protocol's dwell"))
-    return out
 
 
 @lru_cache(maxsize=None)
@@ -143,29 +102,3 @@ def flight_study(flight: str):
     from imurig.campaigns.flight import FlightOptions, fly   # lazy: the flight stack is only needed here
 
     return fly(FlightOptions(flight=flight))
-
-
-def paper_fig_8() -> list[dict]:
-    """Paper Fig. 8, the van's ground test (section 4.3): the heading from the magnetometer changes by
-    ~10 deg when the manufacturer's calibration is replaced by the own off-line calibration.
-
-    Run: ``imurig flight --flight van`` (the van driven in MuJoCo, the flight's IMU drawn from the
-    default seed). The quantity: the mean |psi_manufacturer - psi_own| of the compass heading (the
-    fluxgate levelled with the true roll and pitch, IGRF declination), once per second while the van
-    moves faster than 3 m/s, with the datasheet (manufacturer) conversion against the own
-    two-step ellipsoid calibration. Tolerance: half the 5-deg tick spacing of the figure's
-    residual axis, which is all the precision the figure gives."""
-    from imurig.campaigns.flight import declination_model   # lazy: the flight stack
-    from imurig.campaigns.flight_filter import compass_heading
-    from imurig.flights import earth
-
-    st = flight_study("van")
-    tr = st.truth
-    i = np.arange(0, tr.n, max(1, round(tr.rate_hz)))
-    i = i[np.linalg.norm(tr.v_N[i, :2], axis=1) > 3.0]
-    decl = declination_model(tr)
-    psi = {k: compass_heading(tr, st.runs[k][2], decl, i) for k in ("uncalibrated", "calibrated")}
-    d = np.abs(earth.wrap_pi(psi["uncalibrated"] - psi["calibrated"]))
-    return [row("paper_fig_8", "compass heading change, manufacturer -> own calibration (mean, moving)", "deg",
-                published_figures()["magnetometer"]["heading_bias_corrected_deg"], math.degrees(d.mean()), 2.5,
-                f"van ground test, {i.size} s moving; tolerance: half the figure's 5-deg tick spacing")]
