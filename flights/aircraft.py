@@ -143,6 +143,7 @@ class CitationSim(VehicleSim):
                   Wheel("main_gear_right", "main_strut_right", 0.3, main)]
         self.act = Cmd()                 # actual surface deflections / spool state
         self._alpha_prev = None
+        self._kernel = None              # the compiled steps' parameter arrays (:meth:`run`)
         super().__init__("citation.xml", wheels, rate_hz, substeps, h0_m)
 
     def _update_state(self):
@@ -176,6 +177,32 @@ class CitationSim(VehicleSim):
     def step(self, cmd: Cmd):
         self._actuate(cmd)
         super().step(self.act)
+
+    def run(self, cmd: Cmd, n: int):
+        """``n`` samples with ``cmd`` held: :meth:`step` ``n`` times, in compiled code
+        (:mod:`imurig.flights.flight_kernel`: the same forces at every physics step, the same samples)."""
+        # lazy: numba (0.3 CPU-s to import) only when a flight is flown, not when a plan is validated
+        from imurig.flights import flight_kernel as fk
+
+        if not fk.AVAILABLE:
+            for _ in range(n):
+                self.step(cmd)
+            return
+        if self._kernel is None:
+            self._kernel = (fk.aero_params(self.aero), fk.wheel_params(self.wheels), np.empty(7), np.empty(7),
+                            np.empty(1))
+        a, wp, c, act, hist = self._kernel
+        m, d, A = self.model, self.data, self.act
+        c[:] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake, cmd.flaps)
+        act[:] = (A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps)
+        hist[0] = math.nan if self._alpha_prev is None else self._alpha_prev
+        i0 = self._reserve(n)
+        self.t = fk.run_steps(m._address, d._address, d.qpos, d.qvel, d.xfrc_applied, n, self.substeps,
+                              self.rate_hz, self.t, self.h0_m, self.bid, c, act, hist, a, wp,
+                              float(self.drive_force_N), int(self.n_driven), self._rows, i0)
+        A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps = act.tolist()
+        self._alpha_prev = float(hist[0])
+        self._update_state()
 
     # ------------------------------------------------------------ trim / linearise
     def _place(self, V, h_m, alpha, theta, psi=0.0, phi=0.0, w_B=(0.0, 0.0, 0.0), v_side=0.0):

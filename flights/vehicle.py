@@ -25,6 +25,8 @@ from imurig.flights.truth import BodyKinematics
 from imurig.kernel.errors import ConfigError
 from imurig.rigs.mujoco_rig import load_model
 
+ROW = 26   # a recorded sample: t, qpos[0:7], qvel[0:6], dv/dt[0:6], controls de, da, dr, thr, steer, brake
+
 
 @dataclass(frozen=True)
 class TyreModel:
@@ -139,7 +141,8 @@ class VehicleSim:
             self.wheels.append((w, b, int(self.model.jnt_qposadr[j]), int(self.model.jnt_dofadr[j]),
                                 float(self.model.jnt_stiffness[j]), float(self.model.dof_damping[self.model.jnt_dofadr[j]]),
                                 (float(pos[0]), float(pos[1]), float(pos[2] + w.radius_m))))
-        self._rows: list = []
+        self._rows = np.empty((0, ROW))   # the recorded samples, rows [:self._n] (grown by doubling)
+        self._n = 0
         self.t = 0.0
         self.s = State()
         self._update_state()
@@ -214,7 +217,8 @@ class VehicleSim:
             if self.wheels:
                 self._apply_tyres(cmd)
             if k == 0:
-                row = np.empty(19 + 7)
+                i = self._reserve(1)
+                row = self._rows[i]
                 row[0] = self.t
                 row[1:8] = d.qpos[0:7]
                 row[8:14] = d.qvel[0:6]
@@ -223,7 +227,6 @@ class VehicleSim:
         # this differs from qacc): v_{k+1} = v_k + dt a_k holds exactly
         row[14:20] = (d.qvel[0:6] - row[8:14]) * self.rate_hz
         row[20:26] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake)
-        self._rows.append(row)
         self.t += self.dt
         self._update_state()
 
@@ -238,9 +241,19 @@ class VehicleSim:
         self.t = 0.0
         self._update_state()
 
+    def _reserve(self, n: int) -> int:
+        """Room for ``n`` more samples in the record; returns the index of the first."""
+        i = self._n
+        if i + n > self._rows.shape[0]:
+            grown = np.empty((max(2 * self._rows.shape[0], i + n, 1024), ROW))
+            grown[:i] = self._rows[:i]
+            self._rows = grown
+        self._n = i + n
+        return i
+
     def kinematics(self):
         """The recorded samples as :class:`imurig.flights.truth.BodyKinematics` plus controls."""
-        a = np.array(self._rows)
+        a = self._rows[:self._n].copy()
         controls = {k: a[:, 20 + i] for i, k in enumerate(("de", "da", "dr", "thr", "steer", "brake"))}
         return BodyKinematics(time_s=a[:, 0], p_N=a[:, 1:4], q_NB=a[:, 4:8], v_N=a[:, 8:11],
                               w_NB_B=a[:, 11:14], a_N=a[:, 14:17], wdot_NB_B=a[:, 17:20],
