@@ -47,6 +47,7 @@ from imurig.flights.vehicle import Cmd, TyreModel, VehicleSim, Wheel, quat_to_C
 __all__ = ["G0", "CitationAero", "CitationSim", "Cmd", "isa_density", "modes", "wall_clock"]
 
 G0 = 9.81  # the flat world's gravity, m/s^2 (the truth uses WGS-84 normal gravity instead)
+AIRBORNE_CLEARANCE_M = 10.0   # IMU height above the ground (plus 100 m/s of sink) beyond which no contact is sought
 
 
 def isa_density(h_m: float) -> float:
@@ -196,10 +197,16 @@ class CitationSim(VehicleSim):
         c[:] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake, cmd.flaps)
         act[:] = (A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps)
         hist[0] = math.nan if self._alpha_prev is None else self._alpha_prev
-        i0 = self._reserve(n)
+        block, i0 = self._reserve(n)
+        # far above the ground no wheel can touch it within the held interval: collision detection off
+        # (it finds nothing there, so the steps are the same; a fifth of MuJoCo's step time)
+        flags = m.opt.disableflags & ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        if -d.qpos[2] > AIRBORNE_CLEARANCE_M + 100.0 * n * self.dt:
+            flags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        m.opt.disableflags = flags
         self.t = fk.run_steps(m._address, d._address, d.qpos, d.qvel, d.xfrc_applied, n, self.substeps,
                               self.rate_hz, self.t, self.h0_m, self.bid, c, act, hist, a, wp,
-                              float(self.drive_force_N), int(self.n_driven), self._rows, i0)
+                              float(self.drive_force_N), int(self.n_driven), block, i0)
         A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps = act.tolist()
         self._alpha_prev = float(hist[0])
         self._update_state()

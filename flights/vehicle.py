@@ -141,8 +141,7 @@ class VehicleSim:
             self.wheels.append((w, b, int(self.model.jnt_qposadr[j]), int(self.model.jnt_dofadr[j]),
                                 float(self.model.jnt_stiffness[j]), float(self.model.dof_damping[self.model.jnt_dofadr[j]]),
                                 (float(pos[0]), float(pos[1]), float(pos[2] + w.radius_m))))
-        self._rows = np.empty((0, ROW))   # the recorded samples, rows [:self._n] (grown by doubling)
-        self._n = 0
+        self._blocks: list = []          # the recorded samples: [block (BLOCK, ROW), rows used]
         self.t = 0.0
         self.s = State()
         self._update_state()
@@ -217,8 +216,8 @@ class VehicleSim:
             if self.wheels:
                 self._apply_tyres(cmd)
             if k == 0:
-                i = self._reserve(1)
-                row = self._rows[i]
+                block, i = self._reserve(1)
+                row = block[i]
                 row[0] = self.t
                 row[1:8] = d.qpos[0:7]
                 row[8:14] = d.qvel[0:6]
@@ -241,19 +240,18 @@ class VehicleSim:
         self.t = 0.0
         self._update_state()
 
-    def _reserve(self, n: int) -> int:
-        """Room for ``n`` more samples in the record; returns the index of the first."""
-        i = self._n
-        if i + n > self._rows.shape[0]:
-            grown = np.empty((max(2 * self._rows.shape[0], i + n, 1024), ROW))
-            grown[:i] = self._rows[:i]
-            self._rows = grown
-        self._n = i + n
-        return i
+    def _reserve(self, n: int):
+        """Room for ``n`` more consecutive samples in the record: (block, index of the first)."""
+        if not self._blocks or self._blocks[-1][1] + n > self._blocks[-1][0].shape[0]:
+            self._blocks.append([np.empty((max(n, 1 << 15), ROW)), 0])
+        last = self._blocks[-1]
+        i = last[1]
+        last[1] = i + n
+        return last[0], i
 
     def kinematics(self):
         """The recorded samples as :class:`imurig.flights.truth.BodyKinematics` plus controls."""
-        a = self._rows[:self._n].copy()
+        a = np.concatenate([b[:n] for b, n in self._blocks]) if self._blocks else np.empty((0, ROW))
         controls = {k: a[:, 20 + i] for i, k in enumerate(("de", "da", "dr", "thr", "steer", "brake"))}
         return BodyKinematics(time_s=a[:, 0], p_N=a[:, 1:4], q_NB=a[:, 4:8], v_N=a[:, 8:11],
                               w_NB_B=a[:, 11:14], a_N=a[:, 14:17], wdot_NB_B=a[:, 17:20],
