@@ -47,6 +47,7 @@ from imurig.flights.vehicle import Cmd, TyreModel, VehicleSim, Wheel, quat_to_C
 __all__ = ["G0", "CitationAero", "CitationSim", "Cmd", "isa_density", "modes", "wall_clock"]
 
 G0 = 9.81  # the flat world's gravity, m/s^2 (the truth uses WGS-84 normal gravity instead)
+_NO_CONTACT = int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
 AIRBORNE_CLEARANCE_M = 10.0   # IMU height above the ground (plus 100 m/s of sink) beyond which no contact is sought
 
 
@@ -182,33 +183,35 @@ class CitationSim(VehicleSim):
     def run(self, cmd: Cmd, n: int):
         """``n`` samples with ``cmd`` held: :meth:`step` ``n`` times, in compiled code
         (:mod:`imurig.flights.flight_kernel`: the same forces at every physics step, the same samples)."""
-        # lazy: numba (0.3 CPU-s to import) only when a flight is flown, not when a plan is validated
-        from imurig.flights import flight_kernel as fk
+        if self._kernel is None:
+            # lazy: numba (0.3 CPU-s to import) only when a flight is flown, not when a plan is validated
+            from imurig.flights import flight_kernel as fk
 
-        if not fk.AVAILABLE:
+            if not fk.AVAILABLE:
+                self._kernel = False
+            else:
+                m, d = self.model, self.data
+                self._kernel = (fk.run_steps, np.empty(15), fk.aero_params(self.aero), fk.wheel_params(self.wheels),
+                                (m._address, d._address, d.qpos, d.qvel, d.xfrc_applied))
+        if self._kernel is False:
             for _ in range(n):
                 self.step(cmd)
             return
-        if self._kernel is None:
-            self._kernel = (fk.aero_params(self.aero), fk.wheel_params(self.wheels), np.empty(7), np.empty(7),
-                            np.empty(1))
-        a, wp, c, act, hist = self._kernel
-        m, d, A = self.model, self.data, self.act
-        c[:] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake, cmd.flaps)
-        act[:] = (A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps)
-        hist[0] = math.nan if self._alpha_prev is None else self._alpha_prev
+        run_steps, io, a, wp, md = self._kernel
+        A = self.act
+        io[:] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake, cmd.flaps,
+                 A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps,
+                 math.nan if self._alpha_prev is None else self._alpha_prev)
         block, i0 = self._reserve(n)
         # far above the ground no wheel can touch it within the held interval: collision detection off
         # (it finds nothing there, so the steps are the same; a fifth of MuJoCo's step time)
-        flags = m.opt.disableflags & ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        if -d.qpos[2] > AIRBORNE_CLEARANCE_M + 100.0 * n * self.dt:
-            flags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        m.opt.disableflags = flags
-        self.t = fk.run_steps(m._address, d._address, d.qpos, d.qvel, d.xfrc_applied, n, self.substeps,
-                              self.rate_hz, self.t, self.h0_m, self.bid, c, act, hist, a, wp,
-                              float(self.drive_force_N), int(self.n_driven), block, i0)
-        A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps = act.tolist()
-        self._alpha_prev = float(hist[0])
+        opt = self.model.opt
+        airborne = self.s.h - self.h0_m > AIRBORNE_CLEARANCE_M + 100.0 * n * self.dt
+        opt.disableflags = (opt.disableflags | _NO_CONTACT) if airborne else (opt.disableflags & ~_NO_CONTACT)
+        self.t = run_steps(*md, n, self.substeps, self.rate_hz, self.t, self.h0_m, self.bid, io, a, wp,
+                           float(self.drive_force_N), int(self.n_driven), block, i0)
+        A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps, prev = io[7:].tolist()
+        self._alpha_prev = None if math.isnan(prev) else prev
         self._update_state()
 
     # ------------------------------------------------------------ trim / linearise

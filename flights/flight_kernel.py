@@ -183,11 +183,12 @@ def _rotation(qpos, C):
 
 
 @numba.njit(cache=True, nogil=True)
-def run_steps(m_addr, d_addr, qpos, qvel, xfrc, n, substeps, rate_hz, t, h0, bid, cmd, act, hist, a, wp,
+def run_steps(m_addr, d_addr, qpos, qvel, xfrc, n, substeps, rate_hz, t, h0, bid, io, a, wp,
               drive_N, n_driven, rows, row0):
-    """``n`` samples of ``substeps`` MuJoCo steps with the commands ``cmd`` held (de, da, dr, thr, steer,
-    brake, flaps); ``act`` (the actual deflections, 7) and ``hist`` (the previous α, NaN: none) carry
-    over. Sample i goes to rows[row0 + i] (:data:`ROW` columns). Returns the time after the last."""
+    """``n`` samples of ``substeps`` MuJoCo steps with the commands io[0:7] held (de, da, dr, thr, steer,
+    brake, flaps); the actual deflections io[7:14] and the previous α io[14] (NaN: none) carry over.
+    Sample i goes to rows[row0 + i] (:data:`ROW` columns). Returns the time after the last."""
+    cmd, act, hist = io[0:7], io[7:14], io[14:15]
     dt = 1.0 / rate_hz
     C = np.empty(9)
     f = np.empty(6)

@@ -149,12 +149,10 @@ class VehicleSim:
     # ----------------------------------------------------------------- state
     def _update_state(self):
         d, s = self.data, self.s
-        qw, qx, qy, qz = d.qpos[3:7]
+        s.pN, s.pE, s.pD, qw, qx, qy, qz = d.qpos[0:7].tolist()     # plain floats: 10x faster maths
         C = quat_to_C(qw, qx, qy, qz)
         s.t = self.t
-        s.pN, s.pE, s.pD = d.qpos[0:3]
-        s.vN, s.vE, s.vD = d.qvel[0:3]
-        s.p, s.q, s.r = d.qvel[3:6]
+        s.vN, s.vE, s.vD, s.p, s.q, s.r = d.qvel[0:6].tolist()
         s.C = C
         s.h = self.h0_m - s.pD
         s.phi = math.atan2(C[7], C[8])
@@ -243,7 +241,9 @@ class VehicleSim:
     def _reserve(self, n: int):
         """Room for ``n`` more consecutive samples in the record: (block, index of the first)."""
         if not self._blocks or self._blocks[-1][1] + n > self._blocks[-1][0].shape[0]:
-            self._blocks.append([np.empty((max(n, 1 << 15), ROW)), 0])
+            # untouched rows cost no memory: one block holds 8.7 min at 1 kHz (87 at 100 Hz), so the record is
+            # not copied
+            self._blocks.append([np.empty((max(n, 1 << 19), ROW)), 0])
         last = self._blocks[-1]
         i = last[1]
         last[1] = i + n
@@ -251,7 +251,8 @@ class VehicleSim:
 
     def kinematics(self):
         """The recorded samples as :class:`imurig.flights.truth.BodyKinematics` plus controls."""
-        a = np.concatenate([b[:n] for b, n in self._blocks]) if self._blocks else np.empty((0, ROW))
+        a = (np.concatenate([b[:n] for b, n in self._blocks]) if len(self._blocks) > 1
+             else self._blocks[0][0][:self._blocks[0][1]] if self._blocks else np.empty((0, ROW)))
         controls = {k: a[:, 20 + i] for i, k in enumerate(("de", "da", "dr", "thr", "steer", "brake"))}
         return BodyKinematics(time_s=a[:, 0], p_N=a[:, 1:4], q_NB=a[:, 4:8], v_N=a[:, 8:11],
                               w_NB_B=a[:, 11:14], a_N=a[:, 14:17], wdot_NB_B=a[:, 17:20],
