@@ -186,8 +186,9 @@ def _rotation(qpos, C):
 def run_steps(m_addr, d_addr, qpos, qvel, xfrc, n, substeps, rate_hz, t, h0, bid, io, a, wp,
               drive_N, n_driven, rows, row0):
     """``n`` samples of ``substeps`` MuJoCo steps with the commands io[0:7] held (de, da, dr, thr, steer,
-    brake, flaps); the actual deflections io[7:14] and the previous α io[14] (NaN: none) carry over.
-    Sample i goes to rows[row0 + i] (:data:`ROW` columns). Returns the time after the last."""
+    brake, flaps); the actual deflections io[7:14] and the previous α io[14] (NaN: none) carry over;
+    the state after the steps goes to io[15:33] (:func:`_snapshot`). Sample i goes to rows[row0 + i]
+    (:data:`ROW` columns). Returns the time after the last."""
     cmd, act, hist = io[0:7], io[7:14], io[14:15]
     dt = 1.0 / rate_hz
     C = np.empty(9)
@@ -218,4 +219,27 @@ def run_steps(m_addr, d_addr, qpos, qvel, xfrc, n, substeps, rate_hz, t, h0, bid
         for j in range(6):
             row[20 + j] = act[j]
         t += dt
+    _snapshot(a, qpos, qvel, C, io)
     return t
+
+
+@numba.njit(cache=True, nogil=True)
+def _snapshot(a, qpos, qvel, C, io):
+    """The controller's view of the state after the steps (:meth:`CitationSim._update_state`) into
+    io[15:33]: C_NB (9, row-major), φ, θ, ψ, the CG's body velocity u, v, w, V, α, β."""
+    _rotation(qpos, C)
+    for j in range(9):
+        io[15 + j] = C[j]
+    io[24] = math.atan2(C[7], C[8])
+    io[25] = -math.asin(max(-1.0, min(1.0, C[6])))
+    io[26] = math.atan2(C[3], C[0])
+    vN, vE, vD, p, q, r = qvel[0], qvel[1], qvel[2], qvel[3], qvel[4], qvel[5]
+    x, y, z = a[_X_CG], a[_Y_CG], a[_Z_CG]
+    ub = C[0] * vN + C[3] * vE + C[6] * vD
+    vb = C[1] * vN + C[4] * vE + C[7] * vD
+    wb = C[2] * vN + C[5] * vE + C[8] * vD
+    u, v, w = ub + q * z - r * y, vb + r * x - p * z, wb + p * y - q * x
+    V = math.sqrt(u * u + v * v + w * w)
+    io[27], io[28], io[29], io[30] = u, v, w, V
+    io[31] = math.atan2(w, u) if V > 1.0 else 0.0
+    io[32] = math.asin(max(-1.0, min(1.0, v / V))) if V > 1.0 else 0.0

@@ -158,6 +158,11 @@ class VehicleSim:
         s.phi = math.atan2(C[7], C[8])
         s.theta = -math.asin(max(-1.0, min(1.0, C[6])))
         s.psi = math.atan2(C[3], C[0])
+        return self._ground_track(s)
+
+    @staticmethod
+    def _ground_track(s):
+        """Ground speed, track and flight-path angle of the state ``s``."""
         s.gs = math.hypot(s.vN, s.vE)
         s.chi = math.atan2(s.vE, s.vN) if s.gs > 0.5 else s.psi
         s.gamma = math.atan2(-s.vD, max(s.gs, 1e-3))
