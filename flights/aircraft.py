@@ -2,13 +2,16 @@
 :mod:`imurig.flights.autopilot`).
 
 MuJoCo integrates one free rigid body (``assets/citation.xml``) in a flat local-level world
-whose axes are NED at the departure point (gravity +z, constant 9.81 m/s^2). Every step the
-loop computes, from the body's state and the control inputs,
+whose axes are NED at the departure point (gravity +z, constant 9.81 m/s^2). Every physics step
+computes, from the body's state of that step and the held control inputs,
 
     aerodynamic force and moment (stability derivatives, below) + thrust  -> xfrc_applied (CG)
     tyre forces on the three gear wheels (imurig.flights.vehicle.TyreModel) -> xfrc_applied (wheels)
 
-so the short-period, phugoid, Dutch-roll, roll and spiral modes arise from the dynamics.
+so the short-period, phugoid, Dutch-roll, roll and spiral modes arise from the dynamics. A flight
+runs these steps in compiled code between two control updates (:meth:`CitationSim.run`,
+:mod:`imurig.flights.flight_kernel`; the same samples as :meth:`CitationSim.step`, the per-step
+Python path kept for trim, linearisation and tests).
 The Earth terms (rotation, transport rate, Coriolis, WGS-84 normal gravity) are added to the
 recorded kinematics afterwards, exactly, in :mod:`imurig.flights.truth`.
 
