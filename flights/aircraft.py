@@ -2,13 +2,16 @@
 :mod:`imurig.flights.autopilot`).
 
 MuJoCo integrates one free rigid body (``assets/citation.xml``) in a flat local-level world
-whose axes are NED at the departure point (gravity +z, constant 9.81 m/s^2). Every step the
-loop computes, from the body's state and the control inputs,
+whose axes are NED at the departure point (gravity +z, constant 9.81 m/s^2). Every physics step
+computes, from the body's state of that step and the held control inputs,
 
     aerodynamic force and moment (stability derivatives, below) + thrust  -> xfrc_applied (CG)
     tyre forces on the three gear wheels (imurig.flights.vehicle.TyreModel) -> xfrc_applied (wheels)
 
-so the short-period, phugoid, Dutch-roll, roll and spiral modes arise from the dynamics.
+so the short-period, phugoid, Dutch-roll, roll and spiral modes arise from the dynamics. A flight
+runs these steps in compiled code between two control updates (:meth:`CitationSim.run`,
+:mod:`imurig.flights.flight_kernel`; the same samples as :meth:`CitationSim.step`, the per-step
+Python path kept for trim, linearisation and tests).
 The Earth terms (rotation, transport rate, Coriolis, WGS-84 normal gravity) are added to the
 recorded kinematics afterwards, exactly, in :mod:`imurig.flights.truth`.
 
@@ -47,6 +50,8 @@ from imurig.flights.vehicle import Cmd, TyreModel, VehicleSim, Wheel, quat_to_C
 __all__ = ["G0", "CitationAero", "CitationSim", "Cmd", "isa_density", "modes", "wall_clock"]
 
 G0 = 9.81  # the flat world's gravity, m/s^2 (the truth uses WGS-84 normal gravity instead)
+_NO_CONTACT = int(mujoco.mjtDisableBit.mjDSBL_CONTACT) | int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+AIRBORNE_CLEARANCE_M = 10.0   # IMU height above the ground (plus 100 m/s of sink) beyond which no contact is sought
 
 
 def isa_density(h_m: float) -> float:
@@ -143,6 +148,7 @@ class CitationSim(VehicleSim):
                   Wheel("main_gear_right", "main_strut_right", 0.3, main)]
         self.act = Cmd()                 # actual surface deflections / spool state
         self._alpha_prev = None
+        self._kernel = None              # the compiled steps' parameter arrays (:meth:`run`)
         super().__init__("citation.xml", wheels, rate_hz, substeps, h0_m)
 
     def _update_state(self):
@@ -176,6 +182,52 @@ class CitationSim(VehicleSim):
     def step(self, cmd: Cmd):
         self._actuate(cmd)
         super().step(self.act)
+
+    def run(self, cmd: Cmd, n: int):
+        """``n`` samples with ``cmd`` held: :meth:`step` ``n`` times, in compiled code
+        (:mod:`imurig.flights.flight_kernel`: the same forces at every physics step, the same samples)."""
+        if self._kernel is None:
+            # lazy: numba (0.3 CPU-s to import) only when a flight is flown, not when a plan is validated
+            from imurig.flights import flight_kernel as fk
+
+            if not fk.AVAILABLE:
+                self._kernel = False
+            else:
+                m, d = self.model, self.data
+                self._kernel = (fk.run_steps, np.empty(33), fk.aero_params(self.aero), fk.wheel_params(self.wheels),
+                                (m._address, d._address, d.qpos, d.qvel, d.xfrc_applied))
+        if self._kernel is False:
+            for _ in range(n):
+                self.step(cmd)
+            return
+        run_steps, io, a, wp, md = self._kernel
+        A = self.act
+        io[:15] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake, cmd.flaps,
+                 A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps,
+                 math.nan if self._alpha_prev is None else self._alpha_prev)
+        block, i0 = self._reserve(n)
+        # far above the ground no wheel can touch it within the held interval: collision detection and the
+        # (then empty) constraint solver off; they find nothing there, so the steps are the same, 5 % faster
+        opt = self.model.opt
+        flags = opt.disableflags
+        if self.s.h - self.h0_m > AIRBORNE_CLEARANCE_M + 100.0 * n * self.dt:
+            opt.disableflags = flags | _NO_CONTACT
+        try:
+            self.t = run_steps(*md, n, self.substeps, self.rate_hz, self.t, self.h0_m, self.bid, io, a, wp,
+                               float(self.drive_force_N), int(self.n_driven), block, i0)
+        finally:
+            opt.disableflags = flags
+        v = io[7:].tolist()
+        A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps, prev = v[:8]
+        self._alpha_prev = None if math.isnan(prev) else prev
+        s, d = self.s, self.data
+        s.t = self.t     # the state as :meth:`_update_state` makes it, its trigonometry done by the kernel
+        s.pN, s.pE, s.pD = d.qpos[0:3].tolist()
+        s.vN, s.vE, s.vD, s.p, s.q, s.r = d.qvel[0:6].tolist()
+        s.C = tuple(v[8:17])
+        s.phi, s.theta, s.psi, s.u, s.v, s.w, s.V, s.alpha, s.beta = v[17:26]
+        s.h = self.h0_m - s.pD
+        self._ground_track(s)
 
     # ------------------------------------------------------------ trim / linearise
     def _place(self, V, h_m, alpha, theta, psi=0.0, phi=0.0, w_B=(0.0, 0.0, 0.0), v_side=0.0):

@@ -133,11 +133,20 @@ def nav_frame_turn(lat0_rad, lon0_rad, lat1_rad, lon1_rad, dt_s: float):
     """Rotation vector ζ_N (..., 3) rad of the NED frame over a step of ``dt_s`` relative to inertial
     space, in the axes of the first frame: exp([ζ_N×]) = C_N0N1 = C_EN(φ0, λ0)ᵀ R_z(Ω dt)ᵀ C_EN(φ1, λ1),
     R_z(Ω dt) taking E coordinates of an inertially fixed vector from t0 to t1. Exact for any path
-    between the two positions; to first order ζ_N = dt (ω_IE_N + ω_EN_N)."""
-    c, s = np.cos(OMEGA_E_RAD_S * dt_s), np.sin(OMEGA_E_RAD_S * dt_s)
-    R_z_T = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    C = np.swapaxes(C_EN(lat0_rad, lon0_rad), -1, -2) @ R_z_T @ C_EN(lat1_rad, lon1_rad)
-    return rotvec_from_q(q_from_C(C))
+    between the two positions; to first order ζ_N = dt (ω_IE_N + ω_EN_N).
+
+    In closed form, with C_EN(φ, λ) = R_z(λ) R_y(−φ − π/2), its quaternion is
+
+        q_N0N1 = [cos α cos δ, sin α cos φ̄, −cos α sin δ, −sin α sin φ̄],
+        α = (λ1 − λ0 + Ω dt)/2,  δ = (φ1 − φ0)/2,  φ̄ = (φ0 + φ1)/2,
+
+    free of the cancellation of the matrix product (whose small off-diagonal terms are differences of
+    O(1) products), and a few vector operations instead of two (N, 3, 3) stacks."""
+    lat0, lat1 = np.asarray(lat0_rad, dtype=float), np.asarray(lat1_rad, dtype=float)
+    al = 0.5 * (np.asarray(lon1_rad, dtype=float) - lon0_rad + OMEGA_E_RAD_S * dt_s)
+    d, m = 0.5 * (lat1 - lat0), 0.5 * (lat0 + lat1)
+    ca, sa = np.cos(al), np.sin(al)
+    return rotvec_from_q(np.stack([ca * np.cos(d), sa * np.cos(m), -ca * np.sin(d), -sa * np.sin(m)], axis=-1))
 
 
 def ned_from_geodetic(lat_rad, lon_rad, h_m, lat0_rad, lon0_rad, h0_m):

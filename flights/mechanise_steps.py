@@ -95,23 +95,12 @@ def _held_mean_matrix(phi):
 
 
 def _frame_turn(la0, lo0, la1, lo1, dt):
-    """ζ_N of :func:`earth.nav_frame_turn` at one step, on floats: C = C_EN(φ0, λ0)ᵀ R_z(Ω dt)ᵀ C_EN(φ1, λ1),
-    its quaternion (Shepperd's method, the largest of tr C, C_11, C_22, C_33) and rotation vector."""
-    def c_en(la, lo):
-        sl, cl, so, co = math.sin(la), math.cos(la), math.sin(lo), math.cos(lo)
-        return (-sl * co, -so, -cl * co, -sl * so, co, -cl * so, cl, 0.0, -sl)
-    A, B = c_en(la0, lo0), c_en(la1, lo1)
-    c, s = math.cos(earth.OMEGA_E_RAD_S * dt), math.sin(earth.OMEGA_E_RAD_S * dt)
-    RB = (c * B[0] - s * B[3], c * B[1] - s * B[4], c * B[2] - s * B[5],       # R_zᵀ C_EN(φ1, λ1)
-          s * B[0] + c * B[3], s * B[1] + c * B[4], s * B[2] + c * B[5], B[6], B[7], B[8])
-    C = tuple(A[i] * RB[j] + A[3 + i] * RB[3 + j] + A[6 + i] * RB[6 + j] for i in range(3) for j in range(3))
-    tr = C[0] + C[4] + C[8]
-    cand = ((1 + tr, C[7] - C[5], C[2] - C[6], C[3] - C[1]),
-            (C[7] - C[5], 1 + 2 * C[0] - tr, C[1] + C[3], C[2] + C[6]),
-            (C[2] - C[6], C[1] + C[3], 1 + 2 * C[4] - tr, C[5] + C[7]),
-            (C[3] - C[1], C[2] + C[6], C[5] + C[7], 1 + 2 * C[8] - tr))
-    diag = (tr, C[0], C[4], C[8])
-    return _rotvec(_unit(cand[diag.index(max(diag))]))
+    """ζ_N of :func:`earth.nav_frame_turn` at one step, on floats: the closed-form quaternion of
+    C = C_EN(φ0, λ0)ᵀ R_z(Ω dt)ᵀ C_EN(φ1, λ1) and its rotation vector."""
+    al = 0.5 * (lo1 - lo0 + earth.OMEGA_E_RAD_S * dt)
+    d, m = 0.5 * (la1 - la0), 0.5 * (la0 + la1)
+    ca, sa = math.cos(al), math.sin(al)
+    return _rotvec(_unit((ca * math.cos(d), sa * math.cos(m), -ca * math.sin(d), -sa * math.sin(m))))
 
 
 def trapezoid_step(st, f, f1, w, w1, dt):

@@ -133,18 +133,21 @@ def default_phases() -> tuple:
 
 @dataclass(frozen=True)
 class FlightPlan:
-    """A flight: where and when it starts, and its phases, flown at ``rate_hz`` (the IMU rate)."""
+    """A flight: where and when it starts, and its phases, flown at ``rate_hz`` (the IMU rate and
+    the physics step) with the pilot and the autopilot updating the controls at ``control_hz`` (at
+    most once per sample)."""
 
     phases: tuple = field(default_factory=default_phases)
     origin: tuple = SCHIPHOL
     heading_deg: float = RUNWAY_24_DEG
     start_time: str = "2005-06-26T10:00:00+02:00"
     rate_hz: float = 100.0
+    control_hz: float = 50.0
     aero: CitationAero = field(default_factory=CitationAero)
 
     def to_dict(self) -> dict:
         return {"origin": list(self.origin), "heading_deg": self.heading_deg, "start_time": self.start_time,
-                "rate_hz": self.rate_hz,
+                "rate_hz": self.rate_hz, "control_hz": self.control_hz,
                 "phases": [{"kind": type(p).__name__, **asdict(p)} for p in self.phases]}
 
     def validate(self) -> FlightPlan:
@@ -153,6 +156,9 @@ class FlightPlan:
         if self.rate_hz < 20 or self.rate_hz > 1000:
             raise ConfigError(f"rate_hz {self.rate_hz:g} is outside 20..1000 Hz; the DAQ-6036E logs at up to "
                               "1000 Hz and the flight dynamics need at least 20 Hz")
+        if not 10 <= self.control_hz <= 1000:
+            raise ConfigError(f"control_hz {self.control_hz:g} is outside 10..1000 Hz; the autopilot's loops need "
+                              "at least 10 Hz (above rate_hz it updates at every sample)")
         if not self.phases:
             raise ConfigError("a flight plan needs at least one phase")
         mass = 6000.0

@@ -63,7 +63,7 @@ def fly(plan: FlightPlan | None = None, progress_bar: bool = True) -> FlownPlan:
     t0 = time.perf_counter()
     sim = CitationSim(plan.aero, rate_hz=plan.rate_hz, h0_m=0.0)
     ap = Autopilot(plan.aero, sim.dt)
-    pilot = Pilot(plan, sim, ap)
+    pilot = Pilot(plan, sim, ap, plan.control_hz)
     first = plan.phases[0]
     if isinstance(first, (Parked, GroundCircle, Takeoff)):
         q = earth.q_from_euler(0.0, 0.0, plan.heading_deg * DEG)
@@ -85,8 +85,8 @@ def fly(plan: FlightPlan | None = None, progress_bar: bool = True) -> FlownPlan:
     with bar_cm as bar:
         for ph in plan.phases:
             t_start = sim.t
-            for cmd in pilot.run(ph):
-                sim.step(cmd)
+            for cmd, n in pilot.run(ph):
+                sim.run(cmd, n)
             labels.append((ph.name, t_start, sim.t))
             bar.update(1)
     sites = {nm: sim.model.site_pos[mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_SITE, nm)].copy()

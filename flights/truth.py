@@ -145,7 +145,7 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
     C_NB = earth.C_from_q(q)
     w_ie = earth.omega_IE_N(lat)
     w_en = earth.omega_EN_N(lat, h, kin.v_N)
-    f_N = kin.a_N + np.cross(2 * w_ie + w_en, kin.v_N) - earth.gravity_N(lat, h)
+    f_N = kin.a_N + _cross(2 * w_ie + w_en, kin.v_N) - earth.gravity_N(lat, h)
     f_B = np.einsum("nji,nj->ni", C_NB, f_N)
     # zero-order hold: MuJoCo's step k rotates the body with the rate it has at the END of the step
     # (semi-implicit Euler), w_k + dt wdot_k; that is the rate held over [t_k, t_k+1)
@@ -154,12 +154,13 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
         # the step holds f_N while the body turns by φ = w_hold dt: an integrating accelerometer
         # reports the body-frame mean of the specific force over the interval
         f_B = held_body_mean(w_hold * dt, f_B)
-    w_IN_B = np.einsum("nji,nj->ni", C_NB, w_ie + w_en)
     if zoh:
         # the navigation frame's exact turn over each step, from the positions it moves between
         zeta_N = (w_ie + w_en) * dt
         zeta_N[:-1] = earth.nav_frame_turn(lat[:-1], lon[:-1], lat[1:], lon[1:], dt)
         w_IN_B = np.einsum("nji,nj->ni", C_NB, zeta_N) / dt
+    else:
+        w_IN_B = np.einsum("nji,nj->ni", C_NB, w_ie + w_en)
     w_IB_B = held_inertial_rate(w_IN_B * dt, w_hold * dt) / dt if zoh else w_hold + w_IN_B
     lever_mag_B = np.asarray(lever_mag_B, float)
     mlat, mlon, mh = offset_position(lat, lon, h, C_NB @ lever_mag_B)
@@ -176,6 +177,13 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
                        q_NB=q, f_B=f_B, w_IB_B=w_IB_B, B_B=B_B, T_imu_K=np.asarray(T_imu_K, float),
                        lever_gps_B=np.asarray(lever_gps_B, float), lever_mag_B=lever_mag_B,
                        phases=tuple(phases), vehicle=vehicle, meta=m)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b of (N, 3) arrays: :func:`numpy.cross`'s arithmetic (the same bits) without its copies."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 def held_inertial_rate(zeta_B: np.ndarray, a_B: np.ndarray) -> np.ndarray:
@@ -214,8 +222,8 @@ def held_body_mean(phi_B: np.ndarray, f0_B: np.ndarray) -> np.ndarray:
     a_ = np.where(small, 1.0, a)
     c1 = np.where(small, 0.5 - a ** 2 / 24.0, (1.0 - np.cos(a_)) / a_ ** 2)
     c2 = np.where(small, 1.0 / 6.0 - a ** 2 / 120.0, (a_ - np.sin(a_)) / a_ ** 3)
-    pf = np.cross(phi, f0)
-    return f0 - c1[..., None] * pf + c2[..., None] * np.cross(phi, pf)
+    pf = _cross(phi, f0)
+    return f0 - c1[..., None] * pf + c2[..., None] * _cross(phi, pf)
 
 
 def mechanise(truth: FlightTruth, f_B: np.ndarray | None = None, w_IB_B: np.ndarray | None = None,
