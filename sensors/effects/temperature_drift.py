@@ -13,7 +13,8 @@ of the position's samples (:func:`imurig.diagnose.tilt_table.level_statistic`): 
 kb T(t), so a position's level holds kb times its mean temperature, which a median of readings on
 a thermometer's 0.01 degC grid misses by up to half a step. Truth map: the readings
 u_j = D_j (a_j + b_j + kb_j dT) (D the relative scale, without a scale tempco) invert to
-f_j = u_j / D_j - b_j - kb_j dT exactly, dT = dV / (10 mV/K): the coefficient per volt is -kb_j / (0.01 V/K), whatever D.
+f_j = u_j / D_j - b_j - kb_j dT exactly, dT = dV / (10 mV/K): the coefficient per volt is
+-kb_j / (0.01 V/K), whatever D.
 """
 from __future__ import annotations
 
