@@ -132,9 +132,10 @@ class PositionView:
     """The diagnosis' view of a static record, one row per position (m rows), for one channel.
 
     readings: indicated specific force per axis name ("ax", "ay", "az"), (m,) m/s^2, through the
-    nominal sensitivities; channel_median(name): the per-position median of any recorded channel
-    (V), or None if it is not recorded; scan_list: the ADC's scan order; temperature_K: the
-    sensor's temperature per position (K) or None; model_terms: the terms the twin already has;
+    nominal sensitivities; channel_median(name): the per-position level of any recorded channel
+    (V; the position statistic, for a temperature channel its clipped mean), or None if it is not
+    recorded; scan_list: the ADC's scan order; temperature_K: the sensor's temperature per
+    position (K) or None; model_terms: the terms the twin already has;
     reference: the twin's reference specific force on ``axis`` per position (m/s^2) or None.
     crosstalk_sources: where the scan order is unknown, the recorded channels that may leak into
     this one (each is tested, the choice among them counted in the threshold).

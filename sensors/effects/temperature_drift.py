@@ -6,11 +6,15 @@ Injected by the sensor model (:class:`imurig.sensors.accelerometer.QFlexTriad`, 
 ``bias_tempco_m_s2_per_K`` with the curvature terms: stage "sensor"); ``inject`` applies a kb of
 its own to a signal (tests), the temperature from the context's truth signals (T_acc or T_imu).
 
-Diagnosis (static positions): the first recorded temperature channel's per-position median, less
-its mean (V; the Q-Flex's sensor gives 1 uA/K over 10 kohm = 10 mV/K), is the column, offered only
-where the temperature moved by more than 0.2 K. Truth map: the readings u_j = D_j (a_j + b_j +
-kb_j dT) (D the relative scale, without a scale tempco) invert to f_j = u_j / D_j - b_j - kb_j dT
-exactly, dT = dV / (10 mV/K): the coefficient per volt is -kb_j / (0.01 V/K), whatever D.
+Diagnosis (static positions): the first recorded temperature channel's per-position level, less
+its mean (V; the Q-Flex's sensor gives 1 uA/K over 10 kohm = 10 mV/K; or K, degC as read), is the
+column, offered only where the temperature moved by more than 0.2 K. The level is the clipped mean
+of the position's samples (:func:`imurig.diagnose.tilt_table.level_statistic`): the bias follows
+kb T(t), so a position's level holds kb times its mean temperature, which a median of readings on
+a thermometer's 0.01 degC grid misses by up to half a step. Truth map: the readings
+u_j = D_j (a_j + b_j + kb_j dT) (D the relative scale, without a scale tempco) invert to
+f_j = u_j / D_j - b_j - kb_j dT exactly, dT = dV / (10 mV/K): the coefficient per volt is
+-kb_j / (0.01 V/K), whatever D.
 """
 from __future__ import annotations
 

@@ -150,10 +150,11 @@ def _sensor_errors(effect, tri: dict, rng: np.random.Generator, eff: list) -> tu
         lib = (-kT / 0.01).tolist()
         eff.append({"effect": effect, "channel": "acc", "parameters": {"bias_tempco_m_s2_per_K": kT.tolist(),
                                                                        "drift": lib},
-                    # in true m/s^2; a reader's indicated units (V / nominal s) scale it by K_x / s
+                    # in true m/s^2 per K whatever nominal the reader uses: the inverse model's observable is
+                    # the reference specific force (g and the angles), and the drift's column is the
+                    # temperature, not a reading in V / nominal (unlike m_xy and k2 above)
                     "score": {"name": "drift", "value": float(-kT[0]), "channel": "acc_x",
-                              "unit": "m/s^2 per degC of the logged reading",
-                              "per_nominal_V_per_m_s2": float(tri["K_V_per_m_s2"][0]), "nominal_power": -1},
+                              "unit": "m/s^2 per degC of the logged reading"},
                     "expected": [f"acc_{a}:{effect}" for a in "xyz"],
                     "note": "drift (the library's inverse coefficient) is per volt of a 10 mV/K reading; this lab "
                             "logs degC, so the diagnosis' drift per unit of the reading is -kT"})
