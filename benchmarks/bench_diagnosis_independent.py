@@ -363,6 +363,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
     ap.add_argument("--seeds", type=int, default=1, help="independent recordings per effect")
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="first seed of the set (seeds first-seed .. first-seed + seeds - 1), to extend a study")
     ap.add_argument("--nulls", type=int, default=None, help="null recordings per rig (default: --seeds)")
     ap.add_argument("--suite-seeds", type=int, default=1)
     ap.add_argument("--suite-cases", default="", help="words picking suite cases ('none': skip the suite)")
@@ -380,7 +382,8 @@ def main(argv=None) -> int:
     t0, c0 = time.perf_counter(), time.process_time()
     with tempfile.TemporaryDirectory() as tmp:
         print("independent lab:")
-        indep = independent_study(Path(a.dir or tmp), range(a.seeds), a.nulls or a.seeds, a.timeout, a.mem_gb,
+        seeds = range(a.first_seed, a.first_seed + a.seeds)
+        indep = independent_study(Path(a.dir or tmp), seeds, a.nulls or a.seeds, a.timeout, a.mem_gb,
                                   rigs=tuple(a.rigs.split(",")),
                                   effects=[w for w in a.effects.split(",") if w] or None)
     own = None
