@@ -28,24 +28,14 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     same values in the windows, in bounded memory.
     """
     fs = rec.sample_rate_hz
-    if not (np.isfinite(rate_hz) and rate_hz > 0 and cutoff_hz > 0):
-        raise RecordingError(f"rate_hz ({rate_hz}) and cutoff_hz ({cutoff_hz}) must be positive")
-    ratio = fs / rate_hz
-    if abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1:
-        k = int(round(ratio))
-    else:
-        k = max(int(np.floor(ratio)), 1)
-        rate_hz = fs / k
-    cutoff_hz = min(cutoff_hz, 0.8 * fs / 2)
-    sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
+    k, sos, log = filter_design(fs, rate_hz, cutoff_hz, order, zero_phase)
+    rate_hz = log["to_hz"]
     keep_idx, blocks = [], rec.blocks()
     names = list(rec.channels)
     # truth signals: filter the measured quantities the same way; decimate the rest unfiltered
     tnames = [n for n in rec.truth_signals if rec.truth_units.get(n) in ("m/s^2", "rad/s", "T")]
     others = [n for n in rec.truth_signals if n not in tnames]
     setpoints = set(rec.meta.get("setpoints", []))
-    log = {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
-           "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}
     if windows_only and zero_phase and rec.n_segments:
         idx, channels, tsig = lowpass_windows(rec, sos, k, [n for n in names if n not in setpoints], tnames)
         return _decimated(rec, idx, channels, tsig, rate_hz, {**log, "where": "segment windows"})
@@ -73,6 +63,25 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     channels = {n: (rec.channels[n][idx] if n in setpoints else fx[:, i]) for i, n in enumerate(names)}
     return _decimated(rec, idx, channels, {**{n: ft[:, i] for i, n in enumerate(tnames)},
                                            **{n: rec.truth_signals[n][idx] for n in others}}, rate_hz, log)
+
+
+def filter_design(fs: float, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,
+                  zero_phase: bool = True) -> tuple[int, np.ndarray, dict]:
+    """(k, sos, log) of :func:`lowpass_downsample` at the sample rate ``fs``: keep every k-th sample, the
+    Butterworth's sections, and the preprocessing log entry (its ``to_hz``: the rate reached)."""
+    if not (np.isfinite(rate_hz) and rate_hz > 0 and cutoff_hz > 0):
+        raise RecordingError(f"rate_hz ({rate_hz}) and cutoff_hz ({cutoff_hz}) must be positive")
+    ratio = fs / rate_hz
+    if abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1:
+        k = int(round(ratio))
+    else:
+        k = max(int(np.floor(ratio)), 1)
+        rate_hz = fs / k
+    cutoff_hz = min(cutoff_hz, 0.8 * fs / 2)
+    sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
+    log = {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
+           "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}
+    return k, sos, log
 
 
 def _decimated(rec: Recording, idx, channels: dict, truth_signals: dict, rate_hz: float, log: dict) -> Recording:

@@ -9,12 +9,14 @@ from __future__ import annotations
 import resource
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
 import imurig
 from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
 from imurig.calibration.preprocess import lowpass_downsample
+from imurig.campaigns.tilt_stream import stream_campaign
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
 from imurig.kernel.errors import UnidentifiableTermsError
@@ -36,11 +38,14 @@ STATISTIC_WORDS = {"huber": "Huber M-estimates (k = 1.345, 95 % Gaussian efficie
 SEED_TABLE = {"linear": "4.4", "cross": "4.5", "seed_final": "4.6"}
 
 
-def analyse(rec: Recording, model: str = "physical", statistic: str = "huber") -> dict:
+def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
+            processed: Recording | None = None) -> dict:
     """All fits the report shows, on one recording (simulated or measured): the main model and the
     stepwise selections on the per-position ``statistic`` (huber, median or mean), the seed's
-    models (Tables 4.4-4.6) on the seed's per-position medians."""
-    rec100 = lowpass_downsample(rec, windows_only=True)  # only the windows are analysed (bounded memory)
+    models (Tables 4.4-4.6) on the seed's per-position medians. ``processed``: the low-passed 100 Hz
+    record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
+    # only the windows are analysed (bounded memory)
+    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True)
     out = {"rec100": rec100}
     out["main"] = calibrate(rec, model=model, processed=rec100, statistic=statistic)
     out["parameters"] = compare_with_truth(out["main"], rec.truth)
@@ -265,36 +270,40 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
     })
 
 
-#: each stage's share of the default campaign's time (fresh install, 2 cores: simulate 60 %, analyse 12 %,
-#: outputs 28 %, split among the output stages by their sizes): the progress bar's ETA
-STAGE_SHARES = {"simulate": 60, "analyse": 12, "figures": 6, "recording.h5": 14, "campaign.rrd": 6, "report": 2}
+#: each stage's share of the default campaign's time (simulate: with recording.h5 written as it goes): the
+#: progress bar's ETA
+STAGE_SHARES = {"simulate": 70, "analyse": 14, "figures": 8, "campaign.rrd": 6, "report": 2}
 
 
 def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
         save_recording: bool = True) -> dict:
     """Simulate, calibrate and report. Returns the summary dict."""
     out = OutputFolder(out_dir, overwrite=overwrite)
-    stages = ["simulate", "analyse", "figures"] + (["recording.h5"] if save_recording else []) + \
-        (["campaign.rrd"] if rrd else []) + ["report"]
+    stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + ["report"]
     with out:  # committed on success, removed on any error
         with StageBar(STAGE_SHARES, stages, "tilt-table campaign") as stage:
             t0 = time.perf_counter()
             stage("simulate")
-            rec = camp.simulate()
+            # streamed: the 1 kHz record goes to recording.h5 piece by piece; the analysis gets the 100 Hz windows
+            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
+            rec100 = sim.rec100
+            rec = SimpleNamespace(n=sim.n, n_segments=sim.n_segments, truth=sim.truth)
             t_sim = time.perf_counter() - t0
             t1 = time.perf_counter()
             stage("analyse")
-            res = analyse(rec, camp.model, camp.statistic)
+            res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
             t_cal = time.perf_counter() - t1
             t2 = time.perf_counter()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
-            figs = make_figures(out, rec, res)
+            figs = make_figures(out, rec100, res)
             files.update({f"figure_{k}": v for k, v in figs.items()})
+            if save_recording:
+                files["recording"] = "recording.h5"
             from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
-            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
+            files.update(save_products(out, rec100, res, write_rrd, False, rrd, stage))
             stage("report")
             t_out = time.perf_counter() - t2
             peak = peak_rss_bytes()
