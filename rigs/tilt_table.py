@@ -359,7 +359,7 @@ class TiltRun:
 
     def channel_rows(self, a: int, b: int) -> dict:
         """The set-point channels over samples [a, b)."""
-        pos = _position_index(self.nstep, self.windows)[np.arange(a, b) % self.nstep]
+        pos = _position_index(self.nstep, self.windows, np.arange(a, b) % self.nstep)
         return {"theta": self.set_theta[pos], "phi": self.set_phi[pos]}
 
     def truth_rows(self, a: int, b: int) -> dict:
@@ -378,10 +378,12 @@ class TiltRun:
                          truth_units={k: self.truth_units[k] for k in truth_signals})
 
 
-def _position_index(nstep: int, windows) -> np.ndarray:
-    """Index of the position each step belongs to (a slew belongs to the position it goes to)."""
+def _position_index(nstep: int, windows, steps: np.ndarray | None = None) -> np.ndarray:
+    """Index of the position each step (of ``steps``; default all ``nstep``) belongs to (a slew belongs to
+    the position it goes to)."""
     ends = np.array([b for _, b in windows])
-    return np.minimum(np.searchsorted(ends, np.arange(nstep), side="right"), len(windows) - 1)
+    steps = np.arange(nstep) if steps is None else steps
+    return np.minimum(np.searchsorted(ends, steps, side="right"), len(windows) - 1)
 
 
 def _copy_model(m):

@@ -13,12 +13,10 @@ row piece:
       -> sinks: ``rows(a, b, time_s, channels, codes, truth_signals)`` for each piece, in order
 
 Every stage draws from its own stream (:func:`imurig.sensors.noise.child_rng`, the same names as the
-whole-record chain), piece by piece. The pieces are a fixed STREAM_CHUNK = 2^18 rows, part of the data's
-definition: one seed gives the same data bit for bit. The streams whose draws the whole-record chain takes
-in one block per sensor (the fluxgate, the temperature sensors: 2^18-row pieces there too) give the same
-values; those it draws band by band or channel by channel over the whole record (the current noise's
-bands, the converter's channels, the people transients' events) are drawn here piece by piece, so their
-realisation differs from the whole-record chain's (the same distributions).
+whole-record chain), piece by piece. The pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's
+definition: one seed gives the same data bit for bit. The draws come piece by piece (the whole-record
+chain takes some band by band or channel by channel over the whole record, others in 2^18-row pieces),
+so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
 arm's terms, a thermal chamber, gyros, pump vibration in working hours, slip rings, a loose cable, the
@@ -26,6 +24,8 @@ lab's own effects, GRSE hum, averaged logging.
 """
 from __future__ import annotations
 
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -39,7 +39,11 @@ from imurig.sensors.effects.building_vibration import working_mask
 from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
-STREAM_CHUNK = 1 << 18
+STREAM_CHUNK = 1 << 16
+#: pieces whose front (rig rows, disturbances, sensor lines) is made ahead, in a worker thread
+AHEAD = 2
+#: people transients below this (m/s^2) are cut to 0 (:class:`_People`)
+RING_FLOOR = 1e-30
 
 
 def _hours(start, t: np.ndarray, t0: float) -> np.ndarray:
@@ -65,13 +69,24 @@ def unsupported(lab, run) -> str | None:
         return "GRSE mains hum"
     if run.events or run.meta.get("analog_lines"):
         return "rig events or analog lines"
-    if lab.pump.enabled:
-        start, t0 = parse_time(run.meta["start_time"]), float(run.time_rows(0, 1)[0])
-        for a in range(0, run.n, STREAM_CHUNK):
-            h = _hours(start, run.time_rows(a, min(run.n, a + STREAM_CHUNK)), t0)
-            if working_mask(h, lab.pump.work_start_h, lab.pump.work_stop_h).any():
-                return "pump vibration in working hours"
+    if lab.pump.enabled and _pump_on(lab.pump, run):
+        return "pump vibration in working hours"
     return None
+
+
+def _pump_on(pump, run) -> bool:
+    """Whether any sample of ``run`` falls in the pump's working hours. Within a piece the hour grows with
+    the time: a piece whose [first, last] hours miss the working hours has no sample in them (a piece
+    across midnight is checked sample by sample)."""
+    start, t0 = parse_time(run.meta["start_time"]), float(run.time_rows(0, 1)[0])
+    for a in range(0, run.n, STREAM_CHUNK):
+        b = min(run.n, a + STREAM_CHUNK)
+        h0, h1 = _hours(start, run.time_rows(a, a + 1), t0)[0], _hours(start, run.time_rows(b - 1, b), t0)[0]
+        if h1 >= h0 and (h1 < pump.work_start_h or h0 >= pump.work_stop_h):
+            continue
+        if working_mask(_hours(start, run.time_rows(a, b), t0), pump.work_start_h, pump.work_stop_h).any():
+            return True
+    return False
 
 
 @dataclass
@@ -132,6 +147,10 @@ class _People:
         if not events.size and not np.any(self.zi):
             return None
         y, self.zi = signal.lfilter(b, a, impulses, axis=0, zi=self.zi)
+        # the ring below RING_FLOOR is cut: no physical meaning, and it keeps the arithmetic of every later
+        # stage off subnormal numbers (~100x slower), which a decay over a 2^16-row piece reaches
+        y[np.abs(y) < RING_FLOOR] = 0.0
+        self.zi[np.abs(self.zi) < RING_FLOOR] = 0.0
         return y
 
 
@@ -161,19 +180,16 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     sens = dict(zip((f"acc_{a}" for a in AXES), acc.nominal_sensitivity_V_per_m_s2()))
     state = SimpleNamespace(saturated={}, last_in=None, f_dist_nonzero=False)
     pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
-    prev, cur = None, _front(lab, run, pieces[0], people, rngs, start, t0, fs, sens)
-    for i, _ in enumerate(pieces):
-        nxt = _front(lab, run, pieces[i + 1], people, rngs, start, t0, fs, sens) if i + 1 < len(pieces) else None
-        codes = _back(lab, prev, cur, nxt, noise, rngs["adc"], state)
-        truth = dict(cur.truth)
-        truth["T_imu"] = cur.T
-        if cur.f_dist is not None or lab.people.enabled:
-            f = cur.f_dist if cur.f_dist is not None else np.zeros((cur.t.size, 3))
-            state.f_dist_nonzero |= bool(np.any(f))
-            truth.update({f"f_dist_C_{a}": f[:, j] for j, a in enumerate(AXES)})
-        for s in sinks:
-            s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
-        prev, cur = cur, nxt
+    # the fronts run ahead in one worker thread (their streams drawn in piece order), the backs here
+    with ThreadPoolExecutor(1) as pool:
+        fronts = deque(pool.submit(_front, lab, run, p, people, rngs, start, t0, fs, sens) for p in pieces[:AHEAD])
+        prev, cur = None, fronts.popleft().result()
+        for i, _ in enumerate(pieces):
+            if i + AHEAD < len(pieces):
+                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, rngs, start, t0, fs, sens))
+            nxt = fronts.popleft().result() if fronts else None
+            _emit(lab, sinks, prev, cur, nxt, noise, rngs["adc"], state)
+            prev, cur = cur, nxt
     report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
     rig = SimpleNamespace(meta=run.meta, truth=run.truth, events={}, truth_signals={})
     used = [g for p, g in (("acc", "accelerometers"), ("mag", "magnetometer")) if any(c.startswith(p + "_") for c in scan)]
@@ -182,6 +198,19 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     return {"meta": lab._meta(rig, report), "truth": lab._truth(rig, seed, used), "units": units,
             "quantum": {k: adc.lsb_V for k in scan}, "truth_units": truth_units,
             "f_dist_nonzero": state.f_dist_nonzero}
+
+
+def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
+    """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
+    codes = _back(lab, prev, cur, nxt, noise, rng, state)
+    truth = dict(cur.truth)
+    truth["T_imu"] = cur.T
+    if cur.f_dist is not None or lab.people.enabled:
+        f = cur.f_dist if cur.f_dist is not None else np.zeros((cur.t.size, 3))
+        state.f_dist_nonzero |= bool(np.any(f))
+        truth.update({f"f_dist_C_{a}": f[:, j] for j, a in enumerate(AXES)})
+    for s in sinks:
+        s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
 
 
 def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespace:
@@ -200,7 +229,8 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
         f = np.stack([ts[f"f_C_{x}"] for x in AXES], axis=1)
         if f_dist is not None:
             f += f_dist
-        v = lab.accelerometers.ideal_voltage(f, T, 0.0)
+        # without a drift the temperature is one value: a scalar (the same arithmetic, fewer operations)
+        v = lab.accelerometers.ideal_voltage(f, float(T[0]) if c.drift_C_per_h == 0 else T, 0.0)
         for j, x in enumerate(AXES):
             slope_src[f"acc_{x}"] = v[:, j]
     if any(f"mag_{x}" in scan for x in AXES):
@@ -218,11 +248,12 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
 def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
     """The piece's slopes (from its neighbours' rows), the accelerometers' noise, and the conversion: codes."""
     analog, slope = dict(cur.lines), {}
+    lo = prev is not None
+    t = np.concatenate(([prev.t[-1:]] if lo else []) + [cur.t] + ([nxt.t[:1]] if nxt else []))
+    grad = _Gradient(t)
     for name, v in cur.slope_src.items():
-        lo = prev is not None
         x = np.concatenate(([prev.slope_src[name][-1:]] if lo else []) + [v] + ([nxt.slope_src[name][:1]] if nxt else []))
-        t = np.concatenate(([prev.t[-1:]] if lo else []) + [cur.t] + ([nxt.t[:1]] if nxt else []))
-        slope[name] = np.gradient(x, t)[int(lo):int(lo) + v.size]
+        slope[name] = grad(x)[int(lo):int(lo) + v.size]
         analog[name] = v
     if any(n.startswith("acc_") for n in analog):
         nz = noise.rows(cur.t.size) if noise.filters else None
@@ -231,6 +262,26 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
             if f"acc_{x}" in analog and nz is not None:
                 analog[f"acc_{x}"] = analog[f"acc_{x}"] + nz[:, j] * R[j]
     return _convert(lab.adc, analog, slope, rng, state)
+
+
+class _Gradient:
+    """np.gradient(x, t) (second-order central differences inside, first-order at the ends), its
+    coefficients computed once for the sample times ``t`` and used for every line: the same values."""
+
+    def __init__(self, t: np.ndarray):
+        dx = np.diff(t)
+        self.dx = dx
+        d1, d2 = dx[:-1], dx[1:]
+        self.a = -d2 / (d1 * (d1 + d2))
+        self.b = (d2 - d1) / (d1 * d2)
+        self.c = d1 / (d2 * (d1 + d2))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        out = np.empty_like(x)
+        out[1:-1] = self.a * x[:-2] + self.b * x[1:-1] + self.c * x[2:]
+        out[0] = (x[1] - x[0]) / self.dx[0]
+        out[-1] = (x[-1] - x[-2]) / self.dx[-1]
+        return out
 
 
 def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:

@@ -2,7 +2,10 @@
 :func:`imurig.kernel.recording.save_h5`), in memory bounded by the piece.
 
 The datasets are created at their full length (the number of samples is known before the first
-piece), chunked (``CHUNK_ROWS`` rows) and gzip-compressed with the byte shuffle, and filled in order;
+piece), chunked (``CHUNK_ROWS`` rows) and gzip-compressed with the byte shuffle, and filled in order.
+Each chunk is shuffled and deflated here, by worker threads (zlib runs without the interpreter lock,
+beside the simulation), and stored as it is (``write_direct_chunk``): the same bytes HDF5's shuffle and
+deflate filters would store, read back by any HDF5 reader through those filters;
 the root attributes (``meta``, ``truth``: JSON) are written at the end, when the sensor chain has
 reported them. ADC channels are stored as their integer codes with the attribute ``quantum`` (one
 LSB; volts = code * quantum), as ``save_h5`` stores channels on the converter's grid, so
@@ -10,7 +13,10 @@ LSB; volts = code * quantum), as ``save_h5`` stores channels on the converter's 
 """
 from __future__ import annotations
 
+import zlib
+from collections import deque
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -21,6 +27,19 @@ from imurig.kernel.recording import FORMAT_NAME, FORMAT_VERSION, _write_group
 CHUNK_ROWS = 1 << 16
 #: gzip level (1: the fastest; the same as save_h5)
 GZIP_LEVEL = 1
+#: compressing threads, and chunks waiting to be stored at most (memory: that many chunks)
+WORKERS = 2
+MAX_PENDING = 48
+
+
+def _deflate(x: np.ndarray, rows: int) -> bytes:
+    """One chunk as HDF5 stores it with the shuffle and deflate filters: padded to ``rows`` rows, the
+    bytes regrouped by significance (byte 0 of every value, then byte 1, ...), zlib-compressed."""
+    x = np.ascontiguousarray(x)
+    if x.shape[0] < rows:
+        x = np.concatenate((x, np.zeros(rows - x.shape[0], x.dtype)))
+    shuffled = np.ascontiguousarray(x.view(np.uint8).reshape(-1, x.dtype.itemsize).T)
+    return zlib.compress(shuffled, GZIP_LEVEL)
 
 
 class H5RowWriter:
@@ -34,6 +53,9 @@ class H5RowWriter:
     def __init__(self, f, n: int, channels: Mapping[str, tuple], truth_units: Mapping[str, str],
                  segments: Mapping[str, np.ndarray], segment_units: Mapping[str, str]):
         self.f, self.n, self._next = f, int(n), 0
+        self._rows = min(CHUNK_ROWS, self.n)
+        self._pool = ThreadPoolExecutor(WORKERS)
+        self._pending: deque = deque()
         f.attrs["format"] = FORMAT_NAME
         f.attrs["version"] = FORMAT_VERSION
         self._time = self._dataset(f, "time_s", np.float64)
@@ -53,28 +75,46 @@ class H5RowWriter:
         f.create_group("events")
 
     def _dataset(self, grp, name: str, dtype):
-        chunk = min(CHUNK_ROWS, self.n)
-        return grp.create_dataset(name, shape=(self.n,), dtype=dtype, chunks=(chunk,), compression="gzip",
+        return grp.create_dataset(name, shape=(self.n,), dtype=dtype, chunks=(self._rows,), compression="gzip",
                                   compression_opts=GZIP_LEVEL, shuffle=True)
 
     def rows(self, a: int, b: int, time_s: np.ndarray, channels: Mapping[str, np.ndarray],
              codes: Mapping[str, np.ndarray], truth_signals: Mapping[str, np.ndarray]) -> None:
         """Rows [a, b) (the next ones) of time, every channel (from ``channels``, or its codes from ``codes``
-        for a quantised one) and every truth signal."""
-        if a != self._next:
-            raise ValueError(f"rows must come in order: expected row {self._next}, got {a}")
-        self._time[a:b] = time_s
+        for a quantised one) and every truth signal; whole chunks (the last may be short). The arrays are
+        read by the compressing threads after this returns: the caller must not change them."""
+        if a != self._next or a % self._rows or ((b - a) % self._rows and b != self.n):
+            raise ValueError(f"rows must come in order in whole chunks of {self._rows}: expected row {self._next}, "
+                             f"got [{a}, {b})")
+        self._put(self._time, a, b, time_s)
         for name, ds in self._chan.items():
-            ds[a:b] = codes[name] if name in codes else channels[name]
+            self._put(ds, a, b, codes[name] if name in codes else channels[name])
         for name, ds in self._truth.items():
-            ds[a:b] = truth_signals[name]
+            self._put(ds, a, b, truth_signals[name])
         self._next = b
+
+    def _put(self, ds, a: int, b: int, x: np.ndarray) -> None:
+        """Rows [a, b) of ``ds``: each chunk deflated by a worker, stored in order as the workers finish (``x``
+        must not change afterwards: the workers read it)."""
+        x = np.asarray(x, dtype=ds.dtype)
+        for c in range(a, b, self._rows):
+            piece = x[c - a:min(b, c + self._rows) - a]
+            self._pending.append((ds, c, self._pool.submit(_deflate, piece, self._rows)))
+        self._store(MAX_PENDING)
+
+    def _store(self, keep: int) -> None:
+        """Store the finished chunks in order, waiting while more than ``keep`` are pending."""
+        while self._pending and (len(self._pending) > keep or self._pending[0][2].done()):
+            ds, c, fut = self._pending.popleft()
+            ds.id.write_direct_chunk((c,), fut.result())
 
     def finish(self, meta: dict, truth: dict | None, drop_truth=()) -> None:
         """Write the root attributes; remove the truth signals ``drop_truth`` (e.g. disturbances that
         stayed zero, which the whole-record writer leaves out)."""
         if self._next != self.n:
             raise ValueError(f"{self._next} of {self.n} rows written")
+        self._store(0)
+        self._pool.shutdown()
         for name in drop_truth:
             del self.f["truth_signals"][name]
         self.f.attrs["meta"] = to_json(meta)
