@@ -3,7 +3,7 @@
 
 The datasets are created at their full length (the number of samples is known before the first
 piece), chunked (``CHUNK_ROWS`` rows) and gzip-compressed with the byte shuffle, and filled in order.
-Each chunk is shuffled and deflated here, by worker threads (zlib runs without the interpreter lock,
+Each chunk is shuffled and deflated (:data:`STRATEGY`) here, by worker threads (zlib runs without the interpreter lock,
 beside the simulation), and stored as it is (``write_direct_chunk``): the same bytes HDF5's shuffle and
 deflate filters would store, read back by any HDF5 reader through those filters;
 the root attributes (``meta``, ``truth``: JSON) are written at the end, when the sensor chain has
@@ -27,19 +27,27 @@ from imurig.kernel.recording import FORMAT_NAME, FORMAT_VERSION, _write_group
 CHUNK_ROWS = 1 << 16
 #: gzip level (1: the fastest; the same as save_h5)
 GZIP_LEVEL = 1
+#: deflate strategies: run-length matches only (zlib's Z_RLE) for the signals, whose byte planes hold runs
+#: (held set-points and truth, the codes' high bytes) and noise (which no longer match finds): measured
+#: 1.8-2x faster than the default at the same size (the codes' smaller, the moving truth's 10 % larger);
+#: the default for time_s, whose regularity is in longer matches
+STRATEGY = zlib.Z_RLE
+TIME_STRATEGY = zlib.Z_DEFAULT_STRATEGY
 #: compressing threads, and chunks waiting to be stored at most (memory: that many chunks)
 WORKERS = 2
 MAX_PENDING = 48
 
 
-def _deflate(x: np.ndarray, rows: int) -> bytes:
+def _deflate(x: np.ndarray, rows: int, strategy: int) -> bytes:
     """One chunk as HDF5 stores it with the shuffle and deflate filters: padded to ``rows`` rows, the
-    bytes regrouped by significance (byte 0 of every value, then byte 1, ...), zlib-compressed."""
+    bytes regrouped by significance (byte 0 of every value, then byte 1, ...), zlib-compressed with the
+    deflate ``strategy`` (any strategy gives a standard stream: HDF5's filter inflates it)."""
     x = np.ascontiguousarray(x)
     if x.shape[0] < rows:
         x = np.concatenate((x, np.zeros(rows - x.shape[0], x.dtype)))
     shuffled = np.ascontiguousarray(x.view(np.uint8).reshape(-1, x.dtype.itemsize).T)
-    return zlib.compress(shuffled, GZIP_LEVEL)
+    z = zlib.compressobj(GZIP_LEVEL, zlib.DEFLATED, 15, 8, strategy)
+    return z.compress(shuffled) + z.flush()
 
 
 class H5RowWriter:
@@ -86,20 +94,20 @@ class H5RowWriter:
         if a != self._next or a % self._rows or ((b - a) % self._rows and b != self.n):
             raise ValueError(f"rows must come in order in whole chunks of {self._rows}: expected row {self._next}, "
                              f"got [{a}, {b})")
-        self._put(self._time, a, b, time_s)
+        self._put(self._time, a, b, time_s, TIME_STRATEGY)
         for name, ds in self._chan.items():
             self._put(ds, a, b, codes[name] if name in codes else channels[name])
         for name, ds in self._truth.items():
             self._put(ds, a, b, truth_signals[name])
         self._next = b
 
-    def _put(self, ds, a: int, b: int, x: np.ndarray) -> None:
+    def _put(self, ds, a: int, b: int, x: np.ndarray, strategy: int = STRATEGY) -> None:
         """Rows [a, b) of ``ds``: each chunk deflated by a worker, stored in order as the workers finish (``x``
         must not change afterwards: the workers read it)."""
         x = np.asarray(x, dtype=ds.dtype)
         for c in range(a, b, self._rows):
             piece = x[c - a:min(b, c + self._rows) - a]
-            self._pending.append((ds, c, self._pool.submit(_deflate, piece, self._rows)))
+            self._pending.append((ds, c, self._pool.submit(_deflate, piece, self._rows, strategy)))
         self._store(MAX_PENDING)
 
     def _store(self, keep: int) -> None:
