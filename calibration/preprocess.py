@@ -3,6 +3,8 @@ per-position statistics.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 from scipy import signal, stats
 
@@ -216,6 +218,37 @@ def _windows(fn, x: np.ndarray, starts, length: int, stacked: bool, axis: int = 
     return np.stack([fn(x[s0:s0 + length], axis=axis) for s0 in starts])
 
 
+#: results of segment_statistic / segment_statistic_covariance kept inside :func:`reuse_statistics`
+_MEMO: dict | None = None
+
+
+@contextmanager
+def reuse_statistics():
+    """Inside the block, :func:`segment_statistic` and :func:`segment_statistic_covariance` compute each
+    result once per recording arrays and arguments and give copies of it again (e.g. the seven fits of
+    one report on one record). The recording's arrays must not change inside the block."""
+    global _MEMO
+    outer = _MEMO
+    _MEMO = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _MEMO = outer
+
+
+def _memo(kind: tuple, rec: Recording, data, names, compute) -> np.ndarray:
+    """compute(), or inside :func:`reuse_statistics` its earlier result for the same arrays (by identity:
+    time, segment bounds and the named signals, kept alive beside the result) and ``kind``."""
+    if _MEMO is None:
+        return compute()
+    names = tuple(names)
+    arrays = (rec.time_s, rec.segments.get("start_s"), rec.segments.get("stop_s"), *(data[n] for n in names))
+    key = (kind, names, tuple(id(a) for a in arrays))
+    if key not in _MEMO:
+        _MEMO[key] = (compute(), arrays)
+    return _MEMO[key][0].copy()
+
+
 def segment_statistic(rec: Recording, names, statistic: str = "median", source: str = "channels") -> np.ndarray:
     """Per-segment statistic (n_seg, len(names)) of channels (or truth signals).
 
@@ -227,6 +260,11 @@ def segment_statistic(rec: Recording, names, statistic: str = "median", source: 
         raise RecordingError("the recording has no segments (set-point windows); add a 'segment' column "
                              "or name the set-point columns in the '# setpoints:' metadata")
     data = rec.channels if source == "channels" else rec.truth_signals
+    return _memo(("statistic", statistic, source), rec, data, names,
+                 lambda: _segment_statistic(rec, data, names, statistic))
+
+
+def _segment_statistic(rec: Recording, data, names, statistic: str) -> np.ndarray:
     fn = _statistic_fn(statistic, {"std": np.std})
     x = np.stack([data[n] for n in names], axis=1)
     out = np.empty((rec.n_segments, len(names)))
@@ -252,6 +290,11 @@ def segment_statistic_covariance(rec: Recording, names, statistic: str = "median
     (exact for the mean of noise that decorrelates within a batch; for the median and the Huber
     M-estimate both scale as 1/N). Off the diagonal: noise the channels share (the converter's
     common mode). Noise slower than a batch is not seen. NaN where a batch holds < 2 samples."""
+    return _memo(("covariance", statistic, batches), rec, rec.channels, names,
+                 lambda: _segment_statistic_covariance(rec, names, statistic, batches))
+
+
+def _segment_statistic_covariance(rec: Recording, names, statistic: str, batches: int) -> np.ndarray:
     data = np.stack([rec.channels[n] for n in names], axis=1)
     fn = _statistic_fn(statistic)
     k = len(names)

@@ -15,7 +15,7 @@ import numpy as np
 
 import imurig
 from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
-from imurig.calibration.preprocess import lowpass_downsample
+from imurig.calibration.preprocess import lowpass_downsample, reuse_statistics
 from imurig.campaigns.tilt_stream import stream_campaign
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
@@ -46,6 +46,11 @@ def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
     record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
     # only the windows are analysed (bounded memory)
     rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True)
+    with reuse_statistics():   # the fits share their per-position statistics: each computed once
+        return _analyse(rec, rec100, model, statistic)
+
+
+def _analyse(rec: Recording, rec100: Recording, model: str, statistic: str) -> dict:
     out = {"rec100": rec100}
     out["main"] = calibrate(rec, model=model, processed=rec100, statistic=statistic)
     out["parameters"] = compare_with_truth(out["main"], rec.truth)
