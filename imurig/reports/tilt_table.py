@@ -6,6 +6,7 @@ estimated parameter as {name, unit, injected, estimate, std_error, z}), ``record
 """
 from __future__ import annotations
 
+import multiprocessing
 import resource
 import sys
 import time
@@ -280,6 +281,39 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
 STAGE_SHARES = {"simulate": 70, "analyse": 14, "figures": 8, "campaign.rrd": 6, "report": 2}
 
 
+def _figures_beside(out: OutputFolder, rec100: Recording, res: dict):
+    """Start :func:`make_figures` in a forked process (on a second core, beside the .rrd writer); returns
+    a function that waits for it and gives its figures (draws them here where fork is not available)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        figs = make_figures(out, rec100, res)
+        return lambda: figs
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_draw, args=(send, out, rec100, res), daemon=True)
+    child.start()
+    send.close()
+
+    def wait() -> dict:
+        try:
+            figs = recv.recv()
+        except EOFError:
+            figs = "the figure process ended without an answer"
+        child.join()
+        if not isinstance(figs, dict) or child.exitcode:
+            raise RuntimeError(f"drawing the figures failed: {figs}")
+        return figs
+    return wait
+
+
+def _draw(send, out: OutputFolder, rec100: Recording, res: dict) -> None:
+    try:
+        send.send(make_figures(out, rec100, res))
+    except Exception as e:  # reported by the parent, which fails the run
+        send.send(f"{type(e).__name__}: {e}")
+    finally:
+        send.close()
+
+
 def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
         save_recording: bool = True) -> dict:
     """Simulate, calibrate and report. Returns the summary dict."""
@@ -302,13 +336,15 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
-            figs = make_figures(out, rec100, res)
+            figures = _figures_beside(out, rec100, res)   # drawn in a second process, beside the .rrd
+            from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
+
+            products = save_products(out, rec100, res, write_rrd, False, rrd, stage)
+            figs = figures()
             files.update({f"figure_{k}": v for k, v in figs.items()})
             if save_recording:
                 files["recording"] = "recording.h5"
-            from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
-
-            files.update(save_products(out, rec100, res, write_rrd, False, rrd, stage))
+            files.update(products)
             stage("report")
             t_out = time.perf_counter() - t2
             peak = peak_rss_bytes()
