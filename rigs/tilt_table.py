@@ -195,7 +195,8 @@ class TiltTable:
         return {r: off[i * m:(i + 1) * m] for i, r in enumerate(runs)}
 
     def _run_commands(self, base_model, runs, R_WB, cmd_nom, windows, n_pos, rng, backlash=None):
-        """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad with the
+        """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad (rows of one
+        (mountings, n, 2) array) with the
         table's zero errors, each position's setting error (uniform within +-res/2, held from
         slew end to next slew) and the gear clearance's shift (``backlash``: per mounting, (m, 2)
         rad, or None), and its initial joint position."""
@@ -203,9 +204,10 @@ class TiltTable:
         bid_mount = base_model.body("imu_mount").id
         nstep = cmd_nom.shape[0]
         pos_idx = _position_index(nstep, windows)
-        models, ctrl, qpos0, setting_err = [], [], [], {}
+        models, qpos0, setting_err = [], [], {}
+        ctrl = np.empty((len(runs), nstep, 2))   # filled in place: no list of copies
         res = self.errors.setting_resolution_rad
-        for r in runs:
+        for i, r in enumerate(runs):
             m = _copy_model(base_model)
             m.body_quat[bid_base] = _quat_wxyz(R_WB)
             m.body_quat[bid_mount] = _quat_wxyz(MOUNTS[r])
@@ -213,11 +215,12 @@ class TiltTable:
             err = rng.uniform(-res / 2, res / 2, size=(n_pos, 2)) if res > 0 else np.zeros((n_pos, 2))
             setting_err[r] = err
             off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
-            c = cmd_nom + off + err[pos_idx]
+            c = ctrl[i]
+            np.add(cmd_nom, off, out=c)
+            c += err[pos_idx]
             if backlash is not None:
-                c = c + backlash[r][pos_idx]
-            ctrl.append(c)
-            qpos0.append(c[0])
+                c += backlash[r][pos_idx]
+            qpos0.append(c[0].copy())
         return models, ctrl, qpos0, setting_err
 
     @staticmethod
@@ -282,7 +285,6 @@ class TiltTable:
                                                                set_theta.size, rng, backlash)
         del cmd_nom
         sl = sensor_slices(base_model)
-        ctrl = np.array(ctrl)
         earth_W = self.site.earth_rate_W()
         if self.dwell_truth == "mujoco":
             truth = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
