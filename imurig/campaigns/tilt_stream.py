@@ -94,8 +94,11 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
                 w = H5RowWriter(f, run.n, {c: ((np.int16, "V", lab.adc.lsb_V) if c in scan else
                                                (np.float64, run.units[c], None)) for c in chan_names},
                                 truth_units, run.segments, run.segment_units)
-                drop = simulate([w])
-                w.finish(info["meta"], info["truth"], sorted(drop))
+                try:
+                    drop = simulate([w])
+                    w.finish(info["meta"], info["truth"], sorted(drop))
+                finally:
+                    w.close()
                 info["drop"] = drop
 
         atomic_write(h5_path, writer, overwrite)

@@ -122,9 +122,15 @@ class H5RowWriter:
         if self._next != self.n:
             raise ValueError(f"{self._next} of {self.n} rows written")
         self._store(0)
-        self._pool.shutdown()
+        self.close()
         for name in drop_truth:
             del self.f["truth_signals"][name]
         self.f.attrs["meta"] = to_json(meta)
         if truth is not None:
             self.f.attrs["truth"] = to_json(truth)
+
+    def close(self) -> None:
+        """Stop the compressing threads (after :meth:`finish`, or on an error: the chunks not yet stored
+        are dropped with the unfinished file)."""
+        self._pending.clear()
+        self._pool.shutdown(cancel_futures=True)

@@ -3,6 +3,10 @@
 Folder contents: ``report.md`` (seed-style tables and figures), ``summary.json`` (every
 estimated parameter as {name, unit, injected, estimate, std_error, z}), ``recording.h5``
 (the 1 kHz recording with truth), ``campaign.rrd`` (rerun), and PNG figures.
+
+:func:`run` streams the campaign (:mod:`imurig.campaigns.tilt_stream`): the 1 kHz record goes to
+``recording.h5`` piece by piece while its windows are low-passed for the analysis, so no array of the
+record's length is held; the figures are drawn in a second process beside the .rrd writer.
 """
 from __future__ import annotations
 
