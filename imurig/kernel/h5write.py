@@ -64,6 +64,7 @@ class H5RowWriter:
         self._rows = min(CHUNK_ROWS, self.n)
         self._pool = ThreadPoolExecutor(WORKERS)
         self._pending: deque = deque()
+        self._constant: dict = {}   # deflated constant chunks by (dtype, value, rows, strategy)
         f.attrs["format"] = FORMAT_NAME
         f.attrs["version"] = FORMAT_VERSION
         self._time = self._dataset(f, "time_s", np.float64)
@@ -107,7 +108,15 @@ class H5RowWriter:
         x = np.asarray(x, dtype=ds.dtype)
         for c in range(a, b, self._rows):
             piece = x[c - a:min(b, c + self._rows) - a]
-            self._pending.append((ds, c, self._pool.submit(_deflate, piece, self._rows, strategy)))
+            bits = piece.view(f"u{piece.dtype.itemsize}")   # compared bit for bit (0.0 is not -0.0)
+            if piece.size and np.all(bits == bits[0]):   # a held value (or zeros): its bytes deflated once
+                key = (piece.dtype.str, piece[:1].tobytes(), piece.size, strategy)
+                if key not in self._constant:
+                    self._constant[key] = self._pool.submit(_deflate, piece.copy(), self._rows, strategy)
+                fut = self._constant[key]
+            else:
+                fut = self._pool.submit(_deflate, piece, self._rows, strategy)
+            self._pending.append((ds, c, fut))
         self._store(MAX_PENDING)
 
     def _store(self, keep: int) -> None:
