@@ -3,6 +3,8 @@ per-position statistics.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 from scipy import signal, stats
 
@@ -28,24 +30,14 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     same values in the windows, in bounded memory.
     """
     fs = rec.sample_rate_hz
-    if not (np.isfinite(rate_hz) and rate_hz > 0 and cutoff_hz > 0):
-        raise RecordingError(f"rate_hz ({rate_hz}) and cutoff_hz ({cutoff_hz}) must be positive")
-    ratio = fs / rate_hz
-    if abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1:
-        k = int(round(ratio))
-    else:
-        k = max(int(np.floor(ratio)), 1)
-        rate_hz = fs / k
-    cutoff_hz = min(cutoff_hz, 0.8 * fs / 2)
-    sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
+    k, sos, log = filter_design(fs, rate_hz, cutoff_hz, order, zero_phase)
+    rate_hz = log["to_hz"]
     keep_idx, blocks = [], rec.blocks()
     names = list(rec.channels)
     # truth signals: filter the measured quantities the same way; decimate the rest unfiltered
     tnames = [n for n in rec.truth_signals if rec.truth_units.get(n) in ("m/s^2", "rad/s", "T")]
     others = [n for n in rec.truth_signals if n not in tnames]
     setpoints = set(rec.meta.get("setpoints", []))
-    log = {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
-           "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}
     if windows_only and zero_phase and rec.n_segments:
         idx, channels, tsig = lowpass_windows(rec, sos, k, [n for n in names if n not in setpoints], tnames)
         return _decimated(rec, idx, channels, tsig, rate_hz, {**log, "where": "segment windows"})
@@ -73,6 +65,25 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     channels = {n: (rec.channels[n][idx] if n in setpoints else fx[:, i]) for i, n in enumerate(names)}
     return _decimated(rec, idx, channels, {**{n: ft[:, i] for i, n in enumerate(tnames)},
                                            **{n: rec.truth_signals[n][idx] for n in others}}, rate_hz, log)
+
+
+def filter_design(fs: float, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,
+                  zero_phase: bool = True) -> tuple[int, np.ndarray, dict]:
+    """(k, sos, log) of :func:`lowpass_downsample` at the sample rate ``fs``: keep every k-th sample, the
+    Butterworth's sections, and the preprocessing log entry (its ``to_hz``: the rate reached)."""
+    if not (np.isfinite(rate_hz) and rate_hz > 0 and cutoff_hz > 0):
+        raise RecordingError(f"rate_hz ({rate_hz}) and cutoff_hz ({cutoff_hz}) must be positive")
+    ratio = fs / rate_hz
+    if abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1:
+        k = int(round(ratio))
+    else:
+        k = max(int(np.floor(ratio)), 1)
+        rate_hz = fs / k
+    cutoff_hz = min(cutoff_hz, 0.8 * fs / 2)
+    sos = signal.butter(order, cutoff_hz / (fs / 2), output="sos")
+    log = {"step": "lowpass_downsample", "filter": f"butterworth order {order}", "cutoff_hz": cutoff_hz,
+           "zero_phase": zero_phase, "from_hz": fs, "to_hz": rate_hz}
+    return k, sos, log
 
 
 def _decimated(rec: Recording, idx, channels: dict, truth_signals: dict, rate_hz: float, log: dict) -> Recording:
@@ -207,6 +218,37 @@ def _windows(fn, x: np.ndarray, starts, length: int, stacked: bool, axis: int = 
     return np.stack([fn(x[s0:s0 + length], axis=axis) for s0 in starts])
 
 
+#: results of segment_statistic / segment_statistic_covariance kept inside :func:`reuse_statistics`
+_MEMO: dict | None = None
+
+
+@contextmanager
+def reuse_statistics():
+    """Inside the block, :func:`segment_statistic` and :func:`segment_statistic_covariance` compute each
+    result once per recording arrays and arguments and give copies of it again (e.g. the seven fits of
+    one report on one record). The recording's arrays must not change inside the block."""
+    global _MEMO
+    outer = _MEMO
+    _MEMO = {} if outer is None else outer
+    try:
+        yield
+    finally:
+        _MEMO = outer
+
+
+def _memo(kind: tuple, rec: Recording, data, names, compute) -> np.ndarray:
+    """compute(), or inside :func:`reuse_statistics` its earlier result for the same arrays (by identity:
+    time, segment bounds and the named signals, kept alive beside the result) and ``kind``."""
+    if _MEMO is None:
+        return compute()
+    names = tuple(names)
+    arrays = (rec.time_s, rec.segments.get("start_s"), rec.segments.get("stop_s"), *(data[n] for n in names))
+    key = (kind, names, tuple(id(a) for a in arrays))
+    if key not in _MEMO:
+        _MEMO[key] = (compute(), arrays)
+    return _MEMO[key][0].copy()
+
+
 def segment_statistic(rec: Recording, names, statistic: str = "median", source: str = "channels") -> np.ndarray:
     """Per-segment statistic (n_seg, len(names)) of channels (or truth signals).
 
@@ -218,6 +260,11 @@ def segment_statistic(rec: Recording, names, statistic: str = "median", source: 
         raise RecordingError("the recording has no segments (set-point windows); add a 'segment' column "
                              "or name the set-point columns in the '# setpoints:' metadata")
     data = rec.channels if source == "channels" else rec.truth_signals
+    return _memo(("statistic", statistic, source), rec, data, names,
+                 lambda: _segment_statistic(rec, data, names, statistic))
+
+
+def _segment_statistic(rec: Recording, data, names, statistic: str) -> np.ndarray:
     fn = _statistic_fn(statistic, {"std": np.std})
     x = np.stack([data[n] for n in names], axis=1)
     out = np.empty((rec.n_segments, len(names)))
@@ -243,6 +290,11 @@ def segment_statistic_covariance(rec: Recording, names, statistic: str = "median
     (exact for the mean of noise that decorrelates within a batch; for the median and the Huber
     M-estimate both scale as 1/N). Off the diagonal: noise the channels share (the converter's
     common mode). Noise slower than a batch is not seen. NaN where a batch holds < 2 samples."""
+    return _memo(("covariance", statistic, batches), rec, rec.channels, names,
+                 lambda: _segment_statistic_covariance(rec, names, statistic, batches))
+
+
+def _segment_statistic_covariance(rec: Recording, names, statistic: str, batches: int) -> np.ndarray:
     data = np.stack([rec.channels[n] for n in names], axis=1)
     fn = _statistic_fn(statistic)
     k = len(names)

@@ -66,3 +66,81 @@ def lowpass_windows(rec: Recording, sos: np.ndarray, k: int, filtered: list, fil
         _filter_into(chans, rec.channels, filtered, spans, sos, k, b, off, skip_constant=False)
         _filter_into(truth, rec.truth_signals, filtered_truth, spans, sos, k, b, off, skip_constant=True)
     return idx, chans, truth
+
+
+class WindowTap:
+    """:func:`lowpass_windows` on a record that arrives in row pieces (a sink of
+    :func:`imurig.sensors.stream.measure_stream`): the same decimated samples and the same filtered
+    windows, in memory of the decimated record and one padded window.
+
+    ``frame``: a Recording with the record's ``time_s`` and ``segments`` (no channels; only its blocks,
+    sample rate and segment windows are used, and it may be dropped after construction); ``channels`` /
+    ``truth``: the names in the order the decimated record lists them; ``filtered`` /
+    ``filtered_truth``: those low-passed in the windows (truth constant over a padded window is kept
+    as it is); ``quantum``: channels that arrive as converter codes, name -> volts per code."""
+
+    def __init__(self, frame: Recording, sos: np.ndarray, k: int, channels: list, filtered: list, truth: list,
+                 filtered_truth: list, quantum: dict, pad_s: float = 1.0):
+        self.sos, self.k, self.quantum = sos, k, dict(quantum)
+        self.filtered, self.filtered_truth = list(filtered), list(filtered_truth)
+        pad = int(round(pad_s * frame.sample_rate_hz))
+        blocks = frame.blocks()
+        self.idx = np.concatenate([np.arange(b.start, b.stop, k) for b in blocks])
+        offsets = np.cumsum([0] + [len(range(b.start, b.stop, k)) for b in blocks])
+        self.spans = [(lo, hi, a, b, blk.start, off) for blk, off in zip(blocks, offsets)
+                      for lo, hi, a, b in _windows(frame, blk, pad)]
+        self.spans.sort(key=lambda s: s[0])
+        self._next_span, self._open = 0, {}
+        m = self.idx.size
+        self.time_s = np.empty(m)
+        self.channels = {n: np.empty(m) for n in channels}
+        self.truth = {n: np.empty(m) for n in truth}
+
+    def _decode(self, name: str, x: np.ndarray) -> np.ndarray:
+        q = self.quantum.get(name)
+        return x.astype(np.float64) * q if q is not None else x
+
+    def rows(self, a: int, b: int, time_s, channels: dict, codes: dict, truth: dict) -> None:
+        """Take the samples [a, b) (set-point ``channels``, converter ``codes``, ``truth`` signals)."""
+        src = {**channels, **codes}
+        j0, j1 = np.searchsorted(self.idx, (a, b))
+        r = self.idx[j0:j1] - a
+        self.time_s[j0:j1] = time_s[r]
+        for n, dst in self.channels.items():
+            dst[j0:j1] = self._decode(n, src[n][r])
+        for n, dst in self.truth.items():
+            dst[j0:j1] = truth[n][r]
+        while self._next_span < len(self.spans) and self.spans[self._next_span][0] < b:
+            self._open[self._next_span] = ({n: [] for n in self.filtered}, {n: [] for n in self.filtered_truth})
+            self._next_span += 1
+        for i in sorted(self._open):
+            lo, hi = self.spans[i][:2]
+            s, e = max(lo, a), min(hi, b)
+            pc, pt = self._open[i]
+            if s < e:
+                for n in pc:
+                    pc[n].append(self._decode(n, src[n][s - a:e - a]))
+                for n in pt:
+                    pt[n].append(truth[n][s - a:e - a])
+            if hi <= b:
+                self._filter(self.spans[i], pc, self.channels, False)
+                self._filter(self.spans[i], pt, self.truth, True)
+                del self._open[i]
+
+    def _filter(self, span, pieces: dict, dst: dict, skip_constant: bool) -> None:
+        """One padded window's signals filtered together (:func:`_filter_into`)."""
+        lo, hi, a, b, start, offset = span
+        k = self.k
+        first = a + (start - a) % k
+        if first >= b:
+            return
+        sig = {n: np.concatenate(p) for n, p in pieces.items()}
+        cols = [n for n in sig if not (skip_constant and np.all(sig[n] == sig[n][0]))]
+        if not cols:
+            return
+        seg = np.stack([sig[n] for n in cols], axis=1)
+        padlen = min(3 * (2 * len(self.sos) + 1), seg.shape[0] - 1)
+        y = signal.sosfiltfilt(self.sos, seg, axis=0, padlen=padlen)[first - lo:b - lo:k]
+        i0 = offset + (first - start) // k
+        for j, n in enumerate(cols):
+            dst[n][i0:i0 + y.shape[0]] = y[:, j]

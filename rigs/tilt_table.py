@@ -34,7 +34,8 @@ from imurig.sensors.effects.table_backlash import TableBacklash
 from imurig.rigs.tilt_kinematics import (MOUNTS, TableSurvey, reference_specific_force,  # noqa: F401 (re-exported)
                                          reference_with_jacobian, rot_x, rot_y, rot_z, rotate_to_body,
                                          setting_error_covariance, specific_force_C)
-from imurig.rigs.tilt_truth import full_truth, stitched_truth
+from imurig.rigs.tilt_truth import SIGNALS as SIGNAL_NAMES
+from imurig.rigs.tilt_truth import TruthPieces, full_truth, stitched_pieces
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     import mujoco
@@ -194,7 +195,8 @@ class TiltTable:
         return {r: off[i * m:(i + 1) * m] for i, r in enumerate(runs)}
 
     def _run_commands(self, base_model, runs, R_WB, cmd_nom, windows, n_pos, rng, backlash=None):
-        """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad with the
+        """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad (rows of one
+        (mountings, n, 2) array) with the
         table's zero errors, each position's setting error (uniform within +-res/2, held from
         slew end to next slew) and the gear clearance's shift (``backlash``: per mounting, (m, 2)
         rad, or None), and its initial joint position."""
@@ -202,9 +204,10 @@ class TiltTable:
         bid_mount = base_model.body("imu_mount").id
         nstep = cmd_nom.shape[0]
         pos_idx = _position_index(nstep, windows)
-        models, ctrl, qpos0, setting_err = [], [], [], {}
+        models, qpos0, setting_err = [], [], {}
+        ctrl = np.empty((len(runs), nstep, 2))   # filled in place: no list of copies
         res = self.errors.setting_resolution_rad
-        for r in runs:
+        for i, r in enumerate(runs):
             m = _copy_model(base_model)
             m.body_quat[bid_base] = _quat_wxyz(R_WB)
             m.body_quat[bid_mount] = _quat_wxyz(MOUNTS[r])
@@ -212,11 +215,12 @@ class TiltTable:
             err = rng.uniform(-res / 2, res / 2, size=(n_pos, 2)) if res > 0 else np.zeros((n_pos, 2))
             setting_err[r] = err
             off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
-            c = cmd_nom + off + err[pos_idx]
+            c = ctrl[i]
+            np.add(cmd_nom, off, out=c)
+            c += err[pos_idx]
             if backlash is not None:
-                c = c + backlash[r][pos_idx]
-            ctrl.append(c)
-            qpos0.append(c[0])
+                c += backlash[r][pos_idx]
+            qpos0.append(c[0].copy())
         return models, ctrl, qpos0, setting_err
 
     @staticmethod
@@ -242,8 +246,13 @@ class TiltTable:
         Channels: ``theta``, ``phi`` (commanded set-points, rad). Truth signals at the IMU
         case frame C, 1/sample: ``f_C_x/y/z`` specific force (m/s^2), ``w_C_x/y/z`` angular
         rate including the Earth's rotation (rad/s), ``B_C_x/y/z`` IGRF field (T),
-        ``theta_true``/``phi_true`` (rad).
+        ``theta_true``/``phi_true`` (rad). The whole record of :meth:`run`.
         """
+        return self.run(protocol, start_time, rng).recording()
+
+    def run(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator) -> "TiltRun":
+        """Run the protocol as :meth:`simulate` does, and keep its truth as pieces (:class:`TiltRun`):
+        any sample range of the record on demand, in memory of the moves' knots, not the record."""
         protocol.validate()
         dt = 1.0 / protocol.sample_rate_hz
         when = parse_time(start_time)
@@ -274,25 +283,18 @@ class TiltTable:
         backlash = self._backlash_offsets(set_theta, set_phi, runs)
         models, ctrl, qpos0, setting_err = self._run_commands(base_model, runs, R_WB, cmd_nom, windows,
                                                                set_theta.size, rng, backlash)
+        del cmd_nom
         sl = sensor_slices(base_model)
-        ctrl = np.array(ctrl)
         earth_W = self.site.earth_rate_W()
         if self.dwell_truth == "mujoco":
-            truth_signals = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
+            truth = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
-            truth_signals = stitched_truth(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
-                                           earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s))
-        units = {k: {"f": "m/s^2", "w": "rad/s", "B": "T"}.get(k[0], "rad") for k in truth_signals}
+            truth = stitched_pieces(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
+                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s))
+        del ctrl
 
-        # assemble the record: runs one after the other, with the remount time as a gap
         gap = protocol.remount_s
-        t_run = np.arange(nstep) * dt
-        time_s = np.concatenate([t_run + i * (nstep * dt + gap) for i in range(len(runs))])
         segments, seg_units = self._segments(runs, windows, set_theta, set_phi, dt, nstep * dt + gap)
-        pos_idx = _position_index(nstep, windows)
-        theta_set = np.tile(set_theta[pos_idx], len(runs))
-        phi_set = np.tile(set_phi[pos_idx], len(runs))
-
         meta = {
             "rig": "tilt_table",
             "site": self.site.to_dict(),
@@ -305,21 +307,85 @@ class TiltTable:
             "setpoints": ["theta", "phi"],
             "frames": "W: local level ENU; C: IMU case (site 'imu'); specific force and rates in C",
         }
-        truth = {"rig": {"tilt_table": self.errors.to_dict(),
-                         "setting_error_rad": {r: setting_err[r].tolist() for r in runs},
-                         "magnetic_field_W_T": B_W.tolist()}}
+        truth_dict = {"rig": {"tilt_table": self.errors.to_dict(),
+                              "setting_error_rad": {r: setting_err[r].tolist() for r in runs},
+                              "magnetic_field_W_T": B_W.tolist()}}
         if backlash is not None:
-            truth["rig"][self.backlash.name] = self.backlash.settings()
-        return Recording(time_s=time_s, channels={"theta": theta_set, "phi": phi_set},
-                         units={"theta": "rad", "phi": "rad"}, segments=segments,
-                         segment_units=seg_units, meta=meta, truth=truth,
-                         truth_signals=truth_signals, truth_units=units)
+            truth_dict["rig"][self.backlash.name] = self.backlash.settings()
+        return TiltRun(nstep=nstep, nruns=len(runs), dt=dt, gap_s=gap, windows=windows, set_theta=set_theta,
+                       set_phi=set_phi, truth_source=truth, segments=segments, segment_units=seg_units, meta=meta,
+                       truth=truth_dict)
 
 
-def _position_index(nstep: int, windows) -> np.ndarray:
-    """Index of the position each step belongs to (a slew belongs to the position it goes to)."""
+@dataclass
+class TiltRun:
+    """A simulated tilt-table record whose samples are made on demand (:meth:`TiltTable.run`).
+
+    The runs follow one another with the remount time as a gap: sample i of run r is at
+    t = i dt + r (nstep dt + gap_s). Channels ``theta``, ``phi``: the set-points (rad) of the position
+    each sample belongs to (a slew belongs to the position it goes to); truth signals from
+    ``truth_source`` (:class:`imurig.rigs.tilt_truth.TruthPieces`, or whole arrays)."""
+
+    nstep: int
+    nruns: int
+    dt: float
+    gap_s: float
+    windows: list
+    set_theta: np.ndarray
+    set_phi: np.ndarray
+    truth_source: object
+    segments: dict
+    segment_units: dict
+    meta: dict
+    truth: dict
+    units: dict = field(default_factory=lambda: {"theta": "rad", "phi": "rad"})
+    events: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return self.nstep * self.nruns
+
+    @property
+    def truth_units(self) -> dict:
+        return {k: {"f": "m/s^2", "w": "rad/s", "B": "T"}.get(k[0], "rad") for k in SIGNAL_NAMES}
+
+    def time_rows(self, a: int, b: int) -> np.ndarray:
+        """time_s over samples [a, b) (the same values as the whole record's)."""
+        out = np.empty(b - a)
+        for r in range(self.nruns):
+            lo, hi = max(a, r * self.nstep), min(b, (r + 1) * self.nstep)
+            if lo < hi:
+                out[lo - a:hi - a] = np.arange(lo - r * self.nstep, hi - r * self.nstep) * self.dt \
+                    + r * (self.nstep * self.dt + self.gap_s)
+        return out
+
+    def channel_rows(self, a: int, b: int) -> dict:
+        """The set-point channels over samples [a, b)."""
+        pos = _position_index(self.nstep, self.windows, np.arange(a, b) % self.nstep)
+        return {"theta": self.set_theta[pos], "phi": self.set_phi[pos]}
+
+    def truth_rows(self, a: int, b: int) -> dict:
+        """The truth signals over samples [a, b)."""
+        src = self.truth_source
+        if isinstance(src, TruthPieces):
+            return src.rows(a, b)
+        return {k: v[a:b] for k, v in src.items()}
+
+    def recording(self) -> Recording:
+        """The whole record as a Recording (set-points and truth, no sensors)."""
+        truth_signals = self.truth_rows(0, self.n)
+        return Recording(time_s=self.time_rows(0, self.n), channels=self.channel_rows(0, self.n),
+                         units=dict(self.units), segments=self.segments, segment_units=self.segment_units,
+                         meta=self.meta, truth=self.truth, truth_signals=truth_signals,
+                         truth_units={k: self.truth_units[k] for k in truth_signals})
+
+
+def _position_index(nstep: int, windows, steps: np.ndarray | None = None) -> np.ndarray:
+    """Index of the position each step (of ``steps``; default all ``nstep``) belongs to (a slew belongs to
+    the position it goes to)."""
     ends = np.array([b for _, b in windows])
-    return np.minimum(np.searchsorted(ends, np.arange(nstep), side="right"), len(windows) - 1)
+    steps = np.arange(nstep) if steps is None else steps
+    return np.minimum(np.searchsorted(ends, steps, side="right"), len(windows) - 1)
 
 
 def _copy_model(m):

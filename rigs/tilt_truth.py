@@ -87,10 +87,18 @@ def stitched_truth(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W, mov
     ``ctrl`` (nbatch, nstep, 2) rad: each mounting's servo commands; ``windows``: (start, stop)
     sample indices of the acquisition windows (the command is held in each); ``mounts``: the
     mounting of each batch row; ``R_WB``: the base attitude; ``move_substeps``: samples per MuJoCo
-    step in the moves (module doc).
+    step in the moves (module doc). The whole record of :func:`stitched_pieces`.
     """
+    pieces = stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W, move_substeps)
+    return pieces.rows(0, pieces.n)
+
+
+def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
+                    move_substeps: int = 1) -> "TruthPieces":
+    """The truth of :func:`stitched_truth` as :class:`TruthPieces` (constants in the windows, MuJoCo
+    rows or knots in the moves): any rows on demand, in memory of the knots, not the record."""
     nb, nstep, _ = ctrl.shape
-    out = {k: np.empty(nb * nstep) for k in SIGNALS}
+    out = TruthPieces(nb * nstep)
     up = np.array([0.0, 0.0, g])
     moves = []  # (length, batch row, start, initial qpos)
     for b in range(nb):
@@ -98,16 +106,68 @@ def stitched_truth(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W, mov
         for a, e in windows:
             theta, phi = ctrl[b, a]
             R_CW = MOUNTS[mounts[b]].T @ rot_z(phi).T @ rot_y(theta).T @ R_WB.T
-            dst = slice(b * nstep + a, b * nstep + e)
+            vals = {}
             for s, v in (("f_C", up), ("w_C", earth_W), ("B_C", B_W)):
                 for j, x in enumerate(R_CW @ v):
-                    out[f"{s}_{'xyz'[j]}"][dst] = x
-            out["theta_true"][dst], out["phi_true"][dst] = theta, phi
+                    vals[f"{s}_{'xyz'[j]}"] = x
+            vals["theta_true"], vals["phi_true"] = theta, phi
+            out.hold(b * nstep + a, b * nstep + e, vals)
             if a > prev_stop:  # the table rests at the previous command when the move starts
                 moves.append((a - prev_stop, b, prev_stop, ctrl[b, prev_stop - 1] if prev_stop else ctrl[b, 0]))
             prev_stop = e
     _rollout_moves(models, ctrl, moves, out, nstep, sl, earth_W, int(move_substeps))
-    return out
+    return out.done()
+
+
+class TruthPieces:
+    """The tilt table's truth signals (:data:`SIGNALS`) over ``n`` samples as pieces: constants in the
+    windows, MuJoCo rows (every sample stepped) or knots (linear between them, module doc) in the
+    moves. :meth:`rows` gives any sample range, the same values as the whole arrays would hold."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self._holds: list[tuple[int, int, dict]] = []
+        self._moves: list[tuple[int, int, np.ndarray | None, dict]] = []  # start, stop, knots (None: rows), values
+        self._hold_at: dict[int, dict] = {}
+
+    def hold(self, a: int, b: int, values: dict) -> None:
+        """Samples [a, b) hold the constants ``values`` (name -> float)."""
+        self._holds.append((a, b, values))
+        self._hold_at[a] = values
+
+    def value_at(self, i: int, name: str) -> float:
+        """The held value of ``name`` at sample ``i`` (a window's first sample)."""
+        return self._hold_at[i][name]
+
+    def move(self, a: int, b: int, knots: np.ndarray | None, values: dict) -> None:
+        """Samples [a, b) of a move: ``values`` name -> rows (b - a,) (``knots`` None), or name -> values at
+        the sample offsets ``knots`` plus the value at b (linear in between)."""
+        self._moves.append((a, b, knots, values))
+
+    def done(self) -> "TruthPieces":
+        self._pieces = sorted([(a, b, None, v) for a, b, v in self._holds] + self._moves, key=lambda p: p[0])
+        self._starts = np.array([p[0] for p in self._pieces], dtype=np.int64)
+        return self
+
+    def rows(self, a: int, b: int) -> dict:
+        """Truth signals over samples [a, b): name -> (b - a,) float64."""
+        out = {k: np.empty(b - a) for k in SIGNALS}
+        first = max(int(np.searchsorted(self._starts, a, side="right")) - 1, 0)
+        for lo, hi, knots, vals in self._pieces[first:]:
+            if lo >= b:
+                break
+            s, e = max(lo, a), min(hi, b)
+            if s >= e:
+                continue
+            for k in SIGNALS:
+                v = vals[k]
+                if np.ndim(v) == 0:
+                    out[k][s - a:e - a] = v
+                elif knots is None:
+                    out[k][s - a:e - a] = v[s - lo:e - lo]
+                else:
+                    out[k][s - a:e - a] = np.interp(np.arange(s - lo, e - lo, dtype=float), knots, v)
+        return out
 
 
 def _coarse_models(models, k: int) -> list:
@@ -122,21 +182,19 @@ def _coarse_models(models, k: int) -> list:
     return out
 
 
-def _fill_interpolated(out: dict, dst: slice, sd: np.ndarray, knots: np.ndarray, sl: dict,
+def _fill_interpolated(out, dst: slice, sd: np.ndarray, knots: np.ndarray, sl: dict,
                        earth_W: np.ndarray) -> None:
-    """Fill ``out`` at ``dst`` (a move of L samples) from MuJoCo rows ``sd`` at the sample offsets ``knots``:
-    linear in time between them, the last interval ending at the closed-form sample ``dst.stop`` (module
-    doc); rows at every offset are copied as they are."""
+    """Record in ``out`` (:class:`TruthPieces`) the move of L samples at ``dst`` from MuJoCo rows ``sd`` at
+    the sample offsets ``knots``: linear in time between them, the last interval ending at the
+    closed-form sample ``dst.stop`` (module doc); rows at every offset are kept as they are."""
     L = dst.stop - dst.start
-    if knots.size == L:
-        _fill_from_sensordata(out, dst, sd, sl, earth_W)
-        return
-    fine = np.arange(L, dtype=float)
-    xk = np.append(knots, L).astype(float)
     w = sd[:, sl["w_C"]] + rotate_to_body(sd[:, sl["q_WC"]], earth_W)
-    for name, (sensor, j) in SIGNALS.items():
-        x = w[:, j] if sensor == "w_C" else sd[:, sl[sensor]][:, j]
-        out[name][dst] = np.interp(fine, xk, np.append(x, out[name][dst.stop]))
+    cols = {name: (w[:, j] if sensor == "w_C" else sd[:, sl[sensor]][:, j]) for name, (sensor, j) in SIGNALS.items()}
+    if knots.size == L:
+        out.move(dst.start, dst.stop, None, {k: v.copy() for k, v in cols.items()})
+        return
+    xk = np.append(knots, L).astype(float)
+    out.move(dst.start, dst.stop, xk, {k: np.append(v, out.value_at(dst.stop, k)) for k, v in cols.items()})
 
 
 def _plan(length: int, slew_end: int, k: int) -> list[tuple[int, int, int]]:

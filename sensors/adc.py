@@ -184,11 +184,12 @@ class DAQ6036E:
         return out, report
 
     def _convert_rows(self, j: int, name: str, a: int, b: int, analog: dict, common: np.ndarray, slope, held,
-                      held_next, rng, saturated: dict, tail=None) -> np.ndarray:
+                      held_next, rng, saturated: dict, tail=None, codes: bool = False) -> np.ndarray:
         """Rows a:b of scan slot j (channel ``name``): u = x + c_mode, the skew, the crosstalk from the
         previous slot (``held``: its input; the last channel's for j = 0), the slow tail (``tail``: its effect
         and r, :meth:`slow_tails`), the noise and the rounding (module doc). Stores this slot's input into
-        ``held_next`` (when given)."""
+        ``held_next`` (when given). Volts, or with ``codes`` the integer codes (int16 up to 16 bits;
+        volts = code * lsb_V)."""
         slot = 2 * j + 1 if self.ground_between else j
         u = analog[name][a:b] + common[a:b]
         if slope and name in slope:  # slot j is sampled j / f_mux after the scan starts
@@ -210,10 +211,12 @@ class DAQ6036E:
             u = xtalk.inject(u, ScanSlot(slot, self.mux_frequency_hz, prev))
         if tail is not None:
             u = tail[0].inject(u, ScanSlot(slot, self.mux_frequency_hz, tail[1][a:b]))
-        return self._quantise(u, rng, name, saturated)
+        return self._quantise(u, rng, name, saturated, codes)
 
-    def _quantise(self, u: np.ndarray, rng: np.random.Generator, name: str, saturated: dict) -> np.ndarray:
-        """Add the converter noise to ``u`` (a scratch array, overwritten) and quantise: volts (n,)."""
+    def _quantise(self, u: np.ndarray, rng: np.random.Generator, name: str, saturated: dict,
+                  codes: bool = False) -> np.ndarray:
+        """Add the converter noise to ``u`` (a scratch array, overwritten) and quantise: volts (n,), or
+        with ``codes`` the codes (int16 up to 16 bits, else int32; not with averaging)."""
         q = self.lsb_V
         lo, hi = -(2 ** (self.bits - 1)), 2 ** (self.bits - 1) - 1
         if self.averaging > 1:
@@ -234,6 +237,8 @@ class DAQ6036E:
         nsat = int(np.count_nonzero(u == lo) + np.count_nonzero(u == hi))
         if nsat:
             saturated[name] = saturated.get(name, 0) + nsat
+        if codes and self.averaging == 1:
+            return u.astype(np.int16 if self.bits <= 16 else np.int32)
         u *= q
         return u
 

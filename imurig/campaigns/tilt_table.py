@@ -5,6 +5,11 @@
       -> low-pass + 100 Hz -> per-position Huber M-estimates (the seed's medians: statistic="median")
       -> inverse-model least squares
       -> physical parameters vs injected truth -> report, summary.json, .rrd
+
+:meth:`TiltTableCampaign.simulate` gives the whole 1 kHz Recording (the whole-record chain,
+:meth:`imurig.sensors.chain.ImuLab.measure`); ``imurig campaign tilt-table`` streams the same campaign
+(:func:`imurig.campaigns.tilt_stream.stream_campaign`: bounded memory, ADC codes, the HDF5 file written
+as it goes), whose noise is drawn piece by piece: the same distributions, another realisation.
 """
 from __future__ import annotations
 
@@ -128,7 +133,7 @@ class TiltTableCampaign:
                     f"the '{model}' model of A_{a}: {e}", e.terms) from None
 
     def simulate(self) -> Recording:
-        """Simulate the campaign: 1 kHz Recording with truth."""
+        """Simulate the campaign: 1 kHz Recording with truth (the whole-record chain; see the module doc)."""
         self.check_identifiable()
         table, lab, ss = self.build()
         rig = table.simulate(self.protocol, self.start_time,

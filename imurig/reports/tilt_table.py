@@ -3,18 +3,25 @@
 Folder contents: ``report.md`` (seed-style tables and figures), ``summary.json`` (every
 estimated parameter as {name, unit, injected, estimate, std_error, z}), ``recording.h5``
 (the 1 kHz recording with truth), ``campaign.rrd`` (rerun), and PNG figures.
+
+:func:`run` streams the campaign (:mod:`imurig.campaigns.tilt_stream`): the 1 kHz record goes to
+``recording.h5`` piece by piece while its windows are low-passed for the analysis, so no array of the
+record's length is held; the figures are drawn in a second process beside the .rrd writer.
 """
 from __future__ import annotations
 
+import multiprocessing
 import resource
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
 import imurig
 from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
-from imurig.calibration.preprocess import lowpass_downsample
+from imurig.calibration.preprocess import lowpass_downsample, reuse_statistics
+from imurig.campaigns.tilt_stream import stream_campaign
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
 from imurig.kernel.errors import UnidentifiableTermsError
@@ -36,11 +43,19 @@ STATISTIC_WORDS = {"huber": "Huber M-estimates (k = 1.345, 95 % Gaussian efficie
 SEED_TABLE = {"linear": "4.4", "cross": "4.5", "seed_final": "4.6"}
 
 
-def analyse(rec: Recording, model: str = "physical", statistic: str = "huber") -> dict:
+def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
+            processed: Recording | None = None) -> dict:
     """All fits the report shows, on one recording (simulated or measured): the main model and the
     stepwise selections on the per-position ``statistic`` (huber, median or mean), the seed's
-    models (Tables 4.4-4.6) on the seed's per-position medians."""
-    rec100 = lowpass_downsample(rec, windows_only=True)  # only the windows are analysed (bounded memory)
+    models (Tables 4.4-4.6) on the seed's per-position medians. ``processed``: the low-passed 100 Hz
+    record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
+    # only the windows are analysed (bounded memory)
+    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True)
+    with reuse_statistics():   # the fits share their per-position statistics: each computed once
+        return _analyse(rec, rec100, model, statistic)
+
+
+def _analyse(rec: Recording, rec100: Recording, model: str, statistic: str) -> dict:
     out = {"rec100": rec100}
     out["main"] = calibrate(rec, model=model, processed=rec100, statistic=statistic)
     out["parameters"] = compare_with_truth(out["main"], rec.truth)
@@ -265,36 +280,75 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
     })
 
 
-#: each stage's share of the default campaign's time (fresh install, 2 cores: simulate 60 %, analyse 12 %,
-#: outputs 28 %, split among the output stages by their sizes): the progress bar's ETA
-STAGE_SHARES = {"simulate": 60, "analyse": 12, "figures": 6, "recording.h5": 14, "campaign.rrd": 6, "report": 2}
+#: each stage's share of the default campaign's time (simulate: with recording.h5 written as it goes): the
+#: progress bar's ETA
+STAGE_SHARES = {"simulate": 70, "analyse": 14, "figures": 8, "campaign.rrd": 6, "report": 2}
+
+
+def _figures_beside(out: OutputFolder, rec100: Recording, res: dict):
+    """Start :func:`make_figures` in a forked process (on a second core, beside the .rrd writer); returns
+    a function that waits for it and gives its figures (draws them here where fork is not available)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        figs = make_figures(out, rec100, res)
+        return lambda: figs
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_draw, args=(send, out, rec100, res), daemon=True)
+    child.start()
+    send.close()
+
+    def wait() -> dict:
+        try:
+            figs = recv.recv()
+        except EOFError:
+            figs = "the figure process ended without an answer"
+        child.join()
+        if not isinstance(figs, dict) or child.exitcode:
+            raise RuntimeError(f"drawing the figures failed: {figs}")
+        return figs
+    return wait
+
+
+def _draw(send, out: OutputFolder, rec100: Recording, res: dict) -> None:
+    try:
+        send.send(make_figures(out, rec100, res))
+    except Exception as e:  # reported by the parent, which fails the run
+        send.send(f"{type(e).__name__}: {e}")
+    finally:
+        send.close()
 
 
 def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
         save_recording: bool = True) -> dict:
     """Simulate, calibrate and report. Returns the summary dict."""
     out = OutputFolder(out_dir, overwrite=overwrite)
-    stages = ["simulate", "analyse", "figures"] + (["recording.h5"] if save_recording else []) + \
-        (["campaign.rrd"] if rrd else []) + ["report"]
+    stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + ["report"]
     with out:  # committed on success, removed on any error
         with StageBar(STAGE_SHARES, stages, "tilt-table campaign") as stage:
             t0 = time.perf_counter()
             stage("simulate")
-            rec = camp.simulate()
+            # streamed: the 1 kHz record goes to recording.h5 piece by piece; the analysis gets the 100 Hz windows
+            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
+            rec100 = sim.rec100
+            rec = SimpleNamespace(n=sim.n, n_segments=sim.n_segments, truth=sim.truth)
             t_sim = time.perf_counter() - t0
             t1 = time.perf_counter()
             stage("analyse")
-            res = analyse(rec, camp.model, camp.statistic)
+            res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
             t_cal = time.perf_counter() - t1
             t2 = time.perf_counter()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
-            figs = make_figures(out, rec, res)
-            files.update({f"figure_{k}": v for k, v in figs.items()})
+            figures = _figures_beside(out, rec100, res)   # drawn in a second process, beside the .rrd
             from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
-            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
+            products = save_products(out, rec100, res, write_rrd, False, rrd, stage)
+            figs = figures()
+            files.update({f"figure_{k}": v for k, v in figs.items()})
+            if save_recording:
+                files["recording"] = "recording.h5"
+            files.update(products)
             stage("report")
             t_out = time.perf_counter() - t2
             peak = peak_rss_bytes()

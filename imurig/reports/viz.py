@@ -276,8 +276,9 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
         body (its fixed orientation in the parent frame, e.g. a per-run IMU mounting) row by
         row. ``model`` is restored afterwards.
 
-    Forward kinematics runs ``mujoco.mj_kinematics`` once per row in a Python loop; that is
-    meant for display rates (10-25 Hz, T up to some 1e4), not for raw sensor rates.
+    Forward kinematics runs ``mujoco.mj_kinematics`` once per row in a Python loop (a row equal to
+    the one before takes its poses); that is meant for display rates (10-25 Hz, T up to some 1e4),
+    not for raw sensor rates.
     The relative pose is parent <- child: t = R_p^T (x_b - x_p), q = q_p^* q_b.
     """
     time_s = np.asarray(time_s, dtype=float)
@@ -297,6 +298,10 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     saved = {bid: model.body_quat[bid].copy() for bid in overrides}
     try:
         for k in range(T):
+            if k and np.array_equal(qpos[k], qpos[k - 1]) and all(np.array_equal(q[k], q[k - 1])
+                                                                   for q in overrides.values()):
+                xpos[k], xquat[k] = xpos[k - 1], xquat[k - 1]   # a rig at rest: the same pose again
+                continue
             for bid, q in overrides.items():
                 model.body_quat[bid] = q[k]
             data.qpos[:] = qpos[k]

@@ -1,0 +1,129 @@
+"""The tilt-table campaign streamed: rig rows -> sensor chain -> HDF5 file and 100 Hz windows, in pieces.
+
+    TiltTable.run (truth as pieces, :class:`imurig.rigs.tilt_table.TiltRun`)
+      -> measure_stream (:mod:`imurig.sensors.stream`, 2^18-row pieces, ADC codes)
+      -> sinks, piece by piece: the HDF5 recording (:class:`imurig.kernel.h5write.H5RowWriter`),
+         the low-pass in the acquisition windows and the 100 Hz decimation
+         (:class:`imurig.calibration.window_filter.WindowTap`), and optionally the whole record
+
+No 1 kHz array of the record's length is held but ``time_s`` while the windows are located. The 100 Hz
+record is what :func:`imurig.calibration.preprocess.lowpass_downsample` (``windows_only``) gives on the
+whole record, bit for bit, and the HDF5 file is what :func:`imurig.kernel.recording.save_h5` writes of it
+(read back by ``load_h5`` to the same values). A campaign the streamed chain does not model
+(:func:`imurig.sensors.stream.unsupported`) runs the whole-record chain instead, with the same outputs.
+"""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from imurig.calibration.preprocess import filter_design, lowpass_downsample
+from imurig.calibration.window_filter import WindowTap
+from imurig.kernel import random_streams
+from imurig.kernel.h5write import H5RowWriter
+from imurig.kernel.outputs import atomic_write
+from imurig.kernel.recording import Recording, save_h5
+from imurig.sensors.accelerometer import AXES
+from imurig.sensors.stream import measure_stream, unsupported
+
+FILTERED_UNITS = ("m/s^2", "rad/s", "T")
+
+
+class _Collect:
+    """A sink that keeps every piece: the whole record (for tests and small campaigns)."""
+
+    def __init__(self):
+        self.pieces = []
+
+    def rows(self, a, b, time_s, channels, codes, truth):
+        self.pieces.append((time_s, dict(channels), dict(codes), dict(truth)))
+
+    def recording(self, info: dict, drop: set) -> Recording:
+        q = info["quantum"]
+        cat = lambda i, n: np.concatenate([p[i][n] for p in self.pieces])  # noqa: E731
+        first = self.pieces[0]
+        channels = {n: cat(1, n) for n in first[1]}
+        channels.update({n: cat(2, n).astype(np.float64) * q[n] for n in first[2]})
+        truth = {n: cat(3, n) for n in first[3] if n not in drop}
+        return Recording(time_s=np.concatenate([p[0] for p in self.pieces]), channels=channels,
+                         units={n: info["units"][n] for n in channels}, segments=info["segments"],
+                         segment_units=info["segment_units"], meta=info["meta"], truth=info["truth"],
+                         truth_signals=truth, truth_units={n: info["truth_units"][n] for n in truth},
+                         channel_quantum={n: q[n] for n in first[2]})
+
+
+def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False) -> SimpleNamespace:
+    """Simulate the campaign ``camp`` (:class:`imurig.campaigns.tilt_table.TiltTableCampaign`) in pieces.
+
+    Returns rec100 (the 100 Hz record: low-passed in the windows, decimated elsewhere), n (1 kHz samples),
+    n_segments, truth, streamed (False: the whole-record chain ran, see ``why``) and ``recording`` (the
+    whole 1 kHz Recording with ``keep``, else None); writes the HDF5 recording to ``h5_path`` if given."""
+    camp.check_identifiable()
+    table, lab, ss = camp.build()
+    run = table.run(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", camp.seed))
+    why = unsupported(lab, run)
+    if why:
+        return _whole(camp, lab, run, ss, h5_path, overwrite, why)
+    frame = Recording(time_s=run.time_rows(0, run.n), channels={}, units={}, segments=run.segments)
+    k, sos, log = filter_design(frame.sample_rate_hz)
+    scan = list(lab.adc.scan_list)
+    setpoints = set(run.meta.get("setpoints", []))
+    chan_names = list(run.units) + [c for c in scan if c not in run.units]
+    truth_units = {**run.truth_units, "T_imu": "K"}
+    if lab.people.enabled:
+        truth_units.update({f"f_dist_C_{a}": "m/s^2" for a in AXES})
+    tap = WindowTap(frame, sos, k, chan_names, [n for n in chan_names if n not in setpoints], list(truth_units),
+                    [n for n, u in truth_units.items() if u in FILTERED_UNITS], {c: lab.adc.lsb_V for c in scan})
+    del frame
+    sinks = [tap] + ([_Collect()] if keep else [])
+    info = {}
+
+    def simulate(extra=()):
+        info.update(measure_stream(lab, run, ss, sinks + list(extra)))
+        info["meta"]["campaign"] = {"name": "tilt-table", **camp.to_dict()}
+        info["truth"]["seed"] = camp.seed
+        info.update(segments=run.segments, segment_units=run.segment_units)
+        return set() if info["f_dist_nonzero"] else {f"f_dist_C_{a}" for a in AXES if lab.people.enabled}
+
+    if h5_path is not None:
+        import h5py  # heavy: loaded when a file is written
+
+        def writer(tmp):
+            with h5py.File(tmp, "w") as f:
+                w = H5RowWriter(f, run.n, {c: ((np.int16, "V", lab.adc.lsb_V) if c in scan else
+                                               (np.float64, run.units[c], None)) for c in chan_names},
+                                truth_units, run.segments, run.segment_units)
+                try:
+                    drop = simulate([w])
+                    w.finish(info["meta"], info["truth"], sorted(drop))
+                finally:
+                    w.close()
+                info["drop"] = drop
+
+        atomic_write(h5_path, writer, overwrite)
+    else:
+        info["drop"] = simulate()
+    drop = info["drop"]
+    meta = dict(info["meta"])
+    meta["sample_rate_hz"] = log["to_hz"]
+    meta["preprocessing"] = list(meta.get("preprocessing", [])) + [{**log, "where": "segment windows"}]
+    tsig = {n: v for n, v in tap.truth.items() if n not in drop}
+    rec100 = Recording(time_s=tap.time_s, channels=tap.channels, units={n: info["units"][n] for n in chan_names},
+                       segments=dict(run.segments), segment_units=dict(run.segment_units), meta=meta,
+                       truth=info["truth"], truth_signals=tsig, truth_units={n: truth_units[n] for n in tsig})
+    return SimpleNamespace(rec100=rec100, n=run.n, n_segments=rec100.n_segments, truth=info["truth"],
+                           streamed=True, why=None,
+                           recording=sinks[1].recording(info, drop) if keep else None)
+
+
+def _whole(camp, lab, run, ss, h5_path, overwrite, why) -> SimpleNamespace:
+    """The whole-record chain (:meth:`imurig.sensors.chain.ImuLab.measure`) with the same outputs."""
+    rec = lab.measure(run.recording(), ss)
+    rec.meta["campaign"] = {"name": "tilt-table", **camp.to_dict()}
+    rec.truth["seed"] = camp.seed
+    if h5_path is not None:
+        save_h5(rec, h5_path, overwrite=overwrite)
+    rec100 = lowpass_downsample(rec, windows_only=True)
+    return SimpleNamespace(rec100=rec100, n=rec.n, n_segments=rec.n_segments, truth=rec.truth, streamed=False,
+                           why=why, recording=rec)

@@ -1,0 +1,311 @@
+"""The sensor chain of :mod:`imurig.sensors.chain`, streamed: rows in pieces of STREAM_CHUNK samples,
+memory bounded by the piece, not the record; the converter's output as integer codes.
+
+The same stages and the same physics as :meth:`imurig.sensors.chain.ImuLab.measure`, row piece by
+row piece:
+
+    rig rows (time, set-points, truth f_C, w_C, B_C ...)
+      specific_force: people transients (their resonator's state carried from piece to piece)
+      sensor:         Q-Flex triad (noise-free lines; their slopes from the neighbouring rows; the
+                      current-noise bands' shaping filters carried), fluxgate, temperature sensors
+      conversion:     DAQ-6036E: common mode, skew, crosstalk (slot 0 from the last slot of the
+                      previous scan, across pieces), noise, rounding  -> codes (int16), V = code * lsb
+      -> sinks: ``rows(a, b, time_s, channels, codes, truth_signals)`` for each piece, in order
+
+Every stage draws from its own stream (:func:`imurig.sensors.noise.child_rng`, the same names as the
+whole-record chain), piece by piece. The pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's
+definition: one seed gives the same data bit for bit. The draws come piece by piece (the whole-record
+chain takes some band by band or channel by channel over the whole record, others in 2^18-row pieces),
+so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
+
+:func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
+arm's terms, a thermal chamber, gyros, pump vibration in working hours, slip rings, a loose cable, the
+lab's own effects, GRSE hum, averaged logging.
+"""
+from __future__ import annotations
+
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import numpy as np
+from scipy import signal
+
+from imurig.kernel.site import parse_time
+from imurig.sensors.accelerometer import AXES
+from imurig.sensors.effects.base import ChainContext
+from imurig.sensors.effects.building_vibration import working_mask
+from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
+
+#: rows per piece (part of the data's definition: the streams are drawn piece by piece)
+STREAM_CHUNK = 1 << 16
+#: pieces whose front (rig rows, disturbances, sensor lines) is made ahead, in a worker thread
+AHEAD = 2
+#: people transients below this (m/s^2) are cut to 0 (:class:`_People`)
+RING_FLOOR = 1e-30
+
+
+def _hours(start, t: np.ndarray, t0: float) -> np.ndarray:
+    """Local hour of day of the samples ``t`` (s) of a record that starts at ``start`` (its first sample t0)."""
+    return (start.hour + start.minute / 60 + start.second / 3600 + (t - t0) / 3600.0) % 24.0
+
+
+def unsupported(lab, run) -> str | None:
+    """Why ``lab`` cannot stream the rig record ``run`` (a :class:`imurig.rigs.tilt_table.TiltRun`), or None."""
+    adc = lab.adc
+    scan = set(adc.scan_list)
+    if lab.effects:
+        return "the lab's own effects"
+    if lab.cable.enabled:
+        return "a loose cable"
+    if any(c.startswith("gyro_") for c in scan):
+        return "gyros in the scan list"
+    if lab.accelerometers.lever_arm().active:
+        return "the accelerometers' lever arm"
+    if adc.averaging != 1 or adc.bits > 16:
+        return "averaged logging or a converter of more than 16 bits"
+    if adc.grounding == "GRSE" and adc.ground_loop_V > 0:
+        return "GRSE mains hum"
+    if adc.channel_slow_settling:
+        return "a converter line's slow settling tail"
+    if run.events or run.meta.get("analog_lines"):
+        return "rig events or analog lines"
+    if lab.pump.enabled and _pump_on(lab.pump, run):
+        return "pump vibration in working hours"
+    return None
+
+
+def _pump_on(pump, run) -> bool:
+    """Whether any sample of ``run`` falls in the pump's working hours. Within a piece the hour grows with
+    the time: a piece whose [first, last] hours miss the working hours has no sample in them (a piece
+    across midnight is checked sample by sample)."""
+    start, t0 = parse_time(run.meta["start_time"]), float(run.time_rows(0, 1)[0])
+    for a in range(0, run.n, STREAM_CHUNK):
+        b = min(run.n, a + STREAM_CHUNK)
+        h0, h1 = _hours(start, run.time_rows(a, a + 1), t0)[0], _hours(start, run.time_rows(b - 1, b), t0)[0]
+        if h1 >= h0 and (h1 < pump.work_start_h or h0 >= pump.work_stop_h):
+            continue
+        if working_mask(_hours(start, run.time_rows(a, b), t0), pump.work_start_h, pump.work_stop_h).any():
+            return True
+    return False
+
+
+@dataclass
+class _Noise:
+    """The accelerometers' current noise (n, 3) A, piece by piece: each sampled band's white draws
+    through its shaping filter, whose state is carried (:func:`imurig.sensors.noise.add_band_noise`)."""
+
+    bands: list
+    fs: float
+    rng: np.random.Generator
+    state: list = field(default_factory=list)
+
+    def __post_init__(self):
+        self.filters = []
+        for lo, hi, rms in self.bands:
+            sos = _shaping_filter(self.fs, (lo, hi))
+            scale = rms if sos is None else rms / np.sqrt(band_power_gain(self.fs, (lo, hi)))
+            self.filters.append((sos, scale))
+            self.state.append(None if sos is None else np.zeros((sos.shape[0], 2, 3)))
+
+    def rows(self, m: int) -> np.ndarray:
+        out = np.zeros((m, 3))
+        for i, (sos, scale) in enumerate(self.filters):
+            y = self.rng.standard_normal((m, 3))
+            if sos is not None:
+                y, self.state[i] = signal.sosfilt(sos, y, axis=0, zi=self.state[i])
+            out += y * scale
+        return out
+
+
+@dataclass
+class _People:
+    """People transients (:class:`imurig.sensors.effects.people_transients.PeopleTransients`), piece by piece:
+    per piece the Bernoulli draws, then the events' directions and sizes; the resonator's state carried."""
+
+    eff: object
+    fs: float
+    rng: np.random.Generator | None
+    zi: np.ndarray | None = None
+
+    def rows(self, hour: np.ndarray) -> np.ndarray | None:
+        e = self.eff
+        m = hour.size
+        if not e.enabled or e.frequency_hz >= self.fs / 2:
+            return None
+        on = working_mask(hour, e.work_start_h, e.work_stop_h)
+        rate = np.where(on, e.rate_per_hour_working, e.rate_per_hour_evening) / 3600.0 / self.fs
+        events = np.flatnonzero(self.rng.random(m) < rate)
+        impulses = np.zeros((m, 3))
+        if events.size:
+            d = self.rng.normal(size=(events.size, 3))
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            impulses[events] = d * np.abs(self.rng.normal(0, e.peak_m_s2, size=(events.size, 1)))
+        r, w = e.resonator(self.fs)
+        b, a = [0.0, r * np.sin(w)], [1.0, -2 * r * np.cos(w), r * r]
+        if self.zi is None:
+            self.zi = np.zeros((2, 3))
+        if not events.size and not np.any(self.zi):
+            return None
+        y, self.zi = signal.lfilter(b, a, impulses, axis=0, zi=self.zi)
+        # the ring below RING_FLOOR is cut: no physical meaning, and it keeps the arithmetic of every later
+        # stage off subnormal numbers (~100x slower), which a decay over a 2^16-row piece reaches
+        y[np.abs(y) < RING_FLOOR] = 0.0
+        self.zi[np.abs(self.zi) < RING_FLOOR] = 0.0
+        return y
+
+
+def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
+    """Stream the sensor chain of ``lab`` over the rig record ``run`` into ``sinks`` (module doc).
+
+    Each sink's ``rows(a, b, time_s, channels, codes, truth_signals)`` gets the samples [a, b): the
+    rig's set-point channels (float64), the converter's codes per scanned channel (int16; volts = code *
+    ``lsb_V``) and the truth signals (float64: the rig's, ``T_imu``, and ``f_dist_C_*`` when a
+    disturbance is on). Returns {meta, truth, units, quantum, truth_units, f_dist_nonzero}: the
+    record's metadata and truth as :meth:`ImuLab.measure` writes them.
+    """
+    why = unsupported(lab, run)
+    if why:
+        raise ValueError(f"the streamed sensor chain does not model {why}; use ImuLab.measure")
+    adc = lab.adc.validate()
+    fs = float(run.meta["sample_rate_hz"])
+    start, t0 = parse_time(run.meta["start_time"]), float(run.time_rows(0, 1)[0])
+    acc = lab.accelerometers
+    scan = adc.scan_list
+    people = _People(lab.people, fs, child_rng(seed, lab.people.stream) if lab.people.enabled else None)
+    noise = _Noise(sampled_bands(acc.current_noise(averaged=bool(run.meta.get("averaged_logging"))).bands, fs,
+                                 bool(run.meta.get("averaged_logging"))) if acc.noise_enabled else [],
+                   fs, child_rng(seed, "accelerometers"))
+    rngs = {"magnetometer": child_rng(seed, "magnetometer"), "adc": child_rng(seed, "adc")}
+    rngs.update({k: child_rng(seed, k) for k in lab.temp_sensors if k in scan})
+    sens = dict(zip((f"acc_{a}" for a in AXES), acc.nominal_sensitivity_V_per_m_s2()))
+    state = SimpleNamespace(saturated={}, last_in=None, f_dist_nonzero=False)
+    pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
+    # the fronts run ahead in one worker thread (their streams drawn in piece order), the backs here
+    with ThreadPoolExecutor(1) as pool:
+        fronts = deque(pool.submit(_front, lab, run, p, people, rngs, start, t0, fs, sens) for p in pieces[:AHEAD])
+        prev, cur = None, fronts.popleft().result()
+        for i, _ in enumerate(pieces):
+            if i + AHEAD < len(pieces):
+                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, rngs, start, t0, fs, sens))
+            nxt = fronts.popleft().result() if fronts else None
+            _emit(lab, sinks, prev, cur, nxt, noise, rngs["adc"], state)
+            prev, cur = cur, nxt
+    report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
+    rig = SimpleNamespace(meta=run.meta, truth=run.truth, events={}, truth_signals={})
+    used = [g for p, g in (("acc", "accelerometers"), ("mag", "magnetometer")) if any(c.startswith(p + "_") for c in scan)]
+    units = {**run.units, **{k: "V" for k in scan}}
+    truth_units = {**run.truth_units, "T_imu": "K", **{f"f_dist_C_{a}": "m/s^2" for a in AXES}}
+    return {"meta": lab._meta(rig, report), "truth": lab._truth(rig, seed, used), "units": units,
+            "quantum": {k: adc.lsb_V for k in scan}, "truth_units": truth_units,
+            "f_dist_nonzero": state.f_dist_nonzero}
+
+
+def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
+    """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
+    codes = _back(lab, prev, cur, nxt, noise, rng, state)
+    truth = dict(cur.truth)
+    truth["T_imu"] = cur.T
+    if cur.f_dist is not None or lab.people.enabled:
+        f = cur.f_dist if cur.f_dist is not None else np.zeros((cur.t.size, 3))
+        state.f_dist_nonzero |= bool(np.any(f))
+        truth.update({f"f_dist_C_{a}": f[:, j] for j, a in enumerate(AXES)})
+    for s in sinks:
+        s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
+
+
+def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespace:
+    """One piece's rig rows, disturbances, temperatures and the lines that need no neighbours: the
+    accelerometers' noise-free volts, the fluxgate's and the temperature sensors' volts."""
+    a, b = piece
+    t = run.time_rows(a, b)
+    ts = run.truth_rows(a, b)
+    hour = _hours(start, t, t0)
+    f_dist = people.rows(hour) if people.rng is not None else None
+    c = lab.climate
+    T = 273.15 + c.temperature_C + c.self_heating_K + c.drift_C_per_h * (t - t0) / 3600
+    scan = set(lab.adc.scan_list)
+    lines, slope_src = {}, {}
+    if any(f"acc_{x}" in scan for x in AXES):
+        f = np.stack([ts[f"f_C_{x}"] for x in AXES], axis=1)
+        if f_dist is not None:
+            f += f_dist
+        # without a drift the temperature is one value: a scalar (the same arithmetic, fewer operations)
+        v = lab.accelerometers.ideal_voltage(f, float(T[0]) if c.drift_C_per_h == 0 else T, 0.0)
+        for j, x in enumerate(AXES):
+            slope_src[f"acc_{x}"] = v[:, j]
+    if any(f"mag_{x}" in scan for x in AXES):
+        B_C = np.stack([ts[f"B_C_{x}"] for x in AXES], axis=1)
+        v = lab.magnetometer.output_voltage(B_C, rngs["magnetometer"], T)
+        for j, x in enumerate(AXES):
+            slope_src[f"mag_{x}"] = v[:, j]
+    for name, sensor in lab.temp_sensors.items():
+        if name in scan:
+            lines[name] = sensor.voltage(T, rngs[name])
+    return SimpleNamespace(a=a, b=b, t=t, truth=ts, channels=run.channel_rows(a, b), f_dist=f_dist, T=T,
+                           lines=lines, slope_src=slope_src)
+
+
+def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
+    """The piece's slopes (from its neighbours' rows), the accelerometers' noise, and the conversion: codes."""
+    analog, slope = dict(cur.lines), {}
+    lo = prev is not None
+    t = np.concatenate(([prev.t[-1:]] if lo else []) + [cur.t] + ([nxt.t[:1]] if nxt else []))
+    grad = _Gradient(t)
+    for name, v in cur.slope_src.items():
+        x = np.concatenate(([prev.slope_src[name][-1:]] if lo else []) + [v] + ([nxt.slope_src[name][:1]] if nxt else []))
+        slope[name] = grad(x)[int(lo):int(lo) + v.size]
+        analog[name] = v
+    if any(n.startswith("acc_") for n in analog):
+        nz = noise.rows(cur.t.size) if noise.filters else None
+        R = lab.accelerometers.load_resistor_ohm
+        for j, x in enumerate(AXES):
+            if f"acc_{x}" in analog and nz is not None:
+                analog[f"acc_{x}"] = analog[f"acc_{x}"] + nz[:, j] * R[j]
+    return _convert(lab.adc, analog, slope, rng, state)
+
+
+class _Gradient:
+    """np.gradient(x, t) (second-order central differences inside, first-order at the ends), its
+    coefficients computed once for the sample times ``t`` and used for every line: the same values."""
+
+    def __init__(self, t: np.ndarray):
+        dx = np.diff(t)
+        self.dx = dx
+        d1, d2 = dx[:-1], dx[1:]
+        self.a = -d2 / (d1 * (d1 + d2))
+        self.b = (d2 - d1) / (d1 * d2)
+        self.c = d1 / (d2 * (d1 + d2))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        out = np.empty_like(x)
+        out[1:-1] = self.a * x[:-2] + self.b * x[1:-1] + self.c * x[2:]
+        out[0] = (x[1] - x[0]) / self.dx[0]
+        out[-1] = (x[-1] - x[-2]) / self.dx[-1]
+        return out
+
+
+def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
+    """The converter over one piece (:meth:`imurig.sensors.adc.DAQ6036E.convert`, row for row): codes per
+    channel. Slot 0's crosstalk takes the last slot's input of the previous scan, across pieces."""
+    m = next(iter(analog.values())).size
+    common = adc.common_mode.common(np.zeros(m), rng)
+    last = adc.scan_list[-1]
+    ext = state.last_in is not None
+    if ext:  # one leading row: the previous piece's last scan (only slot 0's crosstalk reads it)
+        analog = {k: np.concatenate(([state.last_in[0]] if k == last else [0.0], v)) for k, v in analog.items()}
+        slope = {k: np.concatenate(([0.0], v)) for k, v in slope.items()}
+        common = np.concatenate(([state.last_in[1]], common))
+    a, b = int(ext), int(ext) + m
+    out, held = {}, None
+    for j, name in enumerate(adc.scan_list):
+        nxt = adc.scan_list[j + 1] if j + 1 < len(adc.scan_list) else None
+        keep = nxt is not None and not adc.ground_between and \
+            adc.channel_crosstalk(nxt).coefficient(adc.mux_frequency_hz) > 0
+        held_next = np.empty(b) if keep else None
+        out[name] = adc._convert_rows(j, name, a, b, analog, common, slope, held, held_next, rng, state.saturated,
+                                      codes=True)
+        held = held_next
+    state.last_in = (analog[last][-1], common[-1])
+    return out

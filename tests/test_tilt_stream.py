@@ -1,0 +1,108 @@
+"""The streamed tilt-table campaign (imurig.campaigns.tilt_stream, imurig.sensors.stream): its HDF5 file,
+its 100 Hz windows and its truth are what the whole-record tools make of the same record, bit for bit;
+one seed gives one data set; its noise has the whole-record chain's size."""
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from imurig.calibration.preprocess import lowpass_downsample
+from imurig.campaigns.tilt_stream import stream_campaign
+from imurig.campaigns.tilt_table import TiltTableCampaign
+from imurig.kernel import random_streams
+from imurig.kernel.h5stream import h5_info
+from imurig.kernel.recording import load_h5, save_h5
+from imurig.rigs.tilt_table import TiltTableProtocol
+from imurig.sensors.stream import STREAM_CHUNK
+
+# ~80k samples: two pieces, fast slews (MuJoCo rows at every sample) and a remount gap
+SMALL = TiltTableProtocol(theta_deg=(0, 90), phi_deg=(0, 120, 240), dwell_s=1.0, settle_s=0.5, slew_rate_deg_s=30.0)
+
+
+def _same(a, b):
+    assert sorted(a.channels) == sorted(b.channels) and sorted(a.truth_signals) == sorted(b.truth_signals)
+    assert np.array_equal(a.time_s, b.time_s)
+    for k in a.channels:
+        assert np.array_equal(a.channels[k], b.channels[k]), k
+    for k in a.truth_signals:
+        assert np.array_equal(a.truth_signals[k], b.truth_signals[k]), k
+    assert a.units == b.units and a.truth_units == b.truth_units
+
+
+@pytest.fixture(scope="module")
+def streamed(tmp_path_factory):
+    path = tmp_path_factory.mktemp("stream") / "recording.h5"
+    camp = TiltTableCampaign(protocol=SMALL, model="linear", people=True)
+    return camp, path, stream_campaign(camp, path, keep=True)
+
+
+def test_streamed_record_spans_pieces_and_keeps_the_rig_truth(streamed):
+    camp, _, s = streamed
+    assert s.streamed and s.n > STREAM_CHUNK
+    table, _, _ = camp.build()
+    rig = table.simulate(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", camp.seed))
+    rec = s.recording
+    assert np.array_equal(rec.time_s, rig.time_s)
+    for k, v in rig.truth_signals.items():
+        assert np.array_equal(rec.truth_signals[k], v), k
+    for k, v in rig.channels.items():
+        assert np.array_equal(rec.channels[k], v), k
+    q = rec.meta["adc"]["lsb_V"]
+    for k in camp.scan_list:   # converter output on its grid, as codes
+        assert rec.channel_quantum[k] == q and np.array_equal(np.round(rec.channels[k] / q) * q, rec.channels[k])
+
+
+def test_streamed_windows_equal_the_whole_record_filter(streamed):
+    _, _, s = streamed
+    ref = lowpass_downsample(s.recording, windows_only=True)
+    _same(s.rec100, ref)
+    assert s.rec100.meta == ref.meta
+
+
+def test_streamed_h5_is_what_save_h5_writes(streamed, tmp_path):
+    _, path, s = streamed
+    _same(load_h5(path), s.recording)
+    save_h5(s.recording, tmp_path / "ref.h5")
+    with h5py.File(path) as a, h5py.File(tmp_path / "ref.h5") as b:
+        for k in ("format", "version", "meta", "truth"):
+            assert a.attrs[k] == b.attrs[k], k
+
+        def layout(f):
+            out = {}
+            f.visititems(lambda n, o: out.update({n: (o.dtype.str, sorted(o.attrs.items()))})
+                         if isinstance(o, h5py.Dataset) else None)
+            return out
+        assert layout(a) == layout(b)
+        assert a["channels/acc_x"].compression == "gzip" and a["channels/acc_x"].shuffle
+    assert h5_info(path)["samples"] == s.n
+
+
+def test_one_seed_one_data_set():
+    camp = TiltTableCampaign(protocol=SMALL, model="linear", seed=7)
+    a, b = (stream_campaign(camp, keep=True).recording for _ in range(2))
+    _same(a, b)
+    c = stream_campaign(TiltTableCampaign(protocol=SMALL, model="linear", seed=8), keep=True).recording
+    assert not np.array_equal(a.channels["acc_x"], c.channels["acc_x"])
+
+
+def test_streamed_noise_has_the_whole_chain_size(streamed):
+    """Per channel, the scatter about each window's mean: the streamed and the whole-record chain draw
+    different realisations of the same noise, so the pooled sd agree within 4 standard errors
+    (sd of a pooled sd ~ sd / sqrt(2 N), the two independent)."""
+    camp, _, s = streamed
+    whole = camp.simulate()
+    for k in camp.scan_list:
+        sds = []
+        for rec in (s.recording, whole):
+            x = np.concatenate([rec.channels[k][sl] - rec.channels[k][sl].mean() for sl in rec.segment_slices()])
+            sds.append((x.std(), x.size))
+        (s1, n), (s2, _) = sds
+        assert abs(s1 / s2 - 1) < 4 * np.sqrt(2 / (2 * n)), (k, s1, s2)
+
+
+def test_what_the_stream_does_not_model_runs_the_whole_chain():
+    camp = TiltTableCampaign(protocol=SMALL, model="linear", loose_cable=True)
+    s = stream_campaign(camp)
+    assert not s.streamed and "loose cable" in s.why
+    _same(s.recording, camp.simulate())
