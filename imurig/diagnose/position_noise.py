@@ -36,6 +36,11 @@ The earlier **level-group** model (``phase=False``): per position i in level gro
   independent from position to position), at least s_d^2 / K^2.
 
 Where sigma_g^2 < 1 % of sigma_r^2 (a fine converter) the default white noise is kept.
+
+The model is returned as a :class:`SharedNoise`, which carries its covariance beside the draws: the
+engine simulates its threshold with the draws and gives the refitted parameters standard errors from
+the covariance (:func:`imurig.diagnose.engine._model_std_errors`), so positions that share one
+rounding error are not counted as independent observations of it.
 """
 from __future__ import annotations
 
