@@ -53,6 +53,7 @@ class Finding:
     rms_before: float | None = None                  # residual RMS before / after the effect joined the
     rms_after: float | None = None                   # model, in the engine's (possibly whitened) space
     whitened: bool = False
+    std_error_model: str = "OLS"                     # what the parameters' standard errors assume
 
     def to_dict(self) -> dict:
         return {"effect": self.name, "physics": self.physics, "scan": None if self.scan_name is None else
@@ -61,7 +62,7 @@ class Finding:
                 "variance_share": self.variance_share, "cv_rms_before": self.cv_before, "cv_rms_after": self.cv_after,
                 "bic_before": self.bic_before, "bic_after": self.bic_after, "indistinguishable_from": self.runner_up,
                 "rms_before": self.rms_before, "rms_after": self.rms_after,
-                "rms_unit": "whitened" if self.whitened else "observable"}
+                "rms_unit": "whitened" if self.whitened else "observable", "std_error_model": self.std_error_model}
 
 
 def _jsonable(v):
@@ -181,6 +182,8 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     relative) whiten a heteroscedastic noise model first: y, X0 and every candidate's columns
     are multiplied by sqrt(weights), and all statistics are computed in that whitened space.
     ``cov`` (m, m), relative, does the same for correlated errors (whitening by its Cholesky factor).
+    A ``noise`` with a ``covariance`` (m, m) leaves the estimates OLS but gives their standard
+    errors from that covariance (:func:`_model_std_errors`).
     """
     y, X0, candidates = _whitened(y, X0, candidates, weights, cov)
     before = _fit(X0, y, list(names0))
@@ -192,12 +195,35 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     if len(findings) > 1:
         findings, X, names = _recheck_jointly(findings, y, X0, names0, candidates, rng, alpha, n_sim, noise)
     after = _fit(X, y, names)
+    S = getattr(noise, "covariance", None)
+    if S is not None and weights is None and cov is None and findings:
+        # the noise model's errors are correlated (positions sharing a rounding error): OLS standard
+        # errors would count the positions as independent observations
+        se = dict(zip(names, _model_std_errors(X, y, S)))
+        for f in findings:
+            f.params = {c: (v[0], se[c]) for c, v in f.params.items()}
+            f.std_error_model = "noise model's covariance"
     # what is left: is the remaining residual white and at the noise floor?
     r = after.residuals_
     lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1]) if r.size > 3 else float("nan")
     unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1,
                    "white": bool(abs(lag1) < 2.5 / np.sqrt(max(r.size, 1)))}
     return Diagnosis(names0, findings, before, after, unexplained)
+
+
+def _model_std_errors(X: np.ndarray, y: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Standard errors of the OLS coefficients b = P y (P = X^+) when the errors' covariance is
+    s^2 S (S known up to the scale, e.g. the position noise model's shared rounding errors):
+
+        cov(b) = s^2 P S P^T,    s^2 = r^T r / tr(M S),    M = I - X P,
+
+    s^2 unbiased since E(r^T r) = s^2 tr(M S). With S = I this is the OLS standard error."""
+    X, y, S = np.asarray(X, float), np.asarray(y, float), np.asarray(S, float)
+    P = np.linalg.pinv(X)
+    r = y - X @ (P @ y)
+    M = np.eye(y.size) - X @ P
+    s2 = float(r @ r) / float(np.sum(M * S.T))
+    return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", P, S, P) * s2, 0.0))
 
 
 def _whitened(y, X0, candidates, weights, cov):

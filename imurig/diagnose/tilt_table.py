@@ -15,7 +15,8 @@ ADC's grid at up to ~400 Hz, :func:`position_statistic`). Two levels are examine
    - ``saturation``: a clip of the channel, the hinge max(y - L, 0) of the reference (limit in V
      refitted from the clipped codes).
    Where the ADC step is coarse, positions at one level share the rounding error of their medians;
-   the engine's threshold is simulated with it (:mod:`imurig.diagnose.position_noise`).
+   the engine's threshold is simulated with it and the refitted parameters' standard errors come
+   from its covariance (:mod:`imurig.diagnose.position_noise`).
 2. **Within-position scatter** (per axis): the spread of the 100 Hz samples around each
    position's median; each scatter effect runs its own test on a ``ScatterView``:
    - ``building_vibration``: the spectrum holds a narrow peak (the pump's frequency), located
