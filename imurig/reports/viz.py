@@ -296,11 +296,15 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     T, nb = len(time_s), model.nbody
     xpos, xquat = np.empty((T, nb, 3)), np.empty((T, nb, 4))
     saved = {bid: model.body_quat[bid].copy() for bid in overrides}
+    # rows equal to the one before (a rig at rest) take its poses: one comparison over the whole record
+    same = np.zeros(T, dtype=bool)
+    same[1:] = (qpos[1:] == qpos[:-1]).all(axis=1)
+    for q in overrides.values():
+        same[1:] &= (q[1:] == q[:-1]).all(axis=1)
     try:
         for k in range(T):
-            if k and np.array_equal(qpos[k], qpos[k - 1]) and all(np.array_equal(q[k], q[k - 1])
-                                                                   for q in overrides.values()):
-                xpos[k], xquat[k] = xpos[k - 1], xquat[k - 1]   # a rig at rest: the same pose again
+            if same[k]:
+                xpos[k], xquat[k] = xpos[k - 1], xquat[k - 1]
                 continue
             for bid, q in overrides.items():
                 model.body_quat[bid] = q[k]
