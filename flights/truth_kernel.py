@@ -40,17 +40,15 @@ _A2 = A_M ** 2
 
 
 @numba.njit(cache=True, nogil=True)
-def _radii(lat):
-    """:func:`imurig.flights.earth.radii` of one latitude: (R_N, R_E)."""
-    s = math.sin(lat)
+def _radii(s):
+    """:func:`imurig.flights.earth.radii` of one latitude φ, given sin φ: (R_N, R_E)."""
     w = 1.0 - E2 * (s * s)
     return A_M * (1.0 - E2) / w ** 1.5, A_M / math.sqrt(w)
 
 
 @numba.njit(cache=True, nogil=True)
-def _gravity(lat, h):
-    """:func:`imurig.flights.earth.normal_gravity` γ(φ, h)."""
-    s = math.sin(lat)
+def _gravity(s, h):
+    """:func:`imurig.flights.earth.normal_gravity` γ(φ, h), given sin φ."""
     s2 = s * s
     g0 = GAMMA_E_M_S2 * (1.0 + K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
     return g0 * (1.0 - 2.0 / A_M * (1.0 + F + M_GEODETIC - 2.0 * F * s2) * h + 3.0 * (h * h) / _A2)
@@ -77,11 +75,11 @@ def geodetic_track(v_N, dt, lat0, lon0, h0):
     _cumtrapz(y, dt, h0, h)
     for _ in range(4):
         for k in range(n):
-            R_N, _R_E = _radii(lat[k])
+            R_N, _R_E = _radii(math.sin(lat[k]))
             y[k] = v_N[k, 0] / (R_N + h[k])
         _cumtrapz(y, dt, lat0, lat)
     for k in range(n):
-        _R_N, R_E = _radii(lat[k])
+        _R_N, R_E = _radii(math.sin(lat[k]))
         y[k] = v_N[k, 1] / ((R_E + h[k]) * math.cos(lat[k]))
     _cumtrapz(y, dt, lon0, lon)
     return lat, lon, h
@@ -167,11 +165,12 @@ def held_terms(lat, lon, h, v_N, a_N, q_NB, w_NB_B, wdot_NB_B, rate_hz, zoh, lev
     for k in range(n):
         _unit_q(q_NB, k, q, C)
         la, hk, vn, ve, vd = lat[k], h[k], v_N[k, 0], v_N[k, 1], v_N[k, 2]
-        R_N, R_E = _radii(la)
-        ie0, ie2 = OMEGA_E_RAD_S * math.cos(la), OMEGA_E_RAD_S * -math.sin(la)
+        sin_la, cos_la = math.sin(la), math.cos(la)     # each evaluated once, as the numpy path's values
+        R_N, R_E = _radii(sin_la)
+        ie0, ie2 = OMEGA_E_RAD_S * cos_la, OMEGA_E_RAD_S * -sin_la
         en0, en1, en2 = ve / (R_E + hk), -vn / (R_N + hk), -ve * math.tan(la) / (R_E + hk)
         c0, c1, c2 = _cross(2 * ie0 + en0, 2 * (OMEGA_E_RAD_S * 0.0) + en1, 2 * ie2 + en2, vn, ve, vd)
-        fn0, fn1, fn2 = a_N[k, 0] + c0 - 0.0, a_N[k, 1] + c1 - 0.0, a_N[k, 2] + c2 - _gravity(la, hk)
+        fn0, fn1, fn2 = a_N[k, 0] + c0 - 0.0, a_N[k, 1] + c1 - 0.0, a_N[k, 2] + c2 - _gravity(sin_la, hk)
         fb0, fb1, fb2 = _body(C, fn0, fn1, fn2)
         wh0, wh1, wh2 = w_NB_B[k, 0], w_NB_B[k, 1], w_NB_B[k, 2]
         if zoh:
@@ -191,7 +190,7 @@ def held_terms(lat, lon, h, v_N, a_N, q_NB, w_NB_B, wdot_NB_B, rate_hz, zoh, lev
             w_IB[k, 0], w_IB[k, 1], w_IB[k, 2] = wh0 + b0, wh1 + b1, wh2 + b2
         f_B[k, 0], f_B[k, 1], f_B[k, 2] = fb0, fb1, fb2
         d0, d1, d2 = C[0] * l0 + C[1] * l1 + C[2] * l2, C[3] * l0 + C[4] * l1 + C[5] * l2, C[6] * l0 + C[7] * l1 + C[8] * l2
-        mlat[k], mlon[k], mh[k] = la + d0 / (R_N + hk), lon[k] + d1 / ((R_E + hk) * math.cos(la)), hk - d2
+        mlat[k], mlon[k], mh[k] = la + d0 / (R_N + hk), lon[k] + d1 / ((R_E + hk) * cos_la), hk - d2
     return q, f_B, w_IB, mlat, mlon, mh
 
 
