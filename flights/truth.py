@@ -143,7 +143,8 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
     la0, lo0, hh0 = offset_position(np.array([lat0 * DEG]), np.array([lon0 * DEG]), np.array([float(h0)]),
                                     kin.p_N[:1])
     if compiled:   # one compiled pass (flights/truth_kernel.py), the numpy path's maths to the last bits
-        lat, lon, h = truth_kernel.geodetic_track(np.asarray(kin.v_N, float), dt, float(la0[0]), float(lo0[0]), float(hh0[0]))
+        lat, lon, h = truth_kernel.geodetic_track(np.asarray(kin.v_N, float), dt, float(la0[0]), float(lo0[0]),
+                                                  float(hh0[0]))
         q, f_B, w_IB_B, mlat, mlon, mh = truth_kernel.held_terms(
             lat, lon, h, *(np.asarray(x, float) for x in (kin.v_N, kin.a_N, kin.q_NB, kin.w_NB_B, kin.wdot_NB_B)),
             float(kin.rate_hz), bool(zoh), np.asarray(lever_mag_B, float))

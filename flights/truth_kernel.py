@@ -167,14 +167,18 @@ def held_terms(lat, lon, h, v_N, a_N, q_NB, w_NB_B, wdot_NB_B, rate_hz, zoh, lev
         la, hk, vn, ve, vd = lat[k], h[k], v_N[k, 0], v_N[k, 1], v_N[k, 2]
         sin_la, cos_la = math.sin(la), math.cos(la)     # each evaluated once, as the numpy path's values
         R_N, R_E = _radii(sin_la)
+        # ω_IE_N = Ω [cos φ, 0, −sin φ] (its zero east term kept below: the numpy path's sums), ω_EN_N
         ie0, ie2 = OMEGA_E_RAD_S * cos_la, OMEGA_E_RAD_S * -sin_la
         en0, en1, en2 = ve / (R_E + hk), -vn / (R_N + hk), -ve * math.tan(la) / (R_E + hk)
+        # f_N = dv_N/dt + (2 ω_IE_N + ω_EN_N) × v_N − [0, 0, γ],  f_B = C_NBᵀ f_N
         c0, c1, c2 = _cross(2 * ie0 + en0, 2 * (OMEGA_E_RAD_S * 0.0) + en1, 2 * ie2 + en2, vn, ve, vd)
         fn0, fn1, fn2 = a_N[k, 0] + c0 - 0.0, a_N[k, 1] + c1 - 0.0, a_N[k, 2] + c2 - _gravity(sin_la, hk)
         fb0, fb1, fb2 = _body(C, fn0, fn1, fn2)
         wh0, wh1, wh2 = w_NB_B[k, 0], w_NB_B[k, 1], w_NB_B[k, 2]
-        if zoh:
-            wh0, wh1, wh2 = wh0 + wdot_NB_B[k, 0] / rate_hz, wh1 + wdot_NB_B[k, 1] / rate_hz, wh2 + wdot_NB_B[k, 2] / rate_hz
+        if zoh:   # the rate held over the step, the body-frame mean of f, the inertial rate log(exp ζ exp a)
+            wh0 = wh0 + wdot_NB_B[k, 0] / rate_hz
+            wh1 = wh1 + wdot_NB_B[k, 1] / rate_hz
+            wh2 = wh2 + wdot_NB_B[k, 2] / rate_hz
             fb0, fb1, fb2 = _held_mean(wh0 * dt, wh1 * dt, wh2 * dt, fb0, fb1, fb2)
             if k < n - 1:
                 z0, z1, z2 = _nav_turn(la, lon[k], lat[k + 1], lon[k + 1], dt)
@@ -189,7 +193,9 @@ def held_terms(lat, lon, h, v_N, a_N, q_NB, w_NB_B, wdot_NB_B, rate_hz, zoh, lev
             b0, b1, b2 = _body(C, ie0 + en0, OMEGA_E_RAD_S * 0.0 + en1, ie2 + en2)
             w_IB[k, 0], w_IB[k, 1], w_IB[k, 2] = wh0 + b0, wh1 + b1, wh2 + b2
         f_B[k, 0], f_B[k, 1], f_B[k, 2] = fb0, fb1, fb2
-        d0, d1, d2 = C[0] * l0 + C[1] * l1 + C[2] * l2, C[3] * l0 + C[4] * l1 + C[5] * l2, C[6] * l0 + C[7] * l1 + C[8] * l2
+        d0 = C[0] * l0 + C[1] * l1 + C[2] * l2     # C_NB l_mag (matmul's order)
+        d1 = C[3] * l0 + C[4] * l1 + C[5] * l2
+        d2 = C[6] * l0 + C[7] * l1 + C[8] * l2
         mlat[k], mlon[k], mh[k] = la + d0 / (R_N + hk), lon[k] + d1 / ((R_E + hk) * cos_la), hk - d2
     return q, f_B, w_IB, mlat, mlon, mh
 
