@@ -15,8 +15,9 @@ shared library that the ``mujoco`` package ships), with the addresses of the MjM
 Python bindings hold (``._address``); the state is read from and the forces written to the
 bindings' numpy views of that same memory (``qpos``, ``qvel``, ``xfrc_applied``).
 
-Cost: ~0.3 CPU-s to import numba (paid once per process, at import), ~0.1 CPU-s to load the cached
-machine code on the first call; on the first run after an install or an edit ~2 CPU-s of
+Cost: ~0.3 CPU-s to import numba (paid once per process, at import), ~0.25 CPU-s for numba's typing and
+target registries at the first call of any compiled function in the process, a few ms to load the cached
+machine code; on the first run after an install or an edit ~2 CPU-s of
 compilation, cached on disk next to the sources (``cache=True``). Without a MuJoCo shared library to
 link (:data:`AVAILABLE` False) the Python path steps the flight (same samples, slower).
 """
