@@ -12,8 +12,10 @@ IMU + 10 Hz GPS at 1 kHz for its 3-D demo trajectory (~80 s); imurig flies an 80
 (level, S-turns at 30 deg bank, level) at 1 kHz in MuJoCo and makes the flight's truth, 10 Hz GPS
 fixes and the IMU chain's recording. Samples per wall second of each (the peer's own timer, without
 its imports) and the ratio imurig / peer, with the load average before and after. The first run in
-the process also loads the compiled flight steps from numba's disk cache (~0.1 CPU-s; after an
-install or an edit, it compiles them: seconds); ``ratio_first_run`` shows it, the median is over all runs.
+the process also pays numba's one-time set-up at its first call (~0.25 CPU-s: its typing and target
+registries) and loads the compiled flight steps and truth pass from numba's disk cache (~0.01 CPU-s;
+after an install or an edit, it compiles them: seconds); ``ratio_first_run`` shows it, the median is
+over all runs.
 """
 from __future__ import annotations
 

@@ -187,47 +187,52 @@ class CitationSim(VehicleSim):
         """``n`` samples with ``cmd`` held: :meth:`step` ``n`` times, in compiled code
         (:mod:`imurig.flights.flight_kernel`: the same forces at every physics step, the same samples)."""
         if self._kernel is None:
-            # lazy: numba (0.3 CPU-s to import) only when a flight is flown, not when a plan is validated
-            from imurig.flights import flight_kernel as fk
-
-            if not fk.AVAILABLE:
-                self._kernel = False
-            else:
-                m, d = self.model, self.data
-                self._kernel = (fk.run_steps, np.empty(33), fk.aero_params(self.aero), fk.wheel_params(self.wheels),
-                                (m._address, d._address, d.qpos, d.qvel, d.xfrc_applied))
+            self._kernel = self._load_kernel()
         if self._kernel is False:
             for _ in range(n):
                 self.step(cmd)
             return
-        run_steps, io, a, wp, md = self._kernel
+        run_steps, io, md, rest, opt = self._kernel
         A = self.act
         io[:15] = (cmd.de, cmd.da, cmd.dr, cmd.thr, cmd.steer, cmd.brake, cmd.flaps,
                  A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps,
                  math.nan if self._alpha_prev is None else self._alpha_prev)
         block, i0 = self._reserve(n)
+        s = self.s
         # far above the ground no wheel can touch it within the held interval: collision detection and the
         # (then empty) constraint solver off; they find nothing there, so the steps are the same, 5 % faster
-        opt = self.model.opt
-        flags = opt.disableflags
-        if self.s.h - self.h0_m > AIRBORNE_CLEARANCE_M + 100.0 * n * self.dt:
+        far = s.h - self.h0_m > AIRBORNE_CLEARANCE_M + 100.0 * n * self.dt
+        if far:
+            flags = opt.disableflags
             opt.disableflags = flags | _NO_CONTACT
         try:
-            self.t = run_steps(*md, n, self.substeps, self.rate_hz, self.t, self.h0_m, self.bid, io, a, wp,
-                               float(self.drive_force_N), int(self.n_driven), block, i0)
+            self.t = run_steps(*md, n, self.substeps, self.rate_hz, self.t, self.h0_m, *rest, block, i0)
         finally:
-            opt.disableflags = flags
+            if far:
+                opt.disableflags = flags
+        # the state as :meth:`_update_state` makes it, its trigonometry done by the kernel (io[7:42], one list)
         v = io[7:].tolist()
         A.de, A.da, A.dr, A.thr, A.steer, A.brake, A.flaps, prev = v[:8]
         self._alpha_prev = None if math.isnan(prev) else prev
-        s, d = self.s, self.data
-        s.t = self.t     # the state as :meth:`_update_state` makes it, its trigonometry done by the kernel
-        s.pN, s.pE, s.pD = d.qpos[0:3].tolist()
-        s.vN, s.vE, s.vD, s.p, s.q, s.r = d.qvel[0:6].tolist()
+        s.t = self.t
         s.C = tuple(v[8:17])
         s.phi, s.theta, s.psi, s.u, s.v, s.w, s.V, s.alpha, s.beta = v[17:26]
+        s.pN, s.pE, s.pD, s.vN, s.vE, s.vD, s.p, s.q, s.r = v[26:35]
         s.h = self.h0_m - s.pD
         self._ground_track(s)
+
+    def _load_kernel(self):
+        """The compiled steps (:func:`imurig.flights.flight_kernel.run_steps`) with this aircraft's fixed
+        arguments, or False without a MuJoCo library to link (the Python path then steps)."""
+        # lazy: numba (0.3 CPU-s to import) only when a flight is flown, not when a plan is validated
+        from imurig.flights import flight_kernel as fk
+
+        if not fk.AVAILABLE:
+            return False
+        m, d = self.model, self.data
+        rest = (self.bid, np.empty(fk.IO_SIZE), fk.aero_params(self.aero), fk.wheel_params(self.wheels),
+                float(self.drive_force_N), int(self.n_driven))
+        return fk.run_steps, rest[1], (m._address, d._address, d.qpos, d.qvel, d.xfrc_applied), rest, m.opt
 
     # ------------------------------------------------------------ trim / linearise
     def _place(self, V, h_m, alpha, theta, psi=0.0, phi=0.0, w_B=(0.0, 0.0, 0.0), v_side=0.0):

@@ -15,8 +15,9 @@ shared library that the ``mujoco`` package ships), with the addresses of the MjM
 Python bindings hold (``._address``); the state is read from and the forces written to the
 bindings' numpy views of that same memory (``qpos``, ``qvel``, ``xfrc_applied``).
 
-Cost: ~0.3 CPU-s to import numba (paid once per process, at import), ~0.1 CPU-s to load the cached
-machine code on the first call; on the first run after an install or an edit ~2 CPU-s of
+Cost: ~0.3 CPU-s to import numba (paid once per process, at import), ~0.25 CPU-s for numba's typing and
+target registries at the first call of any compiled function in the process, a few ms to load the cached
+machine code; on the first run after an install or an edit ~2 CPU-s of
 compilation, cached on disk next to the sources (``cache=True``). Without a MuJoCo shared library to
 link (:data:`AVAILABLE` False) the Python path steps the flight (same samples, slower).
 """
@@ -45,6 +46,7 @@ _ENGINE_TAU, _SURFACE_TAU, _DE_MIN, _DE_MAX, _DA_LIM, _DR_LIM, _STEER_LIM, _X_CG
                                    "dr_limit_rad", "steer_limit_rad", "x_cg", "y_cg", "z_cg", "aspect_ratio"))
 _THRUST_MAX = AERO_FIELDS.index("thrust_max_N")
 ROW = 26          # t, qpos[0:7], qvel[0:6], dv/dt[0:6], controls de, da, dr, thr, steer, brake
+IO_SIZE = 42      # commands [0:7], deflections [7:14], previous α [14], the state after the steps [15:42]
 
 
 def _mujoco_library() -> Path | None:
@@ -187,7 +189,7 @@ def run_steps(m_addr, d_addr, qpos, qvel, xfrc, n, substeps, rate_hz, t, h0, bid
               drive_N, n_driven, rows, row0):
     """``n`` samples of ``substeps`` MuJoCo steps with the commands io[0:7] held (de, da, dr, thr, steer,
     brake, flaps); the actual deflections io[7:14] and the previous α io[14] (NaN: none) carry over;
-    the state after the steps goes to io[15:33] (:func:`_snapshot`). Sample i goes to rows[row0 + i]
+    the state after the steps goes to io[15:42] (:func:`_snapshot`). Sample i goes to rows[row0 + i]
     (:data:`ROW` columns). Returns the time after the last."""
     cmd, act, hist = io[0:7], io[7:14], io[14:15]
     dt = 1.0 / rate_hz
@@ -226,7 +228,8 @@ def run_steps(m_addr, d_addr, qpos, qvel, xfrc, n, substeps, rate_hz, t, h0, bid
 @numba.njit(cache=True, nogil=True)
 def _snapshot(a, qpos, qvel, C, io):
     """The controller's view of the state after the steps (:meth:`CitationSim._update_state`) into
-    io[15:33]: C_NB (9, row-major), φ, θ, ψ, the CG's body velocity u, v, w, V, α, β."""
+    io[15:42]: C_NB (9, row-major), φ, θ, ψ, the CG's body velocity u, v, w, V, α, β, then qpos[0:3]
+    and qvel[0:6]."""
     _rotation(qpos, C)
     for j in range(9):
         io[15 + j] = C[j]
@@ -243,3 +246,7 @@ def _snapshot(a, qpos, qvel, C, io):
     io[27], io[28], io[29], io[30] = u, v, w, V
     io[31] = math.atan2(w, u) if V > 1.0 else 0.0
     io[32] = math.asin(max(-1.0, min(1.0, v / V))) if V > 1.0 else 0.0
+    for j in range(3):
+        io[33 + j] = qpos[j]
+    for j in range(6):
+        io[36 + j] = qvel[j]

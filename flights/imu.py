@@ -48,12 +48,15 @@ def rig_recording(truth: FlightTruth, C_BC_: np.ndarray = C_BC) -> Recording:
     """The flight as a rig recording: truth signals f_C_*, w_C_*, B_C_* and T_air (what
     :meth:`imurig.sensors.chain.ImuLab.measure` consumes), meta with rate and start time."""
     C_CB = np.asarray(C_BC_, float).T
-    f_C, w_C, B_C = truth.f_B @ C_CB.T, truth.w_IB_B @ C_CB.T, truth.B_B @ C_CB.T
+    if np.array_equal(C_CB, np.eye(3)):   # the rack's mounting: x_C = x_B, each axis one contiguous line
+        f_C, w_C, B_C = (np.ascontiguousarray(x.T) for x in (truth.f_B, truth.w_IB_B, truth.B_B))
+    else:
+        f_C, w_C, B_C = ((x @ C_CB.T).T for x in (truth.f_B, truth.w_IB_B, truth.B_B))
     ts, tu = {}, {}
     for j, a in enumerate("xyz"):
-        ts[f"f_C_{a}"], tu[f"f_C_{a}"] = f_C[:, j], "m/s^2"
-        ts[f"w_C_{a}"], tu[f"w_C_{a}"] = w_C[:, j], "rad/s"
-        ts[f"B_C_{a}"], tu[f"B_C_{a}"] = B_C[:, j], "T"
+        ts[f"f_C_{a}"], tu[f"f_C_{a}"] = f_C[j], "m/s^2"
+        ts[f"w_C_{a}"], tu[f"w_C_{a}"] = w_C[j], "rad/s"
+        ts[f"B_C_{a}"], tu[f"B_C_{a}"] = B_C[j], "T"
     ts["T_air"], tu["T_air"] = truth.T_imu_K, "K"
     meta = {"rig": f"{truth.vehicle} flight", "sample_rate_hz": truth.rate_hz,
             "start_time": truth.meta["start_time"], "averaged_logging": True,

@@ -42,7 +42,7 @@ import datetime as _dt
 from dataclasses import dataclass, field
 
 import numpy as np
-from imurig.flights import earth
+from imurig.flights import earth, truth_kernel
 from imurig.flights.mechanise_steps import euler_step, trapezoid_step
 
 from imurig.kernel.errors import ConfigError
@@ -123,13 +123,15 @@ def cabin_temperature_K(time_s: np.ndarray, h_m: np.ndarray, start_K: float = 29
 def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: str, vehicle: str,
                           lever_gps_B, lever_mag_B, phases: tuple = (), meta: dict | None = None,
                           T_imu_K: np.ndarray | None = None, field_step_s: float = 10.0,
-                          zoh: bool = True) -> FlightTruth:
+                          zoh: bool = True, compiled: bool = True) -> FlightTruth:
     """Build the :class:`FlightTruth` (equations in the module docstring) from flat-world kinematics.
 
     ``origin_deg`` = (lat deg, lon deg, ellipsoidal height m) of the flat world's origin; the
     IMU starts at the origin displaced by the kinematics' first position p_N[0]. ``zoh``: the
     samples are MuJoCo steps (body rate held over each step, see the module docstring); pass
-    False for analytic kinematics sampled instantaneously.
+    False for analytic kinematics sampled instantaneously. ``compiled``: the per-sample maths in one
+    compiled pass (:mod:`imurig.flights.truth_kernel`); False: the numpy reference path
+    (:func:`held_terms_numpy`), the same equations.
     """
     t = np.asarray(kin.time_s, float)
     if t.size < 2 or not np.all(np.isfinite(t)):
@@ -140,7 +142,35 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
     lat0, lon0, h0 = origin_deg
     la0, lo0, hh0 = offset_position(np.array([lat0 * DEG]), np.array([lon0 * DEG]), np.array([float(h0)]),
                                     kin.p_N[:1])
-    lat, lon, h = integrate_position(kin.v_N, dt, float(la0[0]), float(lo0[0]), float(hh0[0]))
+    if compiled:   # one compiled pass (flights/truth_kernel.py), the numpy path's maths to the last bits
+        lat, lon, h = truth_kernel.geodetic_track(np.asarray(kin.v_N, float), dt, float(la0[0]), float(lo0[0]),
+                                                  float(hh0[0]))
+        q, f_B, w_IB_B, mlat, mlon, mh = truth_kernel.held_terms(
+            lat, lon, h, *(np.asarray(x, float) for x in (kin.v_N, kin.a_N, kin.q_NB, kin.w_NB_B, kin.wdot_NB_B)),
+            float(kin.rate_hz), bool(zoh), np.asarray(lever_mag_B, float))
+    else:
+        lat, lon, h = integrate_position(kin.v_N, dt, float(la0[0]), float(lo0[0]), float(hh0[0]))
+        q, f_B, w_IB_B, mlat, mlon, mh = held_terms_numpy(lat, lon, h, kin, zoh, lever_mag_B)
+    lever_mag_B = np.asarray(lever_mag_B, float)
+    when = parse_time(start_time)
+    B_N = igrf_N(mlat, mlon, mh, when, t, field_step_s)
+    B_B = truth_kernel.to_body(q, B_N) if compiled else np.einsum("nji,nj->ni", earth.C_from_q(q), B_N)
+    if T_imu_K is None:
+        T_imu_K = cabin_temperature_K(t, h)
+    m = {"start_time": start_time, "origin_deg": list(origin_deg), "earth_model": "WGS-84 (imurig.flights.earth)",
+         "magnetic_model": "IGRF (pyIGRF 0.3.3)", "kinematics": "MuJoCo flat world, semi-implicit Euler",
+         "imu_samples": "held" if zoh else "instantaneous"}
+    m.update(meta or {})
+    return FlightTruth(time_s=t, rate_hz=float(kin.rate_hz), lat_rad=lat, lon_rad=lon, h_m=h, v_N=kin.v_N.copy(),
+                       q_NB=q, f_B=f_B, w_IB_B=w_IB_B, B_B=B_B, T_imu_K=np.asarray(T_imu_K, float),
+                       lever_gps_B=np.asarray(lever_gps_B, float), lever_mag_B=lever_mag_B,
+                       phases=tuple(phases), vehicle=vehicle, meta=m)
+
+
+def held_terms_numpy(lat, lon, h, kin: BodyKinematics, zoh: bool, lever_mag_B):
+    """The per-sample truth in numpy (the reference of :func:`imurig.flights.truth_kernel.held_terms`):
+    (q_NB, f_B, w_IB_B, and the magnetometer's lat, lon, h); equations in the module docstring."""
+    dt = 1.0 / kin.rate_hz
     q = earth.q_normalize(kin.q_NB)
     C_NB = earth.C_from_q(q)
     w_ie = earth.omega_IE_N(lat)
@@ -154,29 +184,15 @@ def truth_from_kinematics(kin: BodyKinematics, origin_deg: tuple, start_time: st
         # the step holds f_N while the body turns by φ = w_hold dt: an integrating accelerometer
         # reports the body-frame mean of the specific force over the interval
         f_B = held_body_mean(w_hold * dt, f_B)
-    if zoh:
         # the navigation frame's exact turn over each step, from the positions it moves between
         zeta_N = (w_ie + w_en) * dt
         zeta_N[:-1] = earth.nav_frame_turn(lat[:-1], lon[:-1], lat[1:], lon[1:], dt)
         w_IN_B = np.einsum("nji,nj->ni", C_NB, zeta_N) / dt
+        w_IB_B = held_inertial_rate(w_IN_B * dt, w_hold * dt) / dt
     else:
-        w_IN_B = np.einsum("nji,nj->ni", C_NB, w_ie + w_en)
-    w_IB_B = held_inertial_rate(w_IN_B * dt, w_hold * dt) / dt if zoh else w_hold + w_IN_B
-    lever_mag_B = np.asarray(lever_mag_B, float)
-    mlat, mlon, mh = offset_position(lat, lon, h, C_NB @ lever_mag_B)
-    when = parse_time(start_time)
-    B_N = igrf_N(mlat, mlon, mh, when, t, field_step_s)
-    B_B = np.einsum("nji,nj->ni", C_NB, B_N)
-    if T_imu_K is None:
-        T_imu_K = cabin_temperature_K(t, h)
-    m = {"start_time": start_time, "origin_deg": list(origin_deg), "earth_model": "WGS-84 (imurig.flights.earth)",
-         "magnetic_model": "IGRF (pyIGRF 0.3.3)", "kinematics": "MuJoCo flat world, semi-implicit Euler",
-         "imu_samples": "held" if zoh else "instantaneous"}
-    m.update(meta or {})
-    return FlightTruth(time_s=t, rate_hz=float(kin.rate_hz), lat_rad=lat, lon_rad=lon, h_m=h, v_N=kin.v_N.copy(),
-                       q_NB=q, f_B=f_B, w_IB_B=w_IB_B, B_B=B_B, T_imu_K=np.asarray(T_imu_K, float),
-                       lever_gps_B=np.asarray(lever_gps_B, float), lever_mag_B=lever_mag_B,
-                       phases=tuple(phases), vehicle=vehicle, meta=m)
+        w_IB_B = w_hold + np.einsum("nji,nj->ni", C_NB, w_ie + w_en)
+    mlat, mlon, mh = offset_position(lat, lon, h, C_NB @ np.asarray(lever_mag_B, float))
+    return q, f_B, w_IB_B, mlat, mlon, mh
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

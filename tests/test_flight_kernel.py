@@ -1,6 +1,7 @@
 """The compiled flight steps (imurig.flights.flight_kernel) against the per-step Python path they replace,
 and the controller at its own rate. Exact: the same forces in the same operation order give the same
 bits, so equality is asserted, not closeness."""
+import functools
 import math
 
 import numpy as np
@@ -109,3 +110,30 @@ def test_nav_frame_turn_closed_form_matches_the_matrix_product():
         ref = earth.rotvec_from_q(earth.q_from_C(C))
         np.testing.assert_allclose(earth.nav_frame_turn(lat0, lon0, lat1, lon1, dt), ref, rtol=0,
                                    atol=10 * np.finfo(float).eps)
+
+
+TRUTH = ("lat_rad", "lon_rad", "h_m", "v_N", "q_NB", "f_B", "w_IB_B", "B_B", "T_imu_K")
+
+
+def test_compiled_truth_equals_the_numpy_truth_to_the_last_bit(monkeypatch):
+    """truth_from_kinematics' compiled pass (flights/truth_kernel.py) against its numpy reference path:
+    a flown flight (held samples, turns, a 3-2-1-1) and the analytic static tests (instantaneous
+    samples, rates below the series thresholds). The same operations in the same order: equal bits."""
+    from imurig.flights import truth
+    from imurig.flights.truth import cabin_temperature_K, static_tests_truth, truth_from_kinematics
+
+    flown = fly(_short_plan(50.0), progress_bar=False)
+    k, p = flown.kinematics, flown.plan
+    args = (k, p.origin, p.start_time, "citation", flown.sites["gps_antenna"], flown.sites["magnetometer"],
+            flown.phases, {}, cabin_temperature_K(k.time_s, -k.p_N[:, 2]))
+    for zoh in (True, False):
+        a = truth_from_kinematics(*args, zoh=zoh, compiled=False)
+        b = truth_from_kinematics(*args, zoh=zoh, compiled=True)
+        for f in TRUTH:
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{f}, zoh={zoh}")
+    assert np.abs(a.w_IB_B).max() > 0.1                       # the turn is in the compared samples
+    compiled = static_tests_truth(dwell_s=2.0, transition_s=2.0, rate_hz=50.0)
+    monkeypatch.setattr(truth, "truth_from_kinematics", functools.partial(truth_from_kinematics, compiled=False))
+    reference = static_tests_truth(dwell_s=2.0, transition_s=2.0, rate_hz=50.0)
+    for f in TRUTH:
+        np.testing.assert_array_equal(getattr(reference, f), getattr(compiled, f), err_msg=f"static {f}")
