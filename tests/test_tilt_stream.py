@@ -78,6 +78,15 @@ def test_streamed_h5_is_what_save_h5_writes(streamed, tmp_path):
     assert h5_info(path)["samples"] == s.n
 
 
+def test_simulate_is_the_streamed_record(streamed):
+    """simulate() collects the streamed chain: the record the campaign streams, bit for bit, and its metadata."""
+    camp, _, s = streamed
+    rec = camp.simulate()
+    _same(rec, s.recording)
+    assert rec.channel_quantum == s.recording.channel_quantum
+    assert rec.meta == s.recording.meta and rec.truth == s.recording.truth
+
+
 def test_one_seed_one_data_set():
     camp = TiltTableCampaign(protocol=SMALL, model="linear", seed=7)
     a, b = (stream_campaign(camp, keep=True).recording for _ in range(2))
@@ -91,7 +100,9 @@ def test_streamed_noise_has_the_whole_chain_size(streamed):
     different realisations of the same noise, so the pooled sd agree within 4 standard errors
     (sd of a pooled sd ~ sd / sqrt(2 N), the two independent)."""
     camp, _, s = streamed
-    whole = camp.simulate()
+    table, lab, ss = camp.build()
+    whole = lab.measure(table.simulate(camp.protocol, camp.start_time,
+                                       random_streams.generator("campaign/tilt-table/rig", camp.seed)), ss)
     for k in camp.scan_list:
         sds = []
         for rec in (s.recording, whole):
