@@ -91,7 +91,7 @@ def test_simulate_gives_the_campaigns_recording(report):
     rec = camp.simulate()
     assert json.loads(json.dumps(rec.meta["campaign"])) == saved.meta["campaign"]
     assert np.array_equal(rec.time_s, saved.time_s)
-    assert list(rec.channels) == list(saved.channels) and list(rec.truth_signals) == list(saved.truth_signals)
+    assert sorted(rec.channels) == sorted(saved.channels) and sorted(rec.truth_signals) == sorted(saved.truth_signals)
     for k, v in rec.channels.items():
         assert v.dtype == saved.channels[k].dtype and np.array_equal(v, saved.channels[k]), k
     for k, v in rec.truth_signals.items():
