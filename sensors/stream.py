@@ -19,8 +19,9 @@ chain takes some band by band or channel by channel over the whole record, other
 so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
-arm's terms, a thermal chamber, gyros, pump vibration in working hours, slip rings, a loose cable, the
-lab's own effects, GRSE hum, averaged logging.
+arm's terms, a thermal chamber, gyros, pump vibration in working hours, slip rings, the lab's own
+effects, GRSE hum, averaged logging. A loose cable's spikes (analog stage, on its one line) stream, their
+rectangles carried across pieces (:class:`_Cable`).
 """
 from __future__ import annotations
 
@@ -57,8 +58,8 @@ def unsupported(lab, run) -> str | None:
     scan = set(adc.scan_list)
     if lab.effects:
         return "the lab's own effects"
-    if lab.cable.enabled:
-        return "a loose cable"
+    if lab.cable.enabled and lab.cable.channel not in scan:
+        return "a loose cable on a line that is not scanned"
     if any(c.startswith("gyro_") for c in scan):
         return "gyros in the scan list"
     if lab.accelerometers.lever_arm().active:
@@ -120,6 +121,35 @@ class _Noise:
 
 
 @dataclass
+class _Cable:
+    """A loose cable's spikes (:class:`imurig.sensors.effects.cable_fault_spikes.LooseCable`), piece by
+    piece: per piece the Bernoulli draws of the starts, then the lengths and the amplitudes (the effect's
+    order); v = cumsum of the steps +a_e at t_e and -a_e at t_e + L_e, its level and the steps that fall
+    beyond the piece carried to the next (a spike across a boundary stays one rectangle)."""
+
+    eff: object
+    fs: float
+    rng: np.random.Generator
+    level: float = 0.0
+    pending: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def rows(self, m: int) -> np.ndarray:
+        e = self.eff
+        starts = np.flatnonzero(self.rng.random(m) < e.rate_hz / self.fs)
+        lengths = np.maximum(1, (self.rng.uniform(e.min_duration_s, e.max_duration_s, starts.size) * self.fs)
+                             .astype(int)) if starts.size else np.zeros(0, int)
+        amps = self.rng.normal(0, e.amplitude_V, starts.size) if starts.size else np.zeros(0)
+        delta = np.zeros(max(m, self.pending.size, int((starts + lengths).max(initial=0))) + 1)
+        delta[:self.pending.size] += self.pending
+        np.add.at(delta, starts, amps)
+        np.add.at(delta, starts + lengths, -amps)
+        delta[0] += self.level
+        v = np.cumsum(delta[:m])
+        self.level, self.pending = float(v[-1]), delta[m:].copy()
+        return v
+
+
+@dataclass
 class _People:
     """People transients (:class:`imurig.sensors.effects.people_transients.PeopleTransients`), piece by piece:
     per piece the Bernoulli draws, then the events' directions and sizes; the resonator's state carried."""
@@ -178,6 +208,8 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
                                  bool(run.meta.get("averaged_logging"))) if acc.noise_enabled else [],
                    fs, child_rng(seed, "accelerometers"))
     rngs = {"magnetometer": child_rng(seed, "magnetometer"), "adc": child_rng(seed, "adc")}
+    cable = _Cable(lab.cable, fs, child_rng(seed, lab.cable.line_stream(lab.cable.channel))) \
+        if lab.cable.enabled else None
     rngs.update({k: child_rng(seed, k) for k in lab.temp_sensors if k in scan})
     sens = dict(zip((f"acc_{a}" for a in AXES), acc.nominal_sensitivity_V_per_m_s2()))
     state = SimpleNamespace(saturated={}, last_in=None, f_dist_nonzero=False)
@@ -190,7 +222,7 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
             if i + AHEAD < len(pieces):
                 fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, rngs, start, t0, fs, sens))
             nxt = fronts.popleft().result() if fronts else None
-            _emit(lab, sinks, prev, cur, nxt, noise, rngs["adc"], state)
+            _emit(lab, sinks, prev, cur, nxt, noise, cable, rngs["adc"], state)
             prev, cur = cur, nxt
     report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
     rig = SimpleNamespace(meta=run.meta, truth=run.truth, events={}, truth_signals={})
@@ -202,9 +234,9 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
             "f_dist_nonzero": state.f_dist_nonzero}
 
 
-def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
+def _emit(lab, sinks, prev, cur, nxt, noise, cable, rng, state) -> None:
     """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
-    codes = _back(lab, prev, cur, nxt, noise, rng, state)
+    codes = _back(lab, prev, cur, nxt, noise, cable, rng, state)
     truth = dict(cur.truth)
     truth["T_imu"] = cur.T
     if cur.f_dist is not None or lab.people.enabled:
@@ -247,8 +279,9 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
                            lines=lines, slope_src=slope_src)
 
 
-def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
-    """The piece's slopes (from its neighbours' rows), the accelerometers' noise, and the conversion: codes."""
+def _back(lab, prev, cur, nxt, noise, cable, rng, state) -> dict:
+    """The piece's slopes (from its neighbours' rows), the accelerometers' noise, the analog stage (a
+    loose cable's spikes on its line; not in the slopes, as in the whole-record chain), the conversion: codes."""
     analog, slope = dict(cur.lines), {}
     lo = prev is not None
     t = np.concatenate(([prev.t[-1:]] if lo else []) + [cur.t] + ([nxt.t[:1]] if nxt else []))
@@ -263,6 +296,8 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
         for j, x in enumerate(AXES):
             if f"acc_{x}" in analog and nz is not None:
                 analog[f"acc_{x}"] = analog[f"acc_{x}"] + nz[:, j] * R[j]
+    if cable is not None:
+        analog[lab.cable.channel] = analog[lab.cable.channel] + cable.rows(cur.t.size)
     return _convert(lab.adc, analog, slope, rng, state)
 
 

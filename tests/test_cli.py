@@ -78,6 +78,27 @@ def test_help_is_there(capsys):
     assert "--theta" in capsys.readouterr().out
 
 
+def test_simulate_gives_the_campaigns_recording(report):
+    """One seed, one data set: TiltTableCampaign.simulate() with the command's settings holds the streamed
+    recording.h5 of ``imurig campaign tilt-table``, bit for bit (time, volts, set-points, truth signals)."""
+    from imurig.campaigns.tilt_table import TiltTableCampaign
+    from imurig.kernel.recording import load_h5
+    from imurig.rigs.tilt_table import TiltTableProtocol
+
+    saved = load_h5(report / "recording.h5")
+    camp = TiltTableCampaign(protocol=TiltTableProtocol(theta_deg=(0, 45, 90), phi_deg=(0, 90, 180, 270),
+                                                        dwell_s=2), seed=3)
+    rec = camp.simulate()
+    assert json.loads(json.dumps(rec.meta["campaign"])) == saved.meta["campaign"]
+    assert np.array_equal(rec.time_s, saved.time_s)
+    assert sorted(rec.channels) == sorted(saved.channels) and sorted(rec.truth_signals) == sorted(saved.truth_signals)
+    for k, v in rec.channels.items():
+        assert v.dtype == saved.channels[k].dtype and np.array_equal(v, saved.channels[k]), k
+    for k, v in rec.truth_signals.items():
+        assert np.array_equal(v, saved.truth_signals[k]), k
+    assert rec.units == saved.units and rec.truth_units == saved.truth_units
+
+
 def test_apply_calibration_to_a_new_recording(report, tmp_path):
     """calibration.json from one campaign, applied to a new recording of the same IMU (same
     sensor errors, new noise and table settings): its per-position medians match the new

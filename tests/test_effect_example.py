@@ -13,6 +13,7 @@ from conftest import SMALL
 
 from imurig.campaigns.tilt_table import TiltTableCampaign
 from imurig.diagnose.tilt_table import diagnose_tilt_table
+from imurig.kernel import random_streams
 from imurig.montecarlo.tilt_crlb import window_noise_cov
 from imurig.sensors.chain import ImuLab
 from imurig.sensors.effects import ChainContext, for_view, registered
@@ -36,8 +37,13 @@ AC = AirConditioning(rms_m_s2=5e-3)  # the diagnosis tests the timetable it know
 
 @pytest.fixture(scope="module")
 def records():
+    # the lab's own effects run in the whole-record chain (simulate() falls back to it): the quiet lab
+    # through the same chain, so that only the effect's own stream differs
     camp = TiltTableCampaign(protocol=SMALL, seed=11, start_time=START)
-    return camp.simulate(), replace(camp, lab_effects=(AC,)).simulate()
+    table, lab, ss = camp.build()
+    quiet = lab.measure(table.simulate(camp.protocol, camp.start_time,
+                                       random_streams.generator("campaign/tilt-table/rig", camp.seed)), ss)
+    return quiet, replace(camp, lab_effects=(AC,)).simulate()
 
 
 def test_the_chain_injects_it_and_nothing_else(records):

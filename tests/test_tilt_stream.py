@@ -14,7 +14,8 @@ from imurig.kernel import random_streams
 from imurig.kernel.h5stream import h5_info
 from imurig.kernel.recording import load_h5, save_h5
 from imurig.rigs.tilt_table import TiltTableProtocol
-from imurig.sensors.stream import STREAM_CHUNK
+from imurig.sensors.effects import LooseCable
+from imurig.sensors.stream import STREAM_CHUNK, _Cable
 
 # ~80k samples: two pieces, fast slews (MuJoCo rows at every sample) and a remount gap
 SMALL = TiltTableProtocol(theta_deg=(0, 90), phi_deg=(0, 120, 240), dwell_s=1.0, settle_s=0.5, slew_rate_deg_s=30.0)
@@ -78,6 +79,15 @@ def test_streamed_h5_is_what_save_h5_writes(streamed, tmp_path):
     assert h5_info(path)["samples"] == s.n
 
 
+def test_simulate_is_the_streamed_record(streamed):
+    """simulate() collects the streamed chain: the record the campaign streams, bit for bit, and its metadata."""
+    camp, _, s = streamed
+    rec = camp.simulate()
+    _same(rec, s.recording)
+    assert rec.channel_quantum == s.recording.channel_quantum
+    assert rec.meta == s.recording.meta and rec.truth == s.recording.truth
+
+
 def test_one_seed_one_data_set():
     camp = TiltTableCampaign(protocol=SMALL, model="linear", seed=7)
     a, b = (stream_campaign(camp, keep=True).recording for _ in range(2))
@@ -91,7 +101,9 @@ def test_streamed_noise_has_the_whole_chain_size(streamed):
     different realisations of the same noise, so the pooled sd agree within 4 standard errors
     (sd of a pooled sd ~ sd / sqrt(2 N), the two independent)."""
     camp, _, s = streamed
-    whole = camp.simulate()
+    table, lab, ss = camp.build()
+    whole = lab.measure(table.simulate(camp.protocol, camp.start_time,
+                                       random_streams.generator("campaign/tilt-table/rig", camp.seed)), ss)
     for k in camp.scan_list:
         sds = []
         for rec in (s.recording, whole):
@@ -102,7 +114,43 @@ def test_streamed_noise_has_the_whole_chain_size(streamed):
 
 
 def test_what_the_stream_does_not_model_runs_the_whole_chain():
-    camp = TiltTableCampaign(protocol=SMALL, model="linear", loose_cable=True)
+    camp = TiltTableCampaign(protocol=SMALL, model="linear", start_time="2005-06-14T10:00:00+02:00")
     s = stream_campaign(camp)
-    assert not s.streamed and "loose cable" in s.why
+    assert not s.streamed and "pump" in s.why
     _same(s.recording, camp.simulate())
+
+
+def test_cable_spikes_stay_rectangles_across_pieces():
+    """The streamed loose cable (pieces of 997 rows, spikes of 5-50 rows: most cross a boundary) is the
+    sum of the rectangles a_e rect over [t_e, t_e + L_e) its draws define, placed on the whole record:
+    the level and the steps past a piece's end carried (to the cumulative sum's rounding, 1e-12 V)."""
+    eff = LooseCable(enabled=True, rate_hz=20.0)
+    fs, n, m = 1000.0, 60_000, 997
+    piecewise = _Cable(eff, fs, np.random.default_rng(4))
+    v = np.concatenate([piecewise.rows(min(m, n - a)) for a in range(0, n, m)])
+    rng, ref, events = np.random.default_rng(4), np.zeros(n), 0
+    for a in range(0, n, m):
+        starts = a + np.flatnonzero(rng.random(min(m, n - a)) < eff.rate_hz / fs)
+        if starts.size:
+            lengths = np.maximum(1, (rng.uniform(eff.min_duration_s, eff.max_duration_s, starts.size) * fs).astype(int))
+            for t0, L, amp in zip(starts, lengths, rng.normal(0, eff.amplitude_V, starts.size)):
+                ref[t0:t0 + L] += amp
+            events += starts.size
+    assert events > 1000 and np.abs(v - ref).max() < 1e-12
+
+
+def test_streamed_cable_spikes_one_line_only():
+    """A loose cable streams; only its line changes (every other stage keeps its stream), and its spike
+    starts are Bernoulli(rate / f_s) per sample: their count within 4 sd of rate * T (Poisson)."""
+    a = TiltTableCampaign(protocol=SMALL, model="linear", seed=4)
+    b = TiltTableCampaign(protocol=SMALL, model="linear", seed=4, loose_cable=True)
+    ra, rb = a.simulate(), stream_campaign(b, keep=True)
+    assert rb.streamed
+    rb = rb.recording
+    for k in ra.channels:
+        if k != b.build()[1].cable.channel:
+            assert np.array_equal(ra.channels[k], rb.channels[k]), k
+    d = rb.channels["acc_y"] != ra.channels["acc_y"]
+    starts = int(np.count_nonzero(d[1:] & ~d[:-1]) + d[0])
+    lam = b.build()[1].cable.rate_hz * ra.n / ra.sample_rate_hz
+    assert abs(starts - lam) < 4 * np.sqrt(lam), (starts, lam)

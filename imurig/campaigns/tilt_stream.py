@@ -31,26 +31,37 @@ FILTERED_UNITS = ("m/s^2", "rad/s", "T")
 
 
 class _Collect:
-    """A sink that keeps every piece: the whole record (for tests and small campaigns)."""
+    """A sink that keeps every piece: the whole record of ``n`` rows (for simulate(), tests and small
+    campaigns), filled in place (no piece list, no concatenation): volts = code * lsb (float64)."""
 
-    def __init__(self):
-        self.pieces = []
+    def __init__(self, n: int, quantum: dict):
+        self.n, self.quantum, self.arrays = n, quantum, None
 
     def rows(self, a, b, time_s, channels, codes, truth):
-        self.pieces.append((time_s, dict(channels), dict(codes), dict(truth)))
+        if self.arrays is None:
+            self.arrays = [np.empty(self.n)] + [{k: np.empty(self.n, dtype=v.dtype) for k, v in d.items()}
+                                                for d in (channels, codes, truth)]
+            for k in codes:
+                self.arrays[2][k] = np.empty(self.n)
+        time, chans, volts, tsig = self.arrays
+        time[a:b] = time_s
+        for d, src in ((chans, channels), (tsig, truth)):
+            for k, v in src.items():
+                d[k][a:b] = v
+        for k, c in codes.items():
+            np.multiply(c, self.quantum[k], out=volts[k][a:b])
 
     def recording(self, info: dict, drop: set) -> Recording:
+        time, chans, volts, tsig = self.arrays
+        self.arrays = None
         q = info["quantum"]
-        cat = lambda i, n: np.concatenate([p[i][n] for p in self.pieces])  # noqa: E731
-        first = self.pieces[0]
-        channels = {n: cat(1, n) for n in first[1]}
-        channels.update({n: cat(2, n).astype(np.float64) * q[n] for n in first[2]})
-        truth = {n: cat(3, n) for n in first[3] if n not in drop}
-        return Recording(time_s=np.concatenate([p[0] for p in self.pieces]), channels=channels,
+        channels = {**chans, **volts}
+        truth = {n: v for n, v in tsig.items() if n not in drop}
+        return Recording(time_s=time, channels=channels,
                          units={n: info["units"][n] for n in channels}, segments=info["segments"],
                          segment_units=info["segment_units"], meta=info["meta"], truth=info["truth"],
                          truth_signals=truth, truth_units={n: info["truth_units"][n] for n in truth},
-                         channel_quantum={n: q[n] for n in first[2]})
+                         channel_quantum={n: q[n] for n in volts})
 
 
 def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False) -> SimpleNamespace:
@@ -76,15 +87,11 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     tap = WindowTap(frame, sos, k, chan_names, [n for n in chan_names if n not in setpoints], list(truth_units),
                     [n for n, u in truth_units.items() if u in FILTERED_UNITS], {c: lab.adc.lsb_V for c in scan})
     del frame
-    sinks = [tap] + ([_Collect()] if keep else [])
+    sinks = [tap] + ([_Collect(run.n, {c: lab.adc.lsb_V for c in scan})] if keep else [])
     info = {}
 
     def simulate(extra=()):
-        info.update(measure_stream(lab, run, ss, sinks + list(extra)))
-        info["meta"]["campaign"] = {"name": "tilt-table", **camp.to_dict()}
-        info["truth"]["seed"] = camp.seed
-        info.update(segments=run.segments, segment_units=run.segment_units)
-        return set() if info["f_dist_nonzero"] else {f"f_dist_C_{a}" for a in AXES if lab.people.enabled}
+        return _measure(camp, lab, run, ss, sinks + list(extra), info)
 
     if h5_path is not None:
         import h5py  # heavy: loaded when a file is written
@@ -117,11 +124,43 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
                            recording=sinks[1].recording(info, drop) if keep else None)
 
 
-def _whole(camp, lab, run, ss, h5_path, overwrite, why) -> SimpleNamespace:
-    """The whole-record chain (:meth:`imurig.sensors.chain.ImuLab.measure`) with the same outputs."""
+def _measure(camp, lab, run, ss, sinks, info: dict) -> set:
+    """Stream the chain into ``sinks``; fill ``info`` (:func:`measure_stream`'s dict with the campaign's
+    metadata, its seed and the segments); return the truth signals to drop (an all-zero disturbance, which
+    the whole-record chain leaves out)."""
+    info.update(measure_stream(lab, run, ss, sinks))
+    info["meta"]["campaign"] = {"name": "tilt-table", **camp.to_dict()}
+    info["truth"]["seed"] = camp.seed
+    info.update(segments=run.segments, segment_units=run.segment_units)
+    return set() if info["f_dist_nonzero"] else {f"f_dist_C_{a}" for a in AXES if lab.people.enabled}
+
+
+def record_campaign(camp) -> Recording:
+    """The whole 1 kHz Recording of the campaign ``camp``, the data ``imurig campaign tilt-table`` writes to
+    recording.h5 for the same seed, bit for bit: the streamed chain's pieces collected (volts = code * lsb_V,
+    float64), or the whole-record chain where the stream does not model the lab (:func:`stream_campaign`).
+    No 100 Hz windows, no file."""
+    camp.check_identifiable()
+    table, lab, ss = camp.build()
+    run = table.run(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", camp.seed))
+    if unsupported(lab, run):
+        return _whole_record(camp, lab, run, ss)
+    sink, info = _Collect(run.n, {c: lab.adc.lsb_V for c in lab.adc.scan_list}), {}
+    drop = _measure(camp, lab, run, ss, [sink], info)
+    return sink.recording(info, drop)
+
+
+def _whole_record(camp, lab, run, ss) -> Recording:
+    """The whole-record chain (:meth:`imurig.sensors.chain.ImuLab.measure`) on the rig record ``run``."""
     rec = lab.measure(run.recording(), ss)
     rec.meta["campaign"] = {"name": "tilt-table", **camp.to_dict()}
     rec.truth["seed"] = camp.seed
+    return rec
+
+
+def _whole(camp, lab, run, ss, h5_path, overwrite, why) -> SimpleNamespace:
+    """The whole-record chain (:meth:`imurig.sensors.chain.ImuLab.measure`) with the same outputs."""
+    rec = _whole_record(camp, lab, run, ss)
     if h5_path is not None:
         save_h5(rec, h5_path, overwrite=overwrite)
     rec100 = lowpass_downsample(rec, windows_only=True)

@@ -6,10 +6,11 @@
       -> inverse-model least squares
       -> physical parameters vs injected truth -> report, summary.json, .rrd
 
-:meth:`TiltTableCampaign.simulate` gives the whole 1 kHz Recording (the whole-record chain,
-:meth:`imurig.sensors.chain.ImuLab.measure`); ``imurig campaign tilt-table`` streams the same campaign
-(:func:`imurig.campaigns.tilt_stream.stream_campaign`: bounded memory, ADC codes, the HDF5 file written
-as it goes), whose noise is drawn piece by piece: the same distributions, another realisation.
+``imurig campaign tilt-table`` streams the campaign (:func:`imurig.campaigns.tilt_stream.stream_campaign`:
+bounded memory, ADC codes, the HDF5 file written as it goes); :meth:`TiltTableCampaign.simulate` gives
+the same data as one in-memory 1 kHz Recording: one seed, one data set. A lab the stream does not model
+(:func:`imurig.sensors.stream.unsupported`) runs the whole-record chain
+(:meth:`imurig.sensors.chain.ImuLab.measure`) in both.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
 from imurig.campaigns.delft_2005 import Delft2005, check_lab
+from imurig.campaigns.tilt_stream import record_campaign
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
 from imurig.kernel import random_streams
@@ -133,15 +135,10 @@ class TiltTableCampaign:
                     f"the '{model}' model of A_{a}: {e}", e.terms) from None
 
     def simulate(self) -> Recording:
-        """Simulate the campaign: 1 kHz Recording with truth (the whole-record chain; see the module doc)."""
-        self.check_identifiable()
-        table, lab, ss = self.build()
-        rig = table.simulate(self.protocol, self.start_time,
-                             random_streams.generator("campaign/tilt-table/rig", self.seed))
-        rec = lab.measure(rig, ss)
-        rec.meta["campaign"] = {"name": "tilt-table", **self.to_dict()}
-        rec.truth["seed"] = self.seed
-        return rec
+        """Simulate the campaign: the 1 kHz Recording with truth that ``imurig campaign tilt-table`` writes
+        for the same seed, bit for bit (:func:`imurig.campaigns.tilt_stream.record_campaign`: the streamed
+        chain, volts = ADC code * lsb_V; the whole-record chain where the stream does not model the lab)."""
+        return record_campaign(self)
 
 
 # -------------------------------------------------------------------- analysis
