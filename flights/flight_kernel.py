@@ -109,15 +109,22 @@ def _actuate(a, cmd, act, dt):
 
 
 @numba.njit(cache=True, nogil=True)
-def _aero_wrench(a, qpos, qvel, C, h0, act, hist, rate_hz, substeps, f):
-    """:meth:`CitationSim.body_forces` (state of :meth:`CitationSim._update_state`) into f[0:6], body FRD."""
+def _air_velocity(a, qvel, C):
+    """The air velocity at the aerodynamic centre in body axes (u, v, w) and its size V: the CG's NED
+    velocity turned into the body by C (body <- NED, row-major 3x3) plus omega x r_cg."""
     vN, vE, vD, p, q, r = qvel[0], qvel[1], qvel[2], qvel[3], qvel[4], qvel[5]
     x, y, z = a[_X_CG], a[_Y_CG], a[_Z_CG]
     ub = C[0] * vN + C[3] * vE + C[6] * vD
     vb = C[1] * vN + C[4] * vE + C[7] * vD
     wb = C[2] * vN + C[5] * vE + C[8] * vD
     u, v, w = ub + q * z - r * y, vb + r * x - p * z, wb + p * y - q * x
-    V = math.sqrt(u * u + v * v + w * w)
+    return u, v, w, math.sqrt(u * u + v * v + w * w)
+
+
+@numba.njit(cache=True, nogil=True)
+def _aero_wrench(a, qpos, qvel, C, h0, act, hist, rate_hz, substeps, f):
+    """:meth:`CitationSim.body_forces` (state of :meth:`CitationSim._update_state`) into f[0:6], body FRD."""
+    u, v, w, V = _air_velocity(a, qvel, C)
     alpha = math.atan2(w, u) if V > 1.0 else 0.0
     beta = math.asin(max(-1.0, min(1.0, v / V))) if V > 1.0 else 0.0
     adot = 0.0 if math.isnan(hist[0]) else (alpha - hist[0]) * rate_hz * substeps
@@ -129,6 +136,7 @@ def _aero_wrench(a, qpos, qvel, C, h0, act, hist, rate_hz, substeps, f):
     V = max(V, 1.0)
     qbar = 0.5 * rho * V * V
     S, c, b = a[0], a[1], a[2]
+    p, q, r = qvel[3], qvel[4], qvel[5]
     ph, qh, rh, ah = p * b / (2 * V), q * c / V, r * b / (2 * V), adot * c / V
     CL = a[3] + a[4] * alpha + a[5] * qh + a[6] * ah + a[7] * de + a[10] * flaps
     CD = a[8] + CL * CL / (math.pi * a[_AR] * a[9]) + a[11] * flaps
@@ -236,13 +244,7 @@ def _snapshot(a, qpos, qvel, C, io):
     io[24] = math.atan2(C[7], C[8])
     io[25] = -math.asin(max(-1.0, min(1.0, C[6])))
     io[26] = math.atan2(C[3], C[0])
-    vN, vE, vD, p, q, r = qvel[0], qvel[1], qvel[2], qvel[3], qvel[4], qvel[5]
-    x, y, z = a[_X_CG], a[_Y_CG], a[_Z_CG]
-    ub = C[0] * vN + C[3] * vE + C[6] * vD
-    vb = C[1] * vN + C[4] * vE + C[7] * vD
-    wb = C[2] * vN + C[5] * vE + C[8] * vD
-    u, v, w = ub + q * z - r * y, vb + r * x - p * z, wb + p * y - q * x
-    V = math.sqrt(u * u + v * v + w * w)
+    u, v, w, V = _air_velocity(a, qvel, C)
     io[27], io[28], io[29], io[30] = u, v, w, V
     io[31] = math.atan2(w, u) if V > 1.0 else 0.0
     io[32] = math.asin(max(-1.0, min(1.0, v / V))) if V > 1.0 else 0.0

@@ -297,10 +297,8 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     xpos, xquat = np.empty((T, nb, 3)), np.empty((T, nb, 4))
     saved = {bid: model.body_quat[bid].copy() for bid in overrides}
     # rows equal to the one before (a rig at rest) take its poses: one comparison over the whole record
-    same = np.zeros(T, dtype=bool)
-    same[1:] = (qpos[1:] == qpos[:-1]).all(axis=1)
-    for q in overrides.values():
-        same[1:] &= (q[1:] == q[:-1]).all(axis=1)
+    same = np.concatenate([[False], np.all([(x[1:] == x[:-1]).all(axis=1) for x in (qpos, *overrides.values())],
+                                           axis=0)])
     try:
         for k in range(T):
             if same[k]:
