@@ -197,8 +197,7 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     after = _fit(X, y, names)
     S = getattr(noise, "covariance", None)
     if S is not None and weights is None and cov is None and findings:
-        # the noise model's errors are correlated (positions sharing a rounding error): OLS standard
-        # errors would count the positions as independent observations
+        # correlated errors (positions sharing a rounding error): OLS SEs would count them as independent
         se = dict(zip(names, _model_std_errors(X, y, S)))
         for f in findings:
             f.params = {c: (v[0], se[c]) for c, v in f.params.items()}
