@@ -77,8 +77,10 @@ def test_coarse_move_steps_keep_the_windows_and_the_moves_within_half_an_adc_ste
     lsb_m_s2 = 10.0 / 2**16 / (1.33e-3 / 9.80665 * 750.0)
     for name, x in fine.truth_signals.items():
         np.testing.assert_array_equal(coarse.truth_signals[name][win], x[win], err_msg=name)
-        tol = lsb_m_s2 / 2 if name.startswith("f_C") else 2 * ARCSEC if name.endswith("_true") else np.inf
-        np.testing.assert_allclose(coarse.truth_signals[name], x, rtol=0, atol=tol, err_msg=name)
+        # in the moves: f_C within half an ADC step, the angles within 2 arcsec (other signals: windows only)
+        tol = lsb_m_s2 / 2 if name.startswith("f_C") else 2 * ARCSEC if name.endswith("_true") else None
+        if tol is not None:
+            np.testing.assert_allclose(coarse.truth_signals[name], x, rtol=0, atol=tol, err_msg=name)
     assert np.abs(coarse.truth_signals["f_C_x"] - fine.truth_signals["f_C_x"]).max() > 0  # the moves did differ
 
 
