@@ -112,13 +112,23 @@ def test_nav_frame_turn_closed_form_matches_the_matrix_product():
                                    atol=10 * np.finfo(float).eps)
 
 
+def _equal_to_rounding(a, b, what: str) -> None:
+    """a equals b to the rounding of a few float64 operations on a's scale (8 eps max|a|)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    np.testing.assert_allclose(b, a, rtol=0, atol=8 * np.finfo(float).eps * max(np.abs(a).max(), 1e-300),
+                               err_msg=what)
+
+
 TRUTH = ("lat_rad", "lon_rad", "h_m", "v_N", "q_NB", "f_B", "w_IB_B", "B_B", "T_imu_K")
 
 
-def test_compiled_truth_equals_the_numpy_truth_to_the_last_bit(monkeypatch):
+def test_compiled_truth_equals_the_numpy_truth_to_rounding(monkeypatch):
     """truth_from_kinematics' compiled pass (flights/truth_kernel.py) against its numpy reference path:
     a flown flight (held samples, turns, a 3-2-1-1) and the analytic static tests (instantaneous
-    samples, rates below the series thresholds). The same operations in the same order: equal bits."""
+    samples, rates below the series thresholds). The same operations in the same order, but LLVM may
+    fuse a product and a sum into one FMA where the CPU has it (seen on an AVX-512 machine: 2 of 3360
+    samples 1 ulp apart), so the bound is the rounding of a few operations on the field's scale:
+    |a - b| <= 8 eps max|a|. A wrong term, a missing factor or another order of rotations is far larger."""
     from imurig.flights import truth
     from imurig.flights.truth import cabin_temperature_K, static_tests_truth, truth_from_kinematics
 
@@ -130,10 +140,10 @@ def test_compiled_truth_equals_the_numpy_truth_to_the_last_bit(monkeypatch):
         a = truth_from_kinematics(*args, zoh=zoh, compiled=False)
         b = truth_from_kinematics(*args, zoh=zoh, compiled=True)
         for f in TRUTH:
-            np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f"{f}, zoh={zoh}")
+            _equal_to_rounding(getattr(a, f), getattr(b, f), f"{f}, zoh={zoh}")
     assert np.abs(a.w_IB_B).max() > 0.1                       # the turn is in the compared samples
     compiled = static_tests_truth(dwell_s=2.0, transition_s=2.0, rate_hz=50.0)
     monkeypatch.setattr(truth, "truth_from_kinematics", functools.partial(truth_from_kinematics, compiled=False))
     reference = static_tests_truth(dwell_s=2.0, transition_s=2.0, rate_hz=50.0)
     for f in TRUTH:
-        np.testing.assert_array_equal(getattr(reference, f), getattr(compiled, f), err_msg=f"static {f}")
+        _equal_to_rounding(getattr(reference, f), getattr(compiled, f), f"static {f}")
