@@ -98,7 +98,8 @@ def dither_sd(samples_V: np.ndarray, slices, q: float, grid: int = 48) -> float 
     dozen positions sharing a few levels are not (0.23 q to 0.33 q for a true 0.3 q on 12-bit
     records, i.e. a shared variance wrong by a factor of 0.4 to 2.3). None without two positions of
     at least 10 samples or when the maximum is at the grid's end (noise far below or above q)."""
-    from scipy.stats import norm   # lazy: only records on a coarse converter need it
+    from scipy.special import ndtr   # lazy: only records on a coarse converter need it (norm.cdf's own kernel,
+    #                                   without scipy.stats' argument handling: 10x faster, the same bits)
     x = np.asarray(samples_V, float) / q
     hist = []
     for sl in slices:
@@ -113,7 +114,7 @@ def dither_sd(samples_V: np.ndarray, slices, q: float, grid: int = 48) -> float 
     for k, n, m in hist:
         def ll(xv):
             z_hi = (k[None, :] + 0.5 - xv[:, None]) / sig[:, None]
-            p = norm.cdf(z_hi) - norm.cdf(z_hi - 1.0 / sig[:, None])
+            p = ndtr(z_hi) - ndtr(z_hi - 1.0 / sig[:, None])
             return np.log(np.maximum(p, 1e-300)) @ n.astype(float)
         # x profiled per sigma by bounded Newton steps from the mean code (the likelihood of an
         # interval is log-concave in the location, so the maximum is unique)
