@@ -68,8 +68,14 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     dt = np.diff(t)
     a1, b1 = t[rise], t[rise + 1]
     a2, b2 = t[fall], t[fall + 1]
-    w = float(np.mean(0.5 * (a2 + b2) - 0.5 * (a1 + b1))) if n else 0.0
-    lo_k, hi_k = np.maximum(a1, a2 - w), np.minimum(b1, b2 - w)
+    # the widths every binary pulse allows: w in (a2 - b1, b2 - a1); all of them together fix w to
+    # (w_lo, w_hi). Where they do not agree (a width that varies) the rising edge alone brackets.
+    w_lo = float(np.max(a2 - b1, where=binary, initial=-np.inf))
+    w_hi = float(np.min(b2 - a1, where=binary, initial=np.inf))
+    if not w_hi > w_lo or not np.isfinite(w_hi - w_lo):
+        w_lo, w_hi = -np.inf, np.inf
+    w = 0.5 * (w_lo + w_hi) if np.isfinite(w_hi) else (float(np.mean(0.5 * (a2 + b2 - a1 - b1))) if n else 0.0)
+    lo_k, hi_k = np.maximum(a1, a2 - w_hi), np.minimum(b1, b2 - w_lo)
     ok = binary & (hi_k > lo_k)
     lo_k, hi_k = np.where(ok, lo_k, a1), np.where(ok, hi_k, b1)
     mid = 0.5 * (lo_k + hi_k)
@@ -78,15 +84,17 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     frac = np.where(binary, 0.5, (thr - x[rise]) / np.where(x[rise + 1] > x[rise], x[rise + 1] - x[rise], 1.0))
     mid = np.where(binary, mid, a1 + frac * dt[rise])
     var = np.where(binary, var, dt[rise] ** 2 / 12.0)
-    return {"time_s": mid, "var_s2": var, "width_s": w, "sloped": int(np.sum(~binary))}
+    return {"time_s": mid, "var_s2": var, "width_s": w, "width_range_s": (w_lo, w_hi), "sloped": int(np.sum(~binary))}
 
 
-def _bracket(tau: np.ndarray, dt: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+def _bracket(tau: np.ndarray, dt: float, w: float, w_range=None) -> tuple[np.ndarray, np.ndarray]:
     """The middle and the grid variance of true edge times ``tau`` (s) as :func:`edge_times`
-    brackets them on a grid n dt with pulses ``w`` long (the simulated null)."""
+    brackets them on a grid n dt with pulses ``w`` long, the width known to ``w_range`` = (w_lo, w_hi)
+    (default: exactly; infinite: the rising edge alone) (the simulated null)."""
+    w_lo, w_hi = (w, w) if w_range is None else w_range
     a1 = (np.ceil(tau / dt) - 1) * dt
-    a2 = (np.ceil((tau + w) / dt) - 1) * dt - w
-    lo, hi = np.maximum(a1, a2), np.minimum(a1, a2) + dt
+    a2 = (np.ceil((tau + w) / dt) - 1) * dt
+    lo, hi = np.maximum(a1, a2 - w_hi), np.minimum(a1 + dt, a2 + dt - w_lo)
     ok = hi > lo
     lo, hi = np.where(ok, lo, a1), np.where(ok, hi, a1 + dt)
     return 0.5 * (lo + hi), (hi - lo) ** 2 / 12.0
@@ -102,7 +110,7 @@ def _wls_q(n: np.ndarray, tk: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (W * (tk - b0[..., None] - b1[..., None] * n) ** 2).sum(-1)
 
 
-def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N_SIM) -> np.ndarray:
+def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N_SIM, w_range=None) -> np.ndarray:
     """``n_sim`` draws of Q under H0 (module doc): each step's pulses at its fitted period (drawn
     within the period's own grid SE, which decides the pattern of the grid errors) with a uniform
     phase on the grid, bracketed as the data are."""
@@ -112,7 +120,7 @@ def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N
         se_T = float(np.sqrt(np.mean(v) / np.sum((n - n.mean()) ** 2)))
         T = T + se_T * rng.standard_normal(n_sim)[:, None]
         tau = rng.uniform(0, dt, n_sim)[:, None] + T * n[None, :] + 1000.0 * dt
-        mid, var = _bracket(tau, dt, w)
+        mid, var = _bracket(tau, dt, w, w_range)
         Q += _wls_q(n[None, :], mid, var)
     return Q
 
@@ -177,7 +185,7 @@ def pulse_timer_test(edges: dict, start_s, stop_s, dial, dt_s: float, rng: np.ra
         parts.append((M, v))
     p_chi2 = float(stats.chi2.sf(Q, m))
     if edges["sloped"] == 0:
-        Qn = _null_q(steps, dt_s, edges["width_s"], rng)
+        Qn = _null_q(steps, dt_s, edges["width_s"], rng, w_range=edges.get("width_range_s"))
         p = float((1 + np.sum(Qn >= Q)) / (1 + Qn.size))
         null = f"simulated: {Qn.size} draws of the grid's bracketing at the fitted periods, uniform phases"
     else:
