@@ -24,9 +24,10 @@ L_s(t) the time spent in segment s before t. So
     cov(eps) = C0 + j^2 D,   C0 = diag(omega^2 v) + a^2 sigma_u^2 dt min(t_i, t_j) + sum_s A^2/2 L_s L_s',
     D = diag(omega^2),
 
-with m = K - 4 residual degrees of freedom for K pulses. The test is the variance component's score
-statistic U = r' P0 D P0 r (P0 the generalised least squares residual projector under C0, H0: j = 0),
-its null simulated (:func:`score_null`: the grid's brackets of the pulses, on each plateau at its
+plus a column omega_k, a constant latency of the detector (the plateau test's offsets absorb it too),
+so m = K - 5 residual degrees of freedom for K pulses. The statistic is Q = r' P0 r (P0 the generalised
+least squares residual projector under C0; H0: j = 0), the plateau test's Q on every pulse; its null
+simulated (:func:`score_null`: the grid's brackets of the pulses, on each plateau at its
 fitted period within its SE and a uniform phase as in the plateau test, elsewhere a uniform phase
 each, plus Gaussian draws of the gyro terms). j^2 is the restricted maximum-likelihood estimate
 (REML: the log-likelihood of the residual contrasts, maximised over j^2 >= 0), its SE from the
@@ -170,10 +171,10 @@ def reml(y: np.ndarray, X: np.ndarray, C0: np.ndarray, D: np.ndarray, j2_max: fl
 
 def score_null(c: dict, var_grid: np.ndarray, dt_s: float, width_s: float, Cg: np.ndarray, X: np.ndarray,
                rng: np.random.Generator, n_sim: int = N_SIM, batch: int = 250, w_range=None) -> np.ndarray:
-    """``n_sim`` draws of U under H0 (module doc): the grid's bracket errors, patterned on each settled
+    """``n_sim`` draws of Q under H0 (module doc): the grid's bracket errors, patterned on each settled
     plateau (its fitted period within its SE, a uniform phase), independent elsewhere, times the rate,
-    plus Gaussian draws of the gyro terms (covariance ``Cg``); each draw's U weighs by its own
-    brackets' variances, as the data's U does by theirs."""
+    plus Gaussian draws of the gyro terms (covariance ``Cg``); each draw's Q weighs by its own
+    brackets' variances, as the data's Q does by theirs."""
     K = c["t"].size
     e = np.empty((n_sim, K))
     vs = np.empty((n_sim, K))
@@ -193,19 +194,26 @@ def score_null(c: dict, var_grid: np.ndarray, dt_s: float, width_s: float, Cg: n
     om = c["omega"]
     Lg = np.linalg.cholesky(Cg + 1e-12 * np.max(np.diag(Cg), initial=0.0) * np.eye(K) + 1e-30 * np.eye(K))
     eps = e * om[None, :] + rng.standard_normal((n_sim, K)) @ Lg.T
+    return scores(eps, vs, Cg, X, om, batch)
+
+
+def scores(eps: np.ndarray, vs: np.ndarray, Cg: np.ndarray, X: np.ndarray, om: np.ndarray,
+           batch: int = 250) -> np.ndarray:
+    """Q = eps' P0 eps of each row of ``eps`` (turns), P0 from C0 = Cg + diag(om^2 vs) with that
+    row's own bracket variances ``vs`` (s^2)."""
+    n_sim, K = eps.shape
     if np.ptp(vs) <= 1e-12 * np.max(vs):              # one bracket width throughout: one weight matrix
         P = projector(Cg + np.diag(om**2 * vs[0]), X)
-        W = P @ np.diag(om**2) @ P
-        return np.einsum("ik,kl,il->i", eps, W, eps)
-    U = np.empty(n_sim)
+        return np.einsum("ik,kl,il->i", eps, P, eps)
+    Q = np.empty(n_sim)
     for i in range(0, n_sim, batch):
         C = Cg[None] + (om**2)[None, :, None] * vs[i:i + batch, :, None] * np.eye(K)[None]
         Ci = np.linalg.inv(C)
         CiX = Ci @ X
         P = Ci - CiX @ np.linalg.solve(X.T[None] @ CiX, np.swapaxes(CiX, 1, 2))
         Pe = np.einsum("bkl,bl->bk", P, eps[i:i + batch])
-        U[i:i + batch] = np.sum(Pe**2 * (om**2)[None, :], axis=1)
-    return U
+        Q[i:i + batch] = np.sum(Pe * eps[i:i + batch], axis=1)
+    return Q
 
 
 def angle_timer_test(c: dict, edges: dict, dt_s: float, q_V: float, rng: np.random.Generator,
@@ -221,17 +229,16 @@ def angle_timer_test(c: dict, edges: dict, dt_s: float, q_V: float, rng: np.rand
     X = design(c)
     y = c["N"]
     P0 = projector(C0, X)
-    Wm = P0 @ D @ P0
-    U = float(y @ Wm @ y)
+    Q = float(y @ P0 @ y)
     Cg = C0 - np.diag(c["omega"] ** 2 * v)
     if edges["sloped"] == 0:
         Un = score_null(c, v, dt_s, edges["width_s"], Cg, X, rng, w_range=edges.get("width_range_s"))
         null = f"simulated: {Un.size} draws of the grid's bracketing (plateaus at their fitted periods) and the gyro"
     else:                                            # a sloped edge: Gaussian errors of the bracket's variance
         Z = rng.standard_normal((N_SIM, K)) @ np.linalg.cholesky(C0).T
-        Un = np.einsum("ik,kl,il->i", Z, Wm, Z)
+        Un = np.einsum("ik,kl,il->i", Z, P0, Z)
         null = "simulated Gaussian (sloped edges: the grid bracket does not apply)"
-    p = float((1 + np.sum(Un >= U)) / (1 + Un.size))
+    p = float((1 + np.sum(Un >= Q)) / (1 + Un.size))
     res = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
     ts = res / np.where(np.abs(c["omega"]) > 0, np.abs(c["omega"]), np.inf)
     # the search reaches far past anything the residuals show (the grid's and the pulses' own scatter)
@@ -240,7 +247,7 @@ def angle_timer_test(c: dict, edges: dict, dt_s: float, q_V: float, rng: np.rand
     j2, se_j2 = r["j2"], r["se"]
     s2 = j2 + dt_s**2 / 12.0
     sig = float(np.sqrt(s2))
-    out = {"tested": True, "method": "gyro angle", "statistic": U, "dof": m, "p_value": p, "alpha": alpha,
+    out = {"tested": True, "method": "gyro angle", "statistic": Q, "dof": m, "p_value": p, "alpha": alpha,
            "pulses": K, "jitter2_s2": j2, "jitter2_se_s2": se_j2, "jitter2_interval_s2": r["interval"],
            "sigma_T_s": sig, "sigma_T_se_s": se_j2 / (2.0 * sig),
            "sigma_T_interval_s": [float(np.sqrt(x + dt_s**2 / 12.0)) for x in r["interval"]],
