@@ -24,7 +24,8 @@ slip of the manifest) so the index crossings and the whole rounds are those of t
   built from the same crossings: no jitter, each settled plateau's pulses at one uniform grid phase,
   the others at independent ones); its power at level alpha is expressed as the non-centrality of a
   chi-square on the same m residual degrees of freedom that has that power, needed: the one with 90 %
-  power. The pulse width is taken as known (the test brackets it by what all pulses allow).
+  power. The sample grid fixes the pulse width to a whole sample only, so each pulse is bracketed by
+its rising edge (dt^2 / 12), as the test does.
 
 The mains factor and the slip are read from the table's mean rate over many rounds, far above the
 timer's error at the lab's sizes: always scored (None).
@@ -136,16 +137,17 @@ def timer(truth: dict, effect: dict, motion, n_sim: int = 2000, seed: int = 0) -
          "G2": np.interp(cross, t, w2), "N": np.zeros(cross.size), "a0": 1.0 / S, "groups": groups,
          "sigma_u": math.sqrt(g["noise_V_rms_per_sample"] ** 2 + (adc["input_noise_lsb_rms"] * q) ** 2 + q * q / 12),
          "segments": [(a, b) for a, b, v, v2 in zip(knots_t[:-1], knots_t[1:], knots_v[:-1], knots_v[1:]) if v == v2]}
-    f = (w / dt) % 1.0
-    v_grid = np.full(cross.size, dt**2 / 12 * ((1 - f) ** 3 + f**3))
+    # the grid fixes the pulse width to a whole sample only, so the test brackets by the rising edge
+    wr = (-np.inf, np.inf)
+    v_grid = np.full(cross.size, dt**2 / 12)
     C0, _D, _parts = pa.covariance(c, v_grid, dt, q)
     Cg = C0 - np.diag(c["omega"] ** 2 * v_grid)
     X = pa.design(c)
     m = cross.size - X.shape[1]
-    u0 = pa.score_null(c, v_grid, dt, w, Cg, X, rng, n_sim)
+    u0 = pa.score_null(c, v_grid, dt, w, Cg, X, rng, n_sim, w_range=wr)
     # H1: the recording's crossings, jittered, on the sample grid as it lies (the phases the schedule gives)
     tau = cross[None, :] + j * rng.standard_normal((n_sim, cross.size))
-    mid, vs = _bracket(tau, dt, w)
+    mid, vs = _bracket(tau, dt, w, wr)
     Lg = np.linalg.cholesky(Cg + 1e-12 * np.max(np.diag(Cg)) * np.eye(cross.size))
     eps = (mid - cross[None, :]) * c["omega"][None, :] + rng.standard_normal((n_sim, cross.size)) @ Lg.T
     u1 = pa.scores(eps, vs, Cg, X, c["omega"])
