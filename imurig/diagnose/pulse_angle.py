@@ -34,6 +34,13 @@ each, plus Gaussian draws of the gyro terms). j^2 is the restricted maximum-like
 expected information 1/2 tr(P D P D) at the estimate; sigma_T = sqrt(j^2 + dt^2/12) as in the plateau
 test (the library's per-edge timer error), by the delta method, and the REML likelihood-ratio
 interval (2 delta l <= 1) beside it.
+
+The model adds the grid's error and the jitter (var v_k + j^2), which holds when the pulses fall at
+independent phases on the grid. A pulse train locked to the grid (a plateau's period a whole number
+of samples, as an exact synchronous rate gives) breaks this within a record: a pulse in the middle
+of its sample interval shows a jitter smaller than dt/2 as no error at all. Over such records the
+estimate stays unbiased but scatters more than its SE says (numpy-made 100 Hz records with the
+phases locked: z RMS about 1.5 on j^2; with the rate wobbling 1 %, about 0.8).
 """
 from __future__ import annotations
 

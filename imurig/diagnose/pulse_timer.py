@@ -5,12 +5,16 @@ to the sample grid (step dt = 1/fs). Per pulse k the edge is bracketed by the sa
 side of the threshold (:func:`edge_times`):
 
     rising edge  t_k in (t_i, t_i+1],          falling edge t_k + w in (t_j, t_j+1]
-    t_k in the intersection I_k of (t_i, t_i+1] and (t_j - w, t_j+1 - w]   (w: the mean pulse width)
+    t_k in the intersection I_k of (t_i, t_i+1] and (t_j - w_hi, t_j+1 - w_lo]
     t_k,meas = the middle of I_k,  its grid error var  v_k = |I_k|^2 / 12      (uniform in I_k)
 
-(a pulse whose width is not a whole number of samples is bracketed tighter by its falling edge; an
-edge with an intermediate sample, a sloped edge, is interpolated linearly and keeps v_k = dt^2/12,
-an upper bound). On a dial plateau the table turns at a constant rate, so the pulses of step s lie
+(w_lo, w_hi): the widths every pulse allows, w in (t_j - t_i+1, t_j+1 - t_i) for each. The grid fixes
+the width to a whole sample only: pulses of a width that is not a whole number of samples show two
+counts of high samples, and the range is then the sample between them, so the falling edge narrows
+no bracket and I_k is the rising edge's (the mean count's width is a statistic, and with pulses
+locked to the grid's phase a biased one that would misplace every bracket). A width that varies
+from pulse to pulse leaves the rising edge alone too. An edge with an intermediate sample, a
+sloped edge, is interpolated linearly and keeps v_k = dt^2/12, an upper bound. On a dial plateau the table turns at a constant rate, so the pulses of step s lie
 on a line, whatever the mains factor and the slip make of the rate (:func:`pulse_timer_test`):
 
     t_k,meas = t0_s + T_s n_k + e_k,    var(e_k) = v_k + j^2                    [s]
@@ -22,7 +26,7 @@ train on the grid, so that when T_s fs is near a whole number they repeat (absor
 near a simple fraction they follow a pattern. The null distribution of Q is therefore simulated:
 per step the same number of pulses at the fitted period T_s (drawn within its SE: the pattern of
 the grid errors depends on T_s fs modulo 1, which the data fix only that far), a uniform phase on the grid, the same
-bracketing (pulse width w), Q summed over steps (:func:`_null_q`); the p-value is the share of
+bracketing (pulse width w known to (w_lo, w_hi)), Q summed over steps (:func:`_null_q`); the p-value is the share of
 simulated Q at or above the observed one (chi-square on m kept as a reference, and used where an
 edge is sloped). The jitter variance is
 the moment estimate j^2 = (RSS - tr((I - H) V)) / m over the steps' ordinary least-squares fits,
