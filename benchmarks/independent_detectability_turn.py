@@ -15,15 +15,17 @@ slip of the manifest) so the index crossings and the whole rounds are those of t
   noise, q^2/12 its rounding), needed: the 90 % power point of a chi-square test with 2 x 4 degrees
   of freedom at alpha / 3 (the test's level per gyro). A ripple below what the converter's rounding
   makes of the Earth's 1/rev signal (a1 = S_j Omega_N) is not detectable either: its lambda is 0 then.
-- ``timer_quantisation`` (jitter j on the index pulse's edge, s): the pulse times on each plateau lie
-  on a line; the edge is known to the interval where the samples around the rising and the falling
-  edge overlap (length dt or, for a pulse width w that is not a whole number of samples, f dt or
-  (1 - f) dt, f = w / dt mod 1). The statistic Q = sum r^2 / v (r the plateau line fits' weighted
-  residuals, v = |interval|^2 / 12) is simulated with the recording's pulses, jittered, at uniform
-  grid phases, against its null as the test draws it (no jitter, uniform phases, each plateau's
-  period drawn within the SE the pulses fix it to, E v = dt^2 ((1 - f)^3 + f^3) / 12); its power at
-  level alpha is expressed as the non-centrality of a chi-square on the same m residual degrees of
-  freedom that has that power, needed: the one with 90 % power.
+- ``timer_quantisation`` (jitter j on the index pulse's edge, s): the test
+  (:mod:`imurig.diagnose.pulse_angle`) places every pulse against the table-axis gyro's integrated
+  angle. Its statistic U is simulated here with the recording's own crossings (the motion above),
+  jittered and bracketed on the sample grid as they lie, the gyro's integration noise
+  (the white noise, the converter's input noise and rounding of the manifest, per sample) and the
+  rounding's rate offsets, against the null the test draws (:func:`imurig.diagnose.pulse_angle.score_null`,
+  built from the same crossings: no jitter, each settled plateau's pulses at one uniform grid phase,
+  the others at independent ones); its power at level alpha is expressed as the non-centrality of a
+  chi-square on the same m residual degrees of freedom that has that power, needed: the one with 90 %
+  power. The sample grid fixes the pulse width to a whole sample only, so each pulse is bracketed by
+its rising edge (dt^2 / 12), as the test does.
 
 The mains factor and the slip are read from the table's mean rate over many rounds, far above the
 timer's error at the lab's sizes: always scored (None).
@@ -35,9 +37,9 @@ import math
 import numpy as np
 from scipy import optimize, special, stats
 
-# the timer test's own edge bracketing and line-fit statistic, so the power is that of the test the diagnosis runs
+# the timer test's own edge bracketing, covariance, design and score, so the power is that of the test the diagnosis runs
+from imurig.diagnose import pulse_angle as pa
 from imurig.diagnose.pulse_timer import _bracket
-from imurig.diagnose.pulse_timer import _wls_q as _q
 
 ALPHA, POWER = 0.01, 0.9
 #: seconds after a dial plateau began before its pulses count (the table's settling)
@@ -55,8 +57,8 @@ def lambda_needed(k: int, alpha: float, power: float = POWER) -> float:
 
 
 def table_motion(turn, truth: dict):
-    """(t, dial, psi_deg, crossing times, plateaus [(start, stop, dial)]) of the recording, rebuilt
-    with the lab's own functions and the manifest's table."""
+    """(t, psi_deg, crossing times, plateaus [(start, stop, dial)], knot times, knot dials) of the
+    recording, rebuilt with the lab's own functions and the manifest's table."""
     fs, tb = truth["fs_hz"], truth["table"]
     knots_t, knots_v = turn.dial_knots()
     t = np.arange(int(knots_t[-1] * fs)) / fs
@@ -68,7 +70,7 @@ def table_motion(turn, truth: dict):
     cross = turn.crossing_times(t, psi)
     plateaus = [(a, b, v) for a, b, v, v2 in zip(knots_t[:-1], knots_t[1:], knots_v[:-1], knots_v[1:])
                 if v == v2 and v != 0]
-    return t, psi, cross, plateaus
+    return t, psi, cross, plateaus, knots_t, knots_v
 
 
 def rounding_harmonics_V(q: float, a1: float, sigma: float, m: int, k_max: int = 2000) -> float:
@@ -91,7 +93,7 @@ def _rounds(cross: np.ndarray, a: float, b: float) -> np.ndarray:
 
 def slip_ring(truth: dict, effect: dict, turn, motion) -> dict:
     """lambda per gyro of the ripple (module doc)."""
-    t, _psi, cross, plateaus = motion
+    t, _psi, cross, plateaus = motion[:4]
     fs, adc = truth["fs_hz"], truth["adc"]
     n = 0
     for a, b, _v in plateaus:
@@ -115,40 +117,47 @@ def slip_ring(truth: dict, effect: dict, turn, motion) -> dict:
             "detectable": all(v >= need for v in lam.values())}
 
 
-def timer(truth: dict, effect: dict, motion, n_sim: int = 4000, seed: int = 0) -> dict:
-    """The timer test's power, as a chi-square non-centrality (module doc)."""
-    _t, _psi, cross, plateaus = motion
-    dt, w = 1.0 / truth["fs_hz"], truth["table"]["pulse_width_s"]
+def timer(truth: dict, effect: dict, motion, n_sim: int = 2000, seed: int = 0) -> dict:
+    """The timer test's power (module doc), as a chi-square non-centrality on its m residuals."""
+    t, psi, cross, plateaus, knots_t, knots_v = motion
+    fs, adc, g = truth["fs_hz"], truth["adc"], truth["gyros"]
+    dt, w = 1.0 / fs, truth["table"]["pulse_width_s"]
     j = effect["parameters"]["jitter_s"]
-    f = (w / dt) % 1.0
     rng = np.random.default_rng(seed)
-    q0 = np.zeros(n_sim)
-    q1 = np.zeros(n_sim)
-    m = 0
+    om_t = np.gradient(psi, t) / 360.0                                        # turns/s
+    w2 = np.concatenate([[0.0], np.cumsum(0.5 * (om_t[1:] ** 2 + om_t[:-1] ** 2) * np.diff(t))])
+    S = abs(g["S_V_per_dps"][2]) * 360.0                                      # V per turn/s
+    groups = []
     for a, b, _v in plateaus:
-        p = cross[(cross >= a + SETTLE_S) & (cross <= b)]
-        if p.size < 3:
-            continue
-        m += p.size - 2
-        k = np.arange(p.size, dtype=float)
-        ph = rng.uniform(0, dt, (2, n_sim, 1))
-        # H1: the recording's crossings, jittered, at a uniform grid phase; H0 as the test draws it:
-        # no jitter, the period within the SE the pulses fix it to (the grid errors' pattern depends
-        # on the period in samples modulo 1, known that far only)
-        T = float(np.polyfit(k, p, 1)[0])
-        v_grid = dt**2 / 12 * ((1 - f) ** 3 + f**3)
-        se_T = math.sqrt(v_grid / np.sum((k - k.mean()) ** 2))
-        tau0 = p[0] + ph[0] + (T + se_T * rng.standard_normal((n_sim, 1))) * k[None, :]
-        tau1 = p[None, :] + ph[1] + j * rng.standard_normal((n_sim, p.size))
-        for out, tau in ((q0, tau0), (q1, tau1)):
-            mid, var = _bracket(tau, dt, w)
-            out += _q(k[None, :], mid, var)
-    crit = float(np.quantile(q0, 1 - ALPHA))
-    power = float(np.mean(q1 > crit))
+        k = np.flatnonzero((cross >= a + SETTLE_S) & (cross <= b))
+        if k.size >= 3:
+            groups.append(k)
+    q = adc["step_V"]
+    c = {"t": cross, "omega": np.interp(cross, t, om_t), "G1": np.interp(cross, t, psi) / 360.0,
+         "G2": np.interp(cross, t, w2), "N": np.zeros(cross.size), "a0": 1.0 / S, "groups": groups,
+         "sigma_u": math.sqrt(g["noise_V_rms_per_sample"] ** 2 + (adc["input_noise_lsb_rms"] * q) ** 2 + q * q / 12),
+         "segments": [(a, b) for a, b, v, v2 in zip(knots_t[:-1], knots_t[1:], knots_v[:-1], knots_v[1:]) if v == v2]}
+    # the grid fixes the pulse width to a whole sample only, so the test brackets by the rising edge
+    wr = (-np.inf, np.inf)
+    v_grid = np.full(cross.size, dt**2 / 12)
+    C0, _D, _parts = pa.covariance(c, v_grid, dt, q)
+    Cg = C0 - np.diag(c["omega"] ** 2 * v_grid)
+    X = pa.design(c)
+    m = cross.size - X.shape[1]
+    u0 = pa.score_null(c, v_grid, dt, w, Cg, X, rng, n_sim, w_range=wr)
+    # H1: the recording's crossings, jittered, on the sample grid as it lies (the phases the schedule gives)
+    tau = cross[None, :] + j * rng.standard_normal((n_sim, cross.size))
+    mid, vs = _bracket(tau, dt, w, wr)
+    Lg = np.linalg.cholesky(Cg + 1e-12 * np.max(np.diag(Cg)) * np.eye(cross.size))
+    eps = (mid - cross[None, :]) * c["omega"][None, :] + rng.standard_normal((n_sim, cross.size)) @ Lg.T
+    u1 = pa.scores(eps, vs, Cg, X, c["omega"])
+    u0s = np.sort(u0)
+    p1 = (1 + u0.size - np.searchsorted(u0s, u1, side="left")) / (1 + u0.size)
+    power = float(np.mean(p1 < ALPHA))
     need = lambda_needed(m, ALPHA)
-    c = stats.chi2.isf(ALPHA, m)
+    cc = stats.chi2.isf(ALPHA, m)
     lam = 1e5 if power >= 1 - 1e-9 else (0.0 if power <= ALPHA else
-                                           float(optimize.brentq(lambda x: stats.ncx2.sf(c, m, x) - power, 1e-9, 1e5)))
+                                           float(optimize.brentq(lambda x: stats.ncx2.sf(cc, m, x) - power, 1e-9, 1e5)))
     return {"effect": effect["effect"], "lambda": {"rate": lam}, "lambda_90": need, "dof": m, "power": power,
             "detectable": power >= POWER}
 

@@ -5,12 +5,16 @@ to the sample grid (step dt = 1/fs). Per pulse k the edge is bracketed by the sa
 side of the threshold (:func:`edge_times`):
 
     rising edge  t_k in (t_i, t_i+1],          falling edge t_k + w in (t_j, t_j+1]
-    t_k in the intersection I_k of (t_i, t_i+1] and (t_j - w, t_j+1 - w]   (w: the mean pulse width)
+    t_k in the intersection I_k of (t_i, t_i+1] and (t_j - w_hi, t_j+1 - w_lo]
     t_k,meas = the middle of I_k,  its grid error var  v_k = |I_k|^2 / 12      (uniform in I_k)
 
-(a pulse whose width is not a whole number of samples is bracketed tighter by its falling edge; an
-edge with an intermediate sample, a sloped edge, is interpolated linearly and keeps v_k = dt^2/12,
-an upper bound). On a dial plateau the table turns at a constant rate, so the pulses of step s lie
+(w_lo, w_hi): the widths every pulse allows, w in (t_j - t_i+1, t_j+1 - t_i) for each. The grid fixes
+the width to a whole sample only: pulses of a width that is not a whole number of samples show two
+counts of high samples, and the range is then the sample between them, so the falling edge narrows
+no bracket and I_k is the rising edge's (the mean count's width is a statistic, and with pulses
+locked to the grid's phase a biased one that would misplace every bracket). A width that varies
+from pulse to pulse leaves the rising edge alone too. An edge with an intermediate sample, a
+sloped edge, is interpolated linearly and keeps v_k = dt^2/12, an upper bound. On a dial plateau the table turns at a constant rate, so the pulses of step s lie
 on a line, whatever the mains factor and the slip make of the rate (:func:`pulse_timer_test`):
 
     t_k,meas = t0_s + T_s n_k + e_k,    var(e_k) = v_k + j^2                    [s]
@@ -22,7 +26,7 @@ train on the grid, so that when T_s fs is near a whole number they repeat (absor
 near a simple fraction they follow a pattern. The null distribution of Q is therefore simulated:
 per step the same number of pulses at the fitted period T_s (drawn within its SE: the pattern of
 the grid errors depends on T_s fs modulo 1, which the data fix only that far), a uniform phase on the grid, the same
-bracketing (pulse width w), Q summed over steps (:func:`_null_q`); the p-value is the share of
+bracketing (pulse width w known to (w_lo, w_hi)), Q summed over steps (:func:`_null_q`); the p-value is the share of
 simulated Q at or above the observed one (chi-square on m kept as a reference, and used where an
 edge is sloped). The jitter variance is
 the moment estimate j^2 = (RSS - tr((I - H) V)) / m over the steps' ordinary least-squares fits,
@@ -68,8 +72,14 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     dt = np.diff(t)
     a1, b1 = t[rise], t[rise + 1]
     a2, b2 = t[fall], t[fall + 1]
-    w = float(np.mean(0.5 * (a2 + b2) - 0.5 * (a1 + b1))) if n else 0.0
-    lo_k, hi_k = np.maximum(a1, a2 - w), np.minimum(b1, b2 - w)
+    # the widths every binary pulse allows: w in (a2 - b1, b2 - a1); all of them together fix w to
+    # (w_lo, w_hi). Where they do not agree (a width that varies) the rising edge alone brackets.
+    w_lo = float(np.max(a2 - b1, where=binary, initial=-np.inf))
+    w_hi = float(np.min(b2 - a1, where=binary, initial=np.inf))
+    if not w_hi > w_lo or not np.isfinite(w_hi - w_lo):
+        w_lo, w_hi = -np.inf, np.inf
+    w = 0.5 * (w_lo + w_hi) if np.isfinite(w_hi) else (float(np.mean(0.5 * (a2 + b2 - a1 - b1))) if n else 0.0)
+    lo_k, hi_k = np.maximum(a1, a2 - w_hi), np.minimum(b1, b2 - w_lo)
     ok = binary & (hi_k > lo_k)
     lo_k, hi_k = np.where(ok, lo_k, a1), np.where(ok, hi_k, b1)
     mid = 0.5 * (lo_k + hi_k)
@@ -78,15 +88,17 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     frac = np.where(binary, 0.5, (thr - x[rise]) / np.where(x[rise + 1] > x[rise], x[rise + 1] - x[rise], 1.0))
     mid = np.where(binary, mid, a1 + frac * dt[rise])
     var = np.where(binary, var, dt[rise] ** 2 / 12.0)
-    return {"time_s": mid, "var_s2": var, "width_s": w, "sloped": int(np.sum(~binary))}
+    return {"time_s": mid, "var_s2": var, "width_s": w, "width_range_s": (w_lo, w_hi), "sloped": int(np.sum(~binary))}
 
 
-def _bracket(tau: np.ndarray, dt: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+def _bracket(tau: np.ndarray, dt: float, w: float, w_range=None) -> tuple[np.ndarray, np.ndarray]:
     """The middle and the grid variance of true edge times ``tau`` (s) as :func:`edge_times`
-    brackets them on a grid n dt with pulses ``w`` long (the simulated null)."""
+    brackets them on a grid n dt with pulses ``w`` long, the width known to ``w_range`` = (w_lo, w_hi)
+    (default: exactly; infinite: the rising edge alone) (the simulated null)."""
+    w_lo, w_hi = (w, w) if w_range is None else w_range
     a1 = (np.ceil(tau / dt) - 1) * dt
-    a2 = (np.ceil((tau + w) / dt) - 1) * dt - w
-    lo, hi = np.maximum(a1, a2), np.minimum(a1, a2) + dt
+    a2 = (np.ceil((tau + w) / dt) - 1) * dt
+    lo, hi = np.maximum(a1, a2 - w_hi), np.minimum(a1 + dt, a2 + dt - w_lo)
     ok = hi > lo
     lo, hi = np.where(ok, lo, a1), np.where(ok, hi, a1 + dt)
     return 0.5 * (lo + hi), (hi - lo) ** 2 / 12.0
@@ -102,7 +114,7 @@ def _wls_q(n: np.ndarray, tk: np.ndarray, v: np.ndarray) -> np.ndarray:
     return (W * (tk - b0[..., None] - b1[..., None] * n) ** 2).sum(-1)
 
 
-def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N_SIM) -> np.ndarray:
+def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N_SIM, w_range=None) -> np.ndarray:
     """``n_sim`` draws of Q under H0 (module doc): each step's pulses at its fitted period (drawn
     within the period's own grid SE, which decides the pattern of the grid errors) with a uniform
     phase on the grid, bracketed as the data are."""
@@ -112,7 +124,7 @@ def _null_q(steps, dt: float, w: float, rng: np.random.Generator, n_sim: int = N
         se_T = float(np.sqrt(np.mean(v) / np.sum((n - n.mean()) ** 2)))
         T = T + se_T * rng.standard_normal(n_sim)[:, None]
         tau = rng.uniform(0, dt, n_sim)[:, None] + T * n[None, :] + 1000.0 * dt
-        mid, var = _bracket(tau, dt, w)
+        mid, var = _bracket(tau, dt, w, w_range)
         Q += _wls_q(n[None, :], mid, var)
     return Q
 
@@ -177,7 +189,7 @@ def pulse_timer_test(edges: dict, start_s, stop_s, dial, dt_s: float, rng: np.ra
         parts.append((M, v))
     p_chi2 = float(stats.chi2.sf(Q, m))
     if edges["sloped"] == 0:
-        Qn = _null_q(steps, dt_s, edges["width_s"], rng)
+        Qn = _null_q(steps, dt_s, edges["width_s"], rng, w_range=edges.get("width_range_s"))
         p = float((1 + np.sum(Qn >= Q)) / (1 + Qn.size))
         null = f"simulated: {Qn.size} draws of the grid's bracketing at the fitted periods, uniform phases"
     else:

@@ -147,7 +147,10 @@ def findings(d: dict) -> list[dict]:
     for f in (tr.get("shortfall") or {}).get("findings", []):
         out.append(_engine_finding(f, "table_rate", "relative rate shortfall per whole-round window", {}, "1"))
     if (tr.get("timer") or {}).get("finding"):
-        out.append(_test_finding(tr["timer"]["finding"], "table_rate", "index-pulse times about each dial plateau's line"))
+        out.append(_test_finding(tr["timer"]["finding"], "table_rate",
+                                 "index-pulse times against the table-axis gyro's integrated angle"
+                                 if tr["timer"].get("method") == "gyro angle" else
+                                 "index-pulse times about each dial plateau's line"))
     if d.get("rate_factor"):
         rf = d["rate_factor"]
         out.append({"effect": rf["effect"], "channel": "rate", "observable": "stopwatch rate per timed row",

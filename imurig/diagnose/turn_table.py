@@ -43,6 +43,8 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
+from imurig.diagnose.pulse_angle import angle_timer_test
+from imurig.diagnose.pulse_angle import chain as angle_chain
 from imurig.diagnose.pulse_timer import SETTLE_S, edge_times, pulse_timer_test
 from imurig.diagnose.samples import adc_step, raw_channel_tests
 from imurig.diagnose.steps import effect_steps
@@ -152,14 +154,37 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
 
 
 def _pulse_timer(rec: Recording, rng: np.random.Generator, alpha: float) -> dict:
-    """The index pulses' timing error from the pulse voltage channel on the dial plateaus
-    (:mod:`imurig.diagnose.pulse_timer`); untested without a pulse channel or plateaus."""
+    """The index pulses' timing error from the pulse voltage channel: every pulse against the
+    table-axis gyro's integrated angle (:mod:`imurig.diagnose.pulse_angle`) where one mounting puts
+    one gyro on the axis, else the dial plateaus' lines (:mod:`imurig.diagnose.pulse_timer`, reported
+    beside the first as ``plateau_test``); untested without a pulse channel or plateaus."""
     seg = rec.segments
     if "pulse" not in rec.channels or not {"start_s", "stop_s", "rate_dial"} <= set(seg):
         return {"tested": False, "why": "no pulse voltage channel with dial plateaus"}
     edges = edge_times(rec.time_s, rec.channels["pulse"], rec.meta.get("pulse_threshold_V"))
     dt = float(np.median(np.diff(rec.time_s)))
-    return pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, rng, alpha)
+    plateau = pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, rng.spawn(1)[0], alpha)
+    # every pulse against the table-axis gyro's angle, where one mounting puts one gyro on the axis
+    mounts = set(_mounts(rec))
+    if len(mounts) != 1 or next(iter(mounts)) not in AXIS_OF_MOUNT:
+        plateau["angle_test"] = {"tested": False, "why": f"mountings {sorted(mounts)}: no single gyro on the table "
+                                                         "axis throughout"}
+        return plateau
+    j, sign = AXIS_OF_MOUNT[next(iter(mounts))]
+    ch = f"gyro_{AXES[j]}"
+    c = angle_chain(rec.time_s, sign * rec.channels[ch], edges["time_s"], seg["start_s"], seg["stop_s"],
+                    seg["rate_dial"])
+    if c is None:
+        plateau["angle_test"] = {"tested": False, "why": f"{ch}'s integral does not count the table's turns "
+                                                         "between the index pulses"}
+        return plateau
+    out = angle_timer_test(c, edges, dt, adc_step(rec, ch), rng.spawn(1)[0], alpha)
+    if not out.get("tested"):
+        plateau["angle_test"] = out
+        return plateau
+    out["gyro_channel"] = ch
+    out["plateau_test"] = {k: v for k, v in plateau.items() if k != "finding"}
+    return out
 
 
 def earth_rate_guard(findings: list, omega_v_rad_s: float, g_m_s2: float, k: float = 4.0) -> list[dict]:
