@@ -70,7 +70,8 @@ def fig_4_19() -> list[dict]:
         out.append(row("fig_4_19", f"{g} gyro own-calibration residual sigma", "deg/s", s_r, s_v,
                        _tol(s_r, dof_r, s_v, dof_v),
                        f"FIT TARGET in part: the virtual gyros' {fit} is fitted to these rows (its curve by "
-                       f"construction, the random part predicted); manufacturer's residuals reach "
+                       f"construction), the table's ripple to their scatter about a quadratic (the random part, "
+                       f"in the mean over the gyros); manufacturer's residuals reach "
                        f"{real[g]['manufacturer_max_abs_dps']:.1f} (seed) and {virt[g]['manufacturer_max_abs_dps']:.1f} "
                        "deg/s (virtual)"))
     rip = fitted_ripple()["sizes"]["table_ripple"]
