@@ -61,6 +61,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from imurig.calibration.simona import GYROS, SimonaCalibration, read_simona
+from imurig.kernel.errors import ConfigError
 from imurig.kernel.units import DEG
 from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.effects.temperature_hysteresis import K1_NOMINAL_A_PER_M_S2
@@ -261,6 +262,9 @@ def tab46_manufacturer_reading(A: np.ndarray, iterations: int = 50) -> np.ndarra
     return u
 
 
+#: the accelerometer units a tilt campaign can carry: drawn within the datasheet, or the seed's own (Tab. 4.6
+#: inverted), whole or its affine part (scale, bias, misalignment)
+ACCELEROMETER_UNITS = ("drawn", "tab-4.6", "tab-4.6-affine")
 #: the seed's support for the accelerometer unit of Tab. 4.6
 TAB46_SEED_SAYS = ("report 4.3.5, Tab. 4.6: 'the final models of the accelerometers' calibration', A_a = X(u) beta_a with "
                    "u the manufacturer's reading; paper 3.1, Fig. 3: the manufacturer's residuals of the same unit")
@@ -280,6 +284,14 @@ def tab46_affine() -> tuple[np.ndarray, np.ndarray]:
     a = np.concatenate([specific_force_C(th, ph, m, Site().gravity_m_s2) for m in ("z_down", "z_up")])
     b, *_ = np.linalg.lstsq(np.column_stack([a, np.ones(len(a))]), tab46_manufacturer_reading(a), rcond=None)
     return b[:3].T.copy(), b[3].copy()
+
+
+def accelerometer_unit(base: QFlexTriad, kind: str) -> QFlexTriad:
+    """``base`` ("drawn"), or the seed's own unit from Tab. 4.6 with ``base``'s thermal terms and noise: whole
+    ("tab-4.6") or its affine part ("tab-4.6-affine")."""
+    if kind not in ACCELEROMETER_UNITS:
+        raise ConfigError(f"accelerometers must be one of {', '.join(ACCELEROMETER_UNITS)}, got {kind!r}")
+    return base if kind == "drawn" else Tab46Triad.from_drawn(base, nonlinear=kind == "tab-4.6")
 
 
 @dataclass

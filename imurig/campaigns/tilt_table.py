@@ -23,7 +23,7 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
 from imurig.campaigns.delft_2005 import Delft2005, check_lab
-from imurig.campaigns.delft_2005_imu import Tab46Triad
+from imurig.campaigns.delft_2005_imu import ACCELEROMETER_UNITS, accelerometer_unit  # noqa: F401 (re-exported)
 from imurig.campaigns.tilt_stream import record_campaign
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
@@ -42,9 +42,6 @@ from imurig.kernel.units import ARCSEC
 STATISTICS = ("huber", "median", "mean")
 #: z-score bound used to call an estimate consistent with the injected value
 Z_BOUND = 4.0
-#: the accelerometer unit: drawn within the datasheet (default) or the seed's own, Tab. 4.6 inverted (whole, or
-#: its affine part: scale, bias and misalignment)
-ACCELEROMETER_UNITS = ("drawn", "tab-4.6", "tab-4.6-affine")
 
 
 @dataclass
@@ -103,12 +100,7 @@ class TiltTableCampaign:
         table = TiltTable(errors=errors, survey=survey, site=self.site)
         sensor_rng = random_streams.generator("sensor_errors", self.seed)
         base = ImuLab.draw(sensor_rng) if self.draw_sensor_errors else ImuLab()
-        if self.accelerometers not in ACCELEROMETER_UNITS:
-            raise ConfigError(f"tilt-table campaign: accelerometers must be one of {', '.join(ACCELEROMETER_UNITS)}, "
-                              f"got {self.accelerometers!r}")
-        if self.accelerometers != "drawn":
-            base = replace(base, accelerometers=Tab46Triad.from_drawn(base.accelerometers,
-                                                                     nonlinear=self.accelerometers == "tab-4.6"))
+        base = replace(base, accelerometers=accelerometer_unit(base.accelerometers, self.accelerometers))
         adc = DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,
                        grounding=self.grounding, crosstalk_enabled=self.crosstalk)
         effects = tuple(self.lab_effects)
