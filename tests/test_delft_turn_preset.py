@@ -56,7 +56,13 @@ def test_preset_sizes_are_fitted_and_within_their_physical_bounds():
     assert sf.sigma == pytest.approx(pre.sf_sigma) and sf.lines(["gyro_p", "acc_x"]) == ["gyro_p"]
     # the slip rings are a density: the per-sample rms scales with sqrt(f_s)
     assert pre.slip_rings(400.0).rms_V == pytest.approx(pre.slip_rings(100.0).rms_V * 2)
-    assert len(pre.describe()) == 6 and all(r["seed_says"] for r in pre.describe())
+    assert len(pre.describe()) == 7 and all(r["seed_says"] for r in pre.describe())
+    # the table's ripple (Table B.1's fit) is the campaign's table physics on the preset, not on the quiet lab
+    from imurig.campaigns.turn_table import TurnTableCampaign
+    from imurig.rigs.turn_table import TurnTableErrors
+
+    assert TurnTableCampaign(lab="delft-2005").build()[0].errors.ripple == pre.table_ripple != TurnTableErrors.ripple
+    assert TurnTableCampaign().build()[0].errors.ripple == TurnTableErrors.ripple
 
 
 def test_the_step_windows_are_whole_rounds_of_at_least_the_minimum():

@@ -23,6 +23,7 @@ from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
 from imurig.campaigns.delft_2005 import Delft2005, check_lab
+from imurig.campaigns.delft_2005_imu import ACCELEROMETER_UNITS, accelerometer_unit  # noqa: F401 (re-exported)
 from imurig.campaigns.tilt_stream import record_campaign
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
@@ -71,6 +72,10 @@ class TiltTableCampaign:
     #: "quiet" (default) or "delft-2005": the seed's lab imperfections at sizes fitted to Tab. 4.3
     #: (:mod:`imurig.campaigns.delft_2005`; the table's setting error, the y line's settling, the lab's sources)
     lab: str = "quiet"
+    #: "drawn" (default: errors drawn within the datasheet), "tab-4.6": the seed's own unit as its Tab. 4.6
+    #: measured it (:class:`imurig.campaigns.delft_2005_imu.Tab46Triad`; temperature terms and noise drawn), or
+    #: "tab-4.6-affine": that unit's scale, bias and misalignment alone
+    accelerometers: str = "drawn"
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -95,6 +100,7 @@ class TiltTableCampaign:
         table = TiltTable(errors=errors, survey=survey, site=self.site)
         sensor_rng = random_streams.generator("sensor_errors", self.seed)
         base = ImuLab.draw(sensor_rng) if self.draw_sensor_errors else ImuLab()
+        base = replace(base, accelerometers=accelerometer_unit(base.accelerometers, self.accelerometers))
         adc = DAQ6036E(scan_list=tuple(self.scan_list), mux_frequency_hz=self.mux_frequency_hz,
                        grounding=self.grounding, crosstalk_enabled=self.crosstalk)
         effects = tuple(self.lab_effects)

@@ -67,12 +67,14 @@ class TurnTableCampaign:
     def build(self) -> tuple[TurnTable, ImuLab, np.random.SeedSequence]:
         """Rig and sensor chain with their (seeded) errors, and the chain's stream
         (``campaign/turn-table/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
-        table = TurnTable(errors=TurnTableErrors(mains_hz=self.mains_hz), site=self.site)
+        preset = Delft2005Turn.fitted() if check_lab(self.lab) == "delft-2005" else None
+        errors = preset.table_errors(self.mains_hz) if preset else TurnTableErrors(mains_hz=self.mains_hz)
+        table = TurnTable(errors=errors, site=self.site)
         base = (ImuLab.draw(random_streams.generator("sensor_errors", self.seed)) if self.draw_sensor_errors
                 else ImuLab())
         lab = replace(base, adc=DAQ6036E(scan_list=TURN_TABLE_SCAN), slip_rings=SlipRingNoise(enabled=self.slip_rings))
-        if check_lab(self.lab) == "delft-2005":
-            lab = Delft2005Turn.fitted().apply(lab, self.protocol.sample_rate_hz, self.slip_rings)
+        if preset:
+            lab = preset.apply(lab, self.protocol.sample_rate_hz, self.slip_rings)
         return table, lab, random_streams.seed_sequence("campaign/turn-table/sensor-chain", self.seed)
 
     def check_identifiable(self) -> None:

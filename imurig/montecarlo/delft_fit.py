@@ -57,6 +57,7 @@ from scipy.optimize import least_squares
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.tilt_reference import tilt_table_reference
 from imurig.campaigns.delft_2005 import Delft2005
+from imurig.campaigns.delft_2005_imu import accelerometer_unit
 from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.kernel.site import Site
 from imurig.montecarlo import delft_fit_42 as fit_42
@@ -94,9 +95,10 @@ def seed_table(pub: dict) -> np.ndarray:
 
 
 def simulate_record(w_arcmin: float, tau_s: float, tau_y_s: float, f_mux_hz: float, ground: bool, seed: int,
-                    tail: tuple = (0.0, 0.0)):
+                    tail: tuple = (0.0, 0.0), accelerometers: str = "drawn"):
     """The record of Tab. 4.3's protocol on the preset lab with these sizes (module doc); ``tail``: the y
-    line's slow settling (alpha, tau_s)."""
+    line's slow settling (alpha, tau_s); ``accelerometers``: the unit (:func:`imurig.campaigns.delft_2005_imu.
+    accelerometer_unit`; the fit's is the drawn one)."""
     p = TILT_TABLE.validate({**PROTOCOL, "mux_khz": f_mux_hz / 1e3, "setting_resolution_arcmin": w_arcmin})
     ss = np.random.SeedSequence(seed)
     errors, survey, lab = TILT_TABLE.draw_lab(p, ss)
@@ -106,7 +108,8 @@ def simulate_record(w_arcmin: float, tau_s: float, tau_y_s: float, f_mux_hz: flo
                   settling_tau_s=tau_s, crosstalk_enabled=tau_s > 0 or tau_y_s > 0,
                   channel_settling_tau_s=preset.channel_settling(),
                   channel_slow_settling=preset.channel_slow_settling())
-    lab = replace(lab, adc=adc, effects=preset.effects(cable_fault=False))
+    lab = replace(lab, adc=adc, effects=preset.effects(cable_fault=False),
+                  accelerometers=accelerometer_unit(lab.accelerometers, accelerometers))
     rig = static_rig(p, errors, survey, child_generator(ss, "run/rig"), Site())
     rig.meta["averaged_logging"] = True
     return lab.measure(rig, child_seed_sequence(ss, "run/sensor-chain"))

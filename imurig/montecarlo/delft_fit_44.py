@@ -44,6 +44,7 @@ from imurig.calibration.accelerometer import INPUTS, MODELS
 from imurig.calibration.preprocess import segment_statistic
 from imurig.calibration.tilt_reference import tilt_table_reference
 from imurig.campaigns.delft_2005 import Delft2005
+from imurig.campaigns.delft_2005_imu import accelerometer_unit
 from imurig.kernel.random_streams import child_generator, child_seed_sequence
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
@@ -67,9 +68,10 @@ DESIGN_BASE = 2005 + 900
 
 
 def final_lab(seed: int, w_arcmin: float, delta_arcmin: float, params: dict = FINAL,
-              preset: Delft2005 | None = None) -> Recording:
+              preset: Delft2005 | None = None, accelerometers: str = "drawn") -> Recording:
     """One virtual lab of the seed's final campaign on the preset, with the setting-error width w and the
-    phi-plane error delta left out of the reference (module doc); 100 Hz averaged record."""
+    phi-plane error delta left out of the reference (module doc); 100 Hz averaged record. ``accelerometers``:
+    the unit (:func:`imurig.campaigns.delft_2005_imu.accelerometer_unit`; the fit's is the drawn one)."""
     pre = preset or Delft2005.fitted()
     p = TILT_TABLE.validate({**params, "setting_resolution_arcmin": w_arcmin})
     ss = np.random.SeedSequence(seed)
@@ -78,7 +80,8 @@ def final_lab(seed: int, w_arcmin: float, delta_arcmin: float, params: dict = FI
     adc = replace(lab.adc, settling_tau_s=pre.settling_tau_s, crosstalk_enabled=True,
                   channel_settling_tau_s=pre.channel_settling(), channel_slow_settling=pre.channel_slow_settling())
     lab = replace(lab, adc=adc, effects=pre.effects(cable_fault=False),
-                  pump=replace(lab.pump, rms_m_s2=pre.pump_rms_m_s2))
+                  pump=replace(lab.pump, rms_m_s2=pre.pump_rms_m_s2),
+                  accelerometers=accelerometer_unit(lab.accelerometers, accelerometers))
     rig = static_rig(p, errors, survey, child_generator(ss, "run/rig"), Site())
     rig.meta["averaged_logging"] = True
     return lab.measure(rig, child_seed_sequence(ss, "run/sensor-chain"))
