@@ -277,7 +277,8 @@ def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves") -> None:
     nsd = moves[0][0].nsensordata
     coarse = {}
     for m, _, _, _ in moves:
-        coarse.setdefault(id(m), _coarse_models([m], k)[0])
+        if id(m) not in coarse:
+            coarse[id(m)] = _coarse_models([m], k)[0]
     datas = [mujoco.MjData(moves[0][0]) for _ in range(2)]
     by_len: dict[tuple, list] = {}
     for mv in moves:  # batched by length and slew end (the same pieces)
