@@ -11,6 +11,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from imurig.kernel.errors import ConfigError
 from imurig.kernel.progress import progress
 
 
@@ -70,3 +71,26 @@ def rollout_servo(models: list[mujoco.MjModel], qpos0: np.ndarray, ctrl: np.ndar
             state = st[:, -1].copy()
             bar.update(b - a)
     return out
+
+
+def servo_settle_samples(model: mujoco.MjModel, tol: float) -> int:
+    """Time steps after the last change of the commands within which the position servos' transient
+    falls below ``tol`` of the move.
+
+    A position servo (stiffness kp, damping kv) on a joint of inertia I leaves an error e from its held
+    command with I e'' + kv e' + kp e = 0: poles s = (-kv +- sqrt(kv^2 - 4 I kp)) / (2 I). Overdamped
+    (kv^2 > 4 I kp; the tilt table's servos by a factor ~10), the slow pole decays at
+    r = kv (1 - sqrt(1 - 4 I kp / kv^2)) / (2 I) >= kp / kv whatever I (coupled joints too: each mode v
+    solves the scalar quadratic v^H (M s^2 + Kv s + Kp) v = 0 of the same form). So the transient is below
+    ``tol`` of its start after N = ceil(ln(1 / tol) / (min(kp / kv) dt)) steps. MuJoCo's implicitly
+    damped step (implicitfast) decays at least as fast: its slowest eigenvalue is below
+    exp(-dt min(kp / kv)) (tests/test_tilt_twin.py).
+    """
+    if not 0 < tol < 1:
+        raise ConfigError(f"the settling tolerance must lie in (0, 1), got {tol}")
+    kp = model.actuator_gainprm[:, 0]
+    kv = -model.actuator_biasprm[:, 2]
+    if model.nu == 0 or np.any(kp <= 0) or np.any(kv <= 0) or np.any(model.actuator_biasprm[:, 1] != -kp):
+        raise ConfigError("the model's actuators must all be position servos with kp > 0 and kv > 0")
+    rate = float(np.min(kp / kv))
+    return int(np.ceil(np.log(1.0 / tol) / (rate * model.opt.timestep)))

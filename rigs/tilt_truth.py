@@ -10,8 +10,9 @@ table's errors):
 which the MuJoCo table reproduces to 1e-11 g (tests/test_tilt_table.py). MuJoCo steps only the
 moves: from the end of one window (the table at rest at the previous command) through the slew
 and the settling to the start of the next window. Moves of equal length are batched into one
-``mujoco.rollout`` call (one model per mounting). ``full_truth`` steps every sample instead (the
-reference the stitched truth is tested against).
+``mujoco.rollout`` call (one model per mounting; :func:`rollout_moves`, which the diagnosis's twin
+:mod:`imurig.diagnose.tilt_twin` shares). ``full_truth`` steps every sample instead (the reference the
+stitched truth is tested against).
 
 A move may be stepped at a coarser time step h = k dt (``move_substeps`` k > 1): MuJoCo steps at dt
 for FINE_HEAD samples from a move's start (the command's step at the move's start sets off the servo's
@@ -69,10 +70,14 @@ def full_truth(models, qpos0, ctrl, sl, earth_W) -> dict:
     return out
 
 
-def _rest_state(model, qpos, ctrl) -> np.ndarray:
-    """MuJoCo's full physics state of the table at rest at ``qpos`` with command ``ctrl``."""
+def _rest_state(model, qpos, ctrl, d=None) -> np.ndarray:
+    """MuJoCo's full physics state of the table at rest at ``qpos`` with command ``ctrl`` (``d``: an MjData
+    of ``model`` to reuse; reset first, so the state is that of a new one)."""
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    d = mujoco.MjData(model)
+    if d is None:
+        d = mujoco.MjData(model)
+    else:
+        mujoco.mj_resetData(model, d)
     d.qpos[:] = qpos
     d.ctrl[:] = ctrl
     mujoco.mj_forward(model, d)
@@ -93,6 +98,12 @@ def stitched_truth(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W, mov
     return pieces.rows(0, pieces.n)
 
 
+def rest_attitude(mount: str, R_WB: np.ndarray, theta: float, phi: float) -> np.ndarray:
+    """R_CW (3, 3) of the table at rest at the joint angles (theta, phi) rad, base attitude R_WB,
+    mounting ``mount``: R_CW = R_MC^T Rz(phi)^T Ry(theta)^T R_WB^T (module doc)."""
+    return MOUNTS[mount].T @ rot_z(phi).T @ rot_y(theta).T @ R_WB.T
+
+
 def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
                     move_substeps: int = 1) -> "TruthPieces":
     """The truth of :func:`stitched_truth` as :class:`TruthPieces` (constants in the windows, MuJoCo
@@ -100,12 +111,12 @@ def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
     nb, nstep, _ = ctrl.shape
     out = TruthPieces(nb * nstep)
     up = np.array([0.0, 0.0, g])
-    moves = []  # (length, batch row, start, initial qpos)
+    moves = []  # (model, commands, initial qpos, first sample of the record)
     for b in range(nb):
         prev_stop = 0
         for a, e in windows:
             theta, phi = ctrl[b, a]
-            R_CW = MOUNTS[mounts[b]].T @ rot_z(phi).T @ rot_y(theta).T @ R_WB.T
+            R_CW = rest_attitude(mounts[b], R_WB, theta, phi)
             vals = {}
             for s, v in (("f_C", up), ("w_C", earth_W), ("B_C", B_W)):
                 for j, x in enumerate(R_CW @ v):
@@ -113,9 +124,14 @@ def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
             vals["theta_true"], vals["phi_true"] = theta, phi
             out.hold(b * nstep + a, b * nstep + e, vals)
             if a > prev_stop:  # the table rests at the previous command when the move starts
-                moves.append((a - prev_stop, b, prev_stop, ctrl[b, prev_stop - 1] if prev_stop else ctrl[b, 0]))
+                moves.append((models[b], ctrl[b, prev_stop:a], ctrl[b, prev_stop - 1] if prev_stop else ctrl[b, 0],
+                              b * nstep + prev_stop))
             prev_stop = e
-    _rollout_moves(models, ctrl, moves, out, nstep, sl, earth_W, int(move_substeps))
+
+    def fill(start, sd, knots, length):
+        _fill_interpolated(out, slice(start, start + length), sd, knots, sl, earth_W)
+
+    rollout_moves(moves, fill, int(move_substeps), desc="tilt table moves (MuJoCo)")
     return out.done()
 
 
@@ -225,15 +241,16 @@ def _plan(length: int, slew_end: int, k: int) -> list[tuple[int, int, int]]:
     return plan
 
 
-def _step_batch(models, coarse, datas, ctrl, batch, length: int, slew_end: int, k: int):
+def _step_batch(batch, coarse: dict, datas, length: int, slew_end: int, k: int):
     """MuJoCo over the moves ``batch`` (equal ``length`` and slew end): sensor rows (nbatch, m, nsd) and their
-    sample offsets (m,), stepped piece by piece as :func:`_plan` says (models ``coarse``: time step k dt)."""
-    state = np.stack([_rest_state(models[b], q0, ctrl[b, a]) for _, b, a, q0 in batch])
+    sample offsets (m,), stepped piece by piece as :func:`_plan` says (``coarse``: id(model) -> the model with
+    the time step k dt)."""
+    state = np.stack([_rest_state(m, q0, c[0], datas[0]) for m, c, q0, _ in batch])
     nd = datas[:min(2, len(batch))]
     rows, knots = [], []
     for lo, hi, step in _plan(length, slew_end, k):
-        ms = [(models if step == 1 else coarse)[b] for _, b, _, _ in batch]
-        c = np.stack([ctrl[b, a + lo:a + hi:step] for _, b, a, _ in batch])
+        ms = [m if step == 1 else coarse[id(m)] for m, _, _, _ in batch]
+        c = np.stack([c[lo:hi:step] for _, c, _, _ in batch])
         st, sd = rollout.rollout(ms, nd, state, c)
         state = np.ascontiguousarray(st[:, -1])
         rows.append(sd)
@@ -247,22 +264,32 @@ def _slew_end(c: np.ndarray) -> int:
     return int(moving[-1]) + 1 if moving.size else 0
 
 
-def _rollout_moves(models, ctrl, moves, out, nstep, sl, earth_W, k: int = 1) -> None:
-    """MuJoCo for every move, batched by length (bounded memory), written into ``out``; after the first
-    FINE_HEAD samples, every k-th sample stepped (module doc)."""
-    nsd = models[0].nsensordata
-    coarse = _coarse_models(models, k)
-    datas = [mujoco.MjData(models[0]) for _ in range(2)]
+def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves") -> None:
+    """MuJoCo over the moves, batched by length (one ``mujoco.rollout`` call per batch, memory bounded by
+    :data:`MAX_BATCH_BYTES`); after the first FINE_HEAD samples, every k-th sample stepped (module doc).
+
+    ``moves``: (model, ctrl (L, nu) rad, qpos0 (nq,) rad, tag): the servo starts at rest at ``qpos0`` and
+    follows ``ctrl``; sensor row i is evaluated at the move's sample i under ctrl[i] (as in
+    :func:`imurig.rigs.mujoco_rig.rollout_servo`). Each move's rows go to ``sink(tag, sd (m, nsensordata),
+    knots (m,) sample offsets, L)`` (m = L for k = 1)."""
+    if not moves:
+        return
+    nsd = moves[0][0].nsensordata
+    coarse = {}
+    for m, _, _, _ in moves:
+        if id(m) not in coarse:
+            coarse[id(m)] = _coarse_models([m], k)[0]
+    datas = [mujoco.MjData(moves[0][0]) for _ in range(2)]
     by_len: dict[tuple, list] = {}
     for mv in moves:  # batched by length and slew end (the same pieces)
-        length, b, a, _ = mv
-        by_len.setdefault((length, _slew_end(ctrl[b, a:a + length]) if k > 1 else 0), []).append(mv)
-    with progress(total=sum(m[0] for m in moves), desc="tilt table moves (MuJoCo)", unit="step") as bar:
+        c = mv[1]
+        by_len.setdefault((len(c), _slew_end(c) if k > 1 else 0), []).append(mv)
+    with progress(total=sum(len(m[1]) for m in moves), desc=desc, unit="step") as bar:
         for (length, slew_end), group in by_len.items():
             per = max(1, MAX_BATCH_BYTES // (length * nsd * 8))
             for i in range(0, len(group), per):
                 batch = group[i:i + per]
-                sd, knots = _step_batch(models, coarse, datas, ctrl, batch, length, slew_end, k)
-                for j, (_, b, a, _) in enumerate(batch):
-                    _fill_interpolated(out, slice(b * nstep + a, b * nstep + a + length), sd[j], knots, sl, earth_W)
+                sd, knots = _step_batch(batch, coarse, datas, length, slew_end, k)
+                for j, mv in enumerate(batch):
+                    sink(mv[3], sd[j], knots, length)
                 bar.update(length * len(batch))

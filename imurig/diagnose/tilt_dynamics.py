@@ -19,7 +19,7 @@ from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_twin import tilt_table_twin
 from imurig.kernel.recording import Recording
 
-#: the dynamic twin's memory (five replays in RAM) limits the record length it takes
+#: the dynamic twin's memory (five replays' f_C in RAM) limits the record length it takes
 MAX_DYNAMIC_SAMPLES = 1_500_000
 #: effects of the slews between positions (the dynamic twin of :func:`diagnose_tilt_dynamics`)
 DYNAMIC_EFFECTS = ("time_delay", "lever_arm", "wrong_local_gravity")

@@ -213,8 +213,8 @@ def _dynamic(rec: Recording, cal, axes: dict, rng: np.random.Generator, alpha: f
         return {"tested": False, "why": f"the slews need per-sample theta/phi set-point channels at >= "
                                         f"{MIN_SLEW_RATE_HZ:g} Hz"}
     if rec.n > MAX_DYNAMIC_SAMPLES:
-        return {"tested": False, "why": f"{rec.n} samples: this version replays the whole record five "
-                                        f"times in MuJoCo and keeps it in memory; records up to "
+        return {"tested": False, "why": f"{rec.n} samples: this version keeps five replays of the whole "
+                                        f"record (the twin's specific force) in memory; records up to "
                                         f"{MAX_DYNAMIC_SAMPLES} samples (cut the record into runs)"}
     static_found = tuple(a for a in AXES if axes[a]["findings"])
     crosstalk = tuple(a for a in AXES if any(f["effect"] == "adc_crosstalk" for f in axes[a]["findings"]))

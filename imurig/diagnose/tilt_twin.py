@@ -5,18 +5,42 @@ The table's controller turns each step of the set-points (theta, phi) into a cos
 (:func:`tilt_table_twin`) feeds those commands, offset by the surveyed table errors, to the rig's
 own MuJoCo model and servo at the site's gravity and returns the specific force f_C and the
 angular rate w_C at the 'imu' site, plus the linear response of f_C to a command offset per
-set-point window (the nuisance of :func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`).
+set-point window (the nuisance of :func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`):
+five replays, the commands and four window-offset perturbations.
+
+Physics only where the table moves. MuJoCo steps from each change of the commands (any of the five)
+until the servo's transient is below SETTLE_TOL of the move, N = ceil(ln(1 / SETTLE_TOL) / (min(kp / kv) dt))
+samples after the last change (the servo's slow pole kp / kv = 20 /s in the MJCF:
+:func:`imurig.rigs.mujoco_rig.servo_settle_samples`; 1.6 s); a hold shorter than that, or a logged ramp,
+is stepped through, and so is a command at a joint's limit (the constraint, not the servo, sets the
+rest). Each move starts at rest at the previous command; moves of equal length are batched into one
+``mujoco.rollout`` call (:func:`imurig.rigs.tilt_truth.rollout_moves`, as the campaign's truth). At rest,
+at the held command (theta, phi) of each replay, the closed form:
+
+    f_C = R_CW (0, 0, g),   R_CW = R_MC^T Rz(phi)^T Ry(theta)^T R_WB^T,   w_C = 0
+
+(Earth's rate left out), so the responses there are (f_C(command + delta) - f_C(command)) / delta of the
+closed form. :func:`tilt_table_twin_full` steps every sample (the reference; tests/test_tilt_twin.py).
 """
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import Site
 from imurig.kernel.units import DEG
-from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices
+from imurig.rigs.mujoco_rig import load_model, rollout_servo, sensor_slices, servo_settle_samples
 from imurig.rigs.tilt_table import MOUNTS, _copy_model, _quat_wxyz, rot_x, rot_z
+from imurig.rigs.tilt_truth import rest_attitude, rollout_moves
+
+#: the servo's transient left, of the move, where the twin takes the table as at rest (closed form): at
+#: 1e-14 the closed form equals MuJoCo's settled replay to a few ulp of g (tests/test_tilt_twin.py)
+SETTLE_TOL = 1e-14
+#: commands this far inside a joint's range keep the overdamped servo off the limit (its response is a
+#: weighted mean of past commands): MuJoCo steps such a move without the constraint stage
+LIMIT_MARGIN_RAD = 0.01
 
 
 def slew_commands(setpoints: np.ndarray, slew_rate_rad_s: float, dt: float, min_slew_s: float = 0.5) -> np.ndarray:
@@ -55,7 +79,8 @@ def _run_mounts(rec: Recording, blocks) -> list[str]:
     return out
 
 
-def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad: float = 1e-5) -> dict:
+def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad: float = 1e-5,
+                    settle_tol: float = SETTLE_TOL) -> dict:
     """Replay the recording's set-points through the twin of the table (MuJoCo, the rig's own
     model and servo) with the surveyed table errors and the site's gravity; per contiguous run.
 
@@ -64,30 +89,108 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
     assumes), the set-point windows (start sample of each; a window runs to the next change),
     and the linear responses of f_C to a command offset of each window (see module doc of
     :func:`diagnose_tilt_dynamics`): ``resp`` (4, n, 3) for (theta, even windows), (theta,
-    odd), (phi, even), (phi, odd), per rad.
+    odd), (phi, even), (phi, odd), per rad: (f_C(command + delta_rad) - f_C(command)) / delta_rad.
+
+    MuJoCo steps only where the table moves (module doc): from each change of the commands until
+    ``settle_tol`` of the servo's transient is left (:func:`imurig.rigs.mujoco_rig.servo_settle_samples`);
+    at rest, the closed form f_C = R_CW (0, 0, g), w_C = 0. :func:`tilt_table_twin_full` steps every sample.
     """
+    plan = _plan(rec, gravity_m_s2, delta_rad)
+    f = np.empty((5, rec.n, 3))
+    w = np.empty((rec.n, 3))
+    up = np.array([0.0, 0.0, plan["gravity_m_s2"]])
+    moves = []  # (model, commands, initial qpos, (replay, first sample))
+    for b, mnt, m, ctrl in plan["replays"]:
+        ns = servo_settle_samples(m, settle_tol)
+        near = _near_limits(m, ctrl, LIMIT_MARGIN_RAD)
+        free = _copy_model(m)  # no joint limit is reached: the constraint stage changes no number (skipped)
+        free.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+        for a, e, hold in _pieces(ctrl, ns, _near_limits(m, ctrl, 0.0)):
+            if hold:  # at rest at the held command (theta, phi) of each replay: the closed form
+                for v in range(5):
+                    f[v, b.start + a:b.start + e] = rest_attitude(mnt, plan["R_WB"], *ctrl[v, a]) @ up
+                w[b.start + a:b.start + e] = 0.0
+            else:     # a move: from rest at the previous command (the first: as the full replay starts)
+                mv = m if near[max(a - 1, 0):e].any() else free
+                moves += [(mv, ctrl[v, a:e], ctrl[v, max(a - 1, 0)], (v, b.start + a)) for v in range(5)]
+
+    def sink(tag, sd, knots, length):
+        v, a = tag
+        f[v, a:a + length] = sd[:, plan["sl"]["f_C"]]
+        if v == 0:
+            w[a:a + length] = sd[:, plan["sl"]["w_C"]]
+
+    rollout_moves(moves, sink, desc="tilt-table twin moves (MuJoCo)")
+    return _result(plan, f, w, delta_rad)
+
+
+def tilt_table_twin_full(rec: Recording, gravity_m_s2: float | None = None, delta_rad: float = 1e-5) -> dict:
+    """:func:`tilt_table_twin` with MuJoCo stepping every sample of the record (the reference the
+    stitched twin is tested against)."""
+    plan = _plan(rec, gravity_m_s2, delta_rad)
+    f = np.empty((5, rec.n, 3))
+    w = np.empty((rec.n, 3))
+    sl = plan["sl"]
+    for b, _, m, ctrl in plan["replays"]:
+        sd = rollout_servo([m] * 5, ctrl[:, 0], ctrl, desc="tilt-table twin (MuJoCo)")
+        f[:, b] = sd[:, :, sl["f_C"]]
+        w[b] = sd[0][:, sl["w_C"]]
+    return _result(plan, f, w, delta_rad)
+
+
+def _pieces(ctrl: np.ndarray, settle: int, limited: np.ndarray) -> list[tuple[int, int, bool]]:
+    """(start, stop, hold) pieces of a replay's samples: a move from each change of the commands ``ctrl``
+    (5, n, 2) to ``settle`` samples after the last change that follows within ``settle`` samples (a short
+    hold or a ramp is stepped through), holds (at rest) in between. A sample whose command reaches a
+    joint's limit (``limited`` (n,) True) counts as a change: the limit's constraint, not the servo,
+    sets where the table rests, and MuJoCo steps it."""
+    n = ctrl.shape[1]
+    changed = np.any(ctrl[:, 1:] != ctrl[:, :-1], axis=(0, 2))
+    ev = np.flatnonzero(np.concatenate(([bool(limited[0])], changed | limited[1:])))
+    if ev.size == 0:
+        return [(0, n, True)]
+    new = np.concatenate(([True], np.diff(ev) >= settle))   # a change after the last one has settled
+    starts, last = ev[new], ev[np.append(np.flatnonzero(new)[1:] - 1, ev.size - 1)]
+    out, pos = [], 0
+    for a, e in zip(starts.tolist(), np.minimum(n, last + settle).tolist()):
+        if a > pos:
+            out.append((pos, a, True))
+        out.append((a, e, False))
+        pos = e
+    if pos < n:
+        out.append((pos, n, True))
+    return out
+
+
+def _near_limits(m, ctrl: np.ndarray, margin: float) -> np.ndarray:
+    """(n,) whether any of the commands ``ctrl`` (5, n, 2) rad comes within ``margin`` rad of the range
+    of a limited joint."""
+    jnt = m.actuator_trnid[:, 0]
+    lo, hi = m.jnt_range[jnt].T
+    lim = m.jnt_limited[jnt].astype(bool)
+    return np.any(lim & ((ctrl <= lo + margin) | (ctrl >= hi - margin)), axis=(0, 2))
+
+
+def _plan(rec: Recording, gravity_m_s2: float | None, delta_rad: float) -> dict:
+    """Per contiguous run of the record: (slice, mounting, model, commands (5, n, 2) rad: the commanded
+    trajectory and its four window-offset perturbations), with the window starts, the lever arm r0_C and
+    the sensor slices."""
     site = Site.from_dict(rec.meta.get("site", {}))
     g = site.gravity_m_s2 if gravity_m_s2 is None else gravity_m_s2
     sv = rec.meta.get("table_survey") or {}
     proto = rec.meta.get("protocol") or {}
     rate = float(proto.get("slew_rate_deg_s", 6.0)) * DEG
-    fs = rec.sample_rate_hz
-    dt = 1.0 / fs
+    dt = 1.0 / rec.sample_rate_hz
     base = load_model("tilt_table.xml")
     base.opt.timestep = dt
     base.opt.gravity[:] = (0.0, 0.0, -g)
     bid_base, bid_mount = base.body("base").id, base.body("imu_mount").id
     R_WB = rot_z(np.float64(float(rec.meta.get("table_azimuth_deg", 0.0)) * DEG)) @ rot_x(
         np.float64(sv.get("level_x_rad", 0.0)))
-    sl = sensor_slices(base)
     blocks = rec.blocks()
     mounts = _run_mounts(rec, blocks)
-    n = rec.n
-    f = np.empty((n, 3))
-    w = np.empty((n, 3))
-    r0 = np.empty((n, 3))
-    resp = np.zeros((4, n, 3))
-    starts = []
+    r0 = np.empty((rec.n, 3))
+    replays, starts = [], []
     for b, mnt in zip(blocks, mounts):
         if mnt not in MOUNTS:
             raise RecordingError(f"unknown mounting '{mnt}' in the recording; the tilt table knows {sorted(MOUNTS)}")
@@ -113,15 +216,20 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
                 c = cmd.copy()
                 c[:, j] += delta_rad * (win % 2 == parity)
                 ctrl.append(c)
-        ctrl = np.array(ctrl)
-        sd = rollout_servo([m] * 5, ctrl[:, 0], ctrl, desc="tilt-table twin (MuJoCo)")
-        f[b] = sd[0][:, sl["f_C"]]
-        w[b] = sd[0][:, sl["w_C"]]
-        resp[:, b] = (sd[1:, :, sl["f_C"]] - sd[0][None, :, sl["f_C"]]) / delta_rad
+        replays.append((b, mnt, m, np.array(ctrl)))
         r0[b] = MOUNTS[mnt].T @ base.body_pos[bid_mount] + base.site_pos[base.site("imu").id]
         starts.append(b.start + ch)
-    return {"f_C": f, "w_C": w, "r0_C": r0, "resp": resp, "window_start": np.concatenate(starts), "gravity_m_s2": g,
-            "mounts": mounts}
+    return {"replays": replays, "R_WB": R_WB, "sl": sensor_slices(base), "gravity_m_s2": g, "mounts": mounts,
+            "r0_C": r0, "window_start": np.concatenate(starts)}
+
+
+def _result(plan: dict, f: np.ndarray, w: np.ndarray, delta_rad: float) -> dict:
+    """The twin's output from the five replays' f_C (5, n, 3) (overwritten) and the commanded one's w_C."""
+    resp = f[1:]
+    resp -= f[0][None]
+    resp /= delta_rad
+    return {"f_C": f[0], "w_C": w, "r0_C": plan["r0_C"], "resp": resp, "window_start": plan["window_start"],
+            "gravity_m_s2": plan["gravity_m_s2"], "mounts": plan["mounts"]}
 
 
 def _ramped(sp: np.ndarray) -> bool:
