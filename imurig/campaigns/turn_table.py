@@ -111,6 +111,10 @@ class TurnTableCampaign:
         table, lab, ss = self.build()
         rig = table.simulate(self.protocol, self.start_time,
                              random_streams.generator("campaign/turn-table/rig", self.seed))
+        return self._measured(lab, rig, ss)
+
+    def _measured(self, lab: ImuLab, rig: Recording, ss: np.random.SeedSequence) -> Recording:
+        """The whole-record sensor chain over the rig record ``rig``, with the campaign's metadata and seed."""
         rec = lab.measure(rig, ss)
         note_scale_instability(rec, lab)
         rec.meta["campaign"] = {"name": "turn-table", **self.to_dict()}
