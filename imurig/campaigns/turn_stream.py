@@ -3,8 +3,8 @@
     TurnTable.run (truth as states, rows on demand: :class:`imurig.rigs.turn_run.TurnRun`)
       -> measure_stream (:mod:`imurig.sensors.stream`: FOG triad, Q-Flex, slip rings, converter codes, timers)
       -> sinks, piece by piece: the HDF5 recording (:class:`imurig.kernel.h5write.H5RowWriter`), and
-         :class:`TurnTap`, which keeps the converter's codes of the gyros (and of the index pulse with the ADC as
-         the timer; int16, volts = code * lsb_V), the spin angle at the display's 10 Hz rows and the rows of the figure's window
+         :class:`TurnTap`, which keeps the converter's codes of the gyros and the index pulse (int16; volts =
+         code * lsb_V), the spin angle at the display's 10 Hz rows and the rows of the figure's window
 
 What the analysis gets is the record's acquisition windows (:func:`window_record`): the rows inside each
 step's window (and the one before it, where the ADC timer sees an edge), with the gyro and pulse volts,
@@ -76,17 +76,24 @@ def _rows_of(run, times: np.ndarray) -> np.ndarray:
     return out
 
 
-def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False) -> SimpleNamespace:
+def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False, check: bool = True,
+                    streams: tuple[str, str] = ("campaign/turn-table/rig", "campaign/turn-table/sensor-chain")
+                    ) -> SimpleNamespace:
     """Simulate the campaign ``camp`` (:class:`imurig.campaigns.turn_table.TurnTableCampaign`) in pieces.
 
     Returns ``rec`` (the acquisition windows' record, :func:`window_record`), ``rows`` (the .rrd's rows,
     :class:`imurig.reports.turn_table_rrd.Rows`-like), ``fig`` (a record of the fastest step's window: the
     slip-ring figure), n (samples), streamed (False: the whole-record chain ran, see ``why``) and
     ``recording`` (the whole Recording with ``keep`` or on the whole-record chain, else None); writes the
-    HDF5 recording to ``h5_path`` if given."""
-    camp.check_identifiable()
-    table, lab, ss = camp.build()
-    run = table.run(camp.protocol, camp.start_time, random_streams.generator("campaign/turn-table/rig", camp.seed))
+    HDF5 recording to ``h5_path`` if given. ``check``: refuse a schedule that cannot identify the campaign's
+    model first; ``streams``: the rig's and the sensor chain's random streams (a study's own)."""
+    if check:
+        camp.check_identifiable()
+    else:
+        camp.protocol.validate()
+    table, lab, _ = camp.build()
+    ss = random_streams.seed_sequence(streams[1], camp.seed)
+    run = table.run(camp.protocol, camp.start_time, random_streams.generator(streams[0], camp.seed))
     why = unsupported(lab, run)
     if why:
         rec = camp._measured(lab, run.recording(), ss)
@@ -100,7 +107,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     i_fig = int(np.argmax(np.abs(seg["rate_dial"])))
     bounds = _rows_of(run, np.concatenate([seg["start_s"], seg["stop_s"]]))
     lo, hi = bounds[:len(seg["start_s"])], bounds[len(seg["start_s"]):]
-    kept = [c for c in GYRO if c in scan] + (["pulse"] if camp.timer == "adc" and "pulse" in scan else [])
+    kept = [c for c in (*GYRO, "pulse") if c in scan]
     tap = TurnTap(run, kept, max(1, int(round(fs / DISPLAY_HZ))), (lo[i_fig], hi[i_fig]))
     chan_names = list(run.units) + [c for c in scan if c not in run.units]
     truth_units = {**run.truth_units, "T_imu": "K"}
