@@ -144,7 +144,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     fig = _fig_record(run, tap, info, i_fig, q)
     rows = SimpleNamespace(blocks=[slice(int(a), int(b)) for a, b in zip(run.off[:-1], run.off[1:])],
                            time=run.time_rows, channel=lambda n, a, b: tap.volts(n, a, b, q),
-                           spin_at=lambda idx: tap.pose_spin[np.searchsorted(tap.pose_rows, idx)])
+                           spin_at=lambda idx: tap.pose_spin[np.searchsorted(tap.pose_rows, idx)], sample_rate_hz=fs)
     return SimpleNamespace(rec=rec, rows=rows, fig=fig, n=run.n, streamed=True, why=None,
                            recording=sinks[1].recording(info, info["drop"]) if keep else None)
 

@@ -7,6 +7,7 @@ estimated parameter as {name, unit, injected, estimate, std_error, z}), ``calibr
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
 import numpy as np
@@ -210,8 +211,20 @@ def _fig_z(out, params):
 
 
 #: each stage's share of the default campaign's time (2 cores): the progress bar's ETA
-STAGE_SHARES = {"simulate": 45, "analyse": 5, "timer study": 14, "arm study": 5, "SIMONA": 5, "figures": 4,
-                "recording.h5": 13, "campaign.rrd": 7, "report": 2}
+STAGE_SHARES = {"simulate": 60, "analyse": 3, "figures": 8, "campaign.rrd": 12, "studies": 15, "report": 2}
+
+
+def _studies(camp: TurnTableCampaign) -> tuple:
+    """The timer study, the arm study and SIMONA (their own records and streams: run beside the campaign, in a
+    worker thread; no figures here, pyplot is drawn from one thread)."""
+    ts = timer_study(camp.seed, lab=camp.lab)
+    arm = arm_study(camp.seed)
+    real = read_simona()
+    virt = simona_virtual(camp.seed)
+    simona = {"real": SimonaCalibration().fit(real).summary_, "virtual": SimonaCalibration().fit(virt).summary_,
+              "real_rounds": real.channels["measured_round"].tolist(),
+              "virtual_rounds": virt.channels["measured_round"].tolist()}
+    return ts, arm, simona, (real, virt)
 
 
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
@@ -221,8 +234,8 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
     matplotlib.use("Agg")
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + \
-        (["timer study", "arm study", "SIMONA"] if studies else []) + ["report"]
-    with out:  # committed on success, removed on any error
+        (["studies"] if studies else []) + ["report"]
+    with out, ThreadPoolExecutor(1) as pool:  # the folder committed on success, removed on any error
         with StageBar(STAGE_SHARES, stages, "turn-table campaign") as stage:
 
             t0 = time.perf_counter()
@@ -233,6 +246,14 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             t_sim = time.perf_counter() - t0
             stage("analyse")
             res = analyse(rec, camp.timer, camp.model)
+            # keep the windows' segments, let go of their rows; then the studies simulate their own records beside
+            # the campaign's figures and .rrd (in a worker thread: the memory of one study at a time)
+            rec = SimpleNamespace(n=rec.n, n_segments=rec.n_segments, meta=rec.meta, truth=rec.truth, events=rec.events)
+            res["windows"] = SimpleNamespace(segments=res["windows"].segments)
+            for c in (res["main"], res["seed_final"]):
+                c.windows_ = res["windows"]
+            sim.rec = None
+            pending = pool.submit(_studies, camp) if studies else None
             figs = {}
             # the campaign's own figures and .rrd first: then its record is let go before the studies simulate theirs
             stage("figures")
@@ -249,24 +270,12 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 write_rrd(path, rec_, res_, rows=sim.rows)
 
             files.update(save_products(out, rec, res, rrd_writer, False, rrd, stage))
-            # keep the windows' segments, let go of their rows
-            n_samples, rec = sim.n, SimpleNamespace(n=sim.rec.n, n_segments=sim.rec.n_segments)
-            res["windows"] = SimpleNamespace(segments=res["windows"].segments)
-            for c in (res["main"], res["seed_final"]):
-                c.windows_ = res["windows"]
+            n_samples = sim.n
             del sim
             ts = arm = simona = None
             if studies:
-                stage("timer study")
-                ts = timer_study(camp.seed, lab=camp.lab)
-                stage("arm study")
-                arm = arm_study(camp.seed)
-                stage("SIMONA")
-                real = read_simona()
-                virt = simona_virtual(camp.seed)
-                simona = {"real": SimonaCalibration().fit(real).summary_, "virtual": SimonaCalibration().fit(virt).summary_,
-                          "real_rounds": real.channels["measured_round"].tolist(),
-                          "virtual_rounds": virt.channels["measured_round"].tolist()}
+                stage("studies")
+                ts, arm, simona, (real, virt) = pending.result()
                 plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
                 figs["simona"] = "fig_4_19_simona.png"
                 figs["timers"] = _fig_timers(out, ts)

@@ -101,7 +101,7 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True, rows: Row
     the record's rows (default: those of ``rec``; the streamed campaign's ``rec`` holds its windows only)."""
     model = load_model("turn_table.xml")
     rows = rows or Rows.of(rec)
-    k = max(1, int(round(rec.sample_rate_hz / DISPLAY_HZ)))
+    k = max(1, int(round((getattr(rows, "sample_rate_hz", None) or rec.sample_rate_hz) / DISPLAY_HZ)))
     # poses: the angle is sampled (not averaged) so the table turns smoothly in the viewer
     idx = np.concatenate([np.arange(b.start, b.stop, k) for b in rows.blocks])
     if rows.spin_at is None:
