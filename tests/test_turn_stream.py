@@ -138,3 +138,6 @@ def test_delft_lab_runs_the_whole_chain():
     ref = camp.simulate()
     for k in ref.channels:
         assert np.array_equal(s.recording.channels[k], ref.channels[k]), k
+    t, raw = block_means(s.rows, ["gyro_p"], 100)   # the report's .rrd reads the whole record's rows
+    t2, raw2 = block_means(ref, ["gyro_p"], 100)
+    assert np.array_equal(t, t2) and np.array_equal(raw["gyro_p"], raw2["gyro_p"])

@@ -99,7 +99,10 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
         rec = camp._measured(lab, run.recording(), ss)
         if h5_path is not None:
             save_h5(rec, h5_path, overwrite=overwrite)
-        return SimpleNamespace(rec=rec, rows=None, fig=rec, n=rec.n, streamed=False, why=why, recording=rec)
+        rows = SimpleNamespace(blocks=rec.blocks(), time=lambda a, b: rec.time_s[a:b],
+                               channel=lambda n, a, b: rec.channels[n][a:b],
+                               spin_at=rec.truth_signals["spin_angle"].__getitem__, sample_rate_hz=rec.sample_rate_hz)
+        return SimpleNamespace(rec=rec, rows=rows, fig=rec, n=rec.n, streamed=False, why=why, recording=rec)
     scan = list(lab.adc.scan_list)
     q = lab.adc.lsb_V
     fs = float(run.meta["sample_rate_hz"])
