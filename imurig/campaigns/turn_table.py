@@ -104,7 +104,10 @@ class TurnTableCampaign:
 
     def simulate(self, check: bool = True) -> Recording:
         """Simulate the schedule (after refusing an unidentifiable one, unless ``check`` is off:
-        the studies below fit their own one-axis models)."""
+        the studies below fit their own one-axis models) through the whole-record chain
+        (:meth:`ImuLab.measure`). ``imurig campaign turn-table`` streams the same rig record in pieces
+        (:mod:`imurig.campaigns.turn_stream`): the same truth, the same noise models, another realisation of
+        the noise (drawn piece by piece); ``stream_campaign(camp, keep=True).recording`` is the command's data."""
         if check:
             self.check_identifiable()
         else:
