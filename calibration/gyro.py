@@ -272,8 +272,13 @@ def _gauss_markov_window_integrals(a: np.ndarray, b: np.ndarray, tau: float, blo
 
 
 def _block_index(rec: Recording, t: np.ndarray) -> np.ndarray:
-    starts = np.array([rec.time_s[s.start] for s in rec.blocks()])
-    return np.searchsorted(starts, t, side="right") - 1
+    """The contiguous block of each time ``t``: the record's blocks (:meth:`Recording.blocks`), or, for a record
+    that holds only some rows of one (the streamed campaign's acquisition windows), the first times of the
+    full record's blocks as ``meta["block_start_s"]``."""
+    starts = rec.meta.get("block_start_s")
+    if starts is None:
+        starts = [rec.time_s[s.start] for s in rec.blocks()]
+    return np.searchsorted(np.asarray(starts, float), t, side="right") - 1
 
 
 def timer_difference_sigma(rec: Recording, timer: str) -> float:

@@ -33,7 +33,8 @@ from imurig.kernel.errors import ConfigError, ScheduleError
 from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model, sensor_slices
 from imurig.rigs.tilt_table import _copy_model, _quat_wxyz, rot_x, rot_y
-from imurig.rigs.turn_truth import full_truth, stitched_truth
+from imurig.rigs.turn_run import TurnRun
+from imurig.rigs.turn_truth import full_truth, stitched_states
 from imurig.kernel.site import Site, parse_time
 from imurig.kernel.units import ARCSEC, DEG
 from imurig.sensors.effects.mains_rate_factor import MainsRateFactor
@@ -224,9 +225,10 @@ class TurnTable:
     #: :mod:`imurig.rigs.turn_truth`) or "mujoco" (MuJoCo steps every sample; the same truth to ~1e-15)
     truth: str = "closed_form"
 
-    def _truth(self, models, profiles, windows, sl, dt) -> tuple[dict, np.ndarray]:
-        """The record's truth signals, mountings one after the other, each trimmed to its length: f_C_x/y/z,
-        w_C_x/y/z (Earth rate added) and the spin angle, each (n,); and the mountings' row offsets."""
+    def _truth(self, models, profiles, windows, sl, dt):
+        """The record's truth, mountings one after the other, each trimmed to its length: whole arrays
+        (f_C_x/y/z, w_C_x/y/z with the Earth rate, spin_angle) with MuJoCo at every sample, else the states
+        whose rows :class:`imurig.rigs.turn_truth.TurnStates` makes; and the mountings' row offsets."""
         e = self.errors
         if self.truth not in ("closed_form", "mujoco"):
             raise ConfigError(f"truth must be 'closed_form' or 'mujoco', got {self.truth!r}")
@@ -234,32 +236,33 @@ class TurnTable:
         for p in profiles:  # once-per-round ripple: needs the angle, which the mean rate integrates to
             ctrls.append(p * (1 + e.ripple * np.sin(np.cumsum(p) * dt + e.ripple_phase_rad)) if e.ripple else p)
         off = np.concatenate(([0], np.cumsum([p.size for p in profiles])))
-        arrays = {k: np.empty(off[-1]) for k in (*(f"{s}_{a}" for s in ("f_C", "w_C") for a in "xyz"), "spin_angle")}
         earth_W = self.site.earth_rate_W()
         if self.truth == "mujoco":
+            arrays = {k: np.empty(off[-1]) for k in (*(f"{s}_{a}" for s in ("f_C", "w_C") for a in "xyz"),
+                                                     "spin_angle")}
             ctrl = np.zeros((len(models), max(p.size for p in profiles), 1))
             for b, c in enumerate(ctrls):
                 ctrl[b, :c.size, 0] = c
             full_truth(models, ctrl, arrays, off, sl, earth_W)
-        else:  # a ramp starts each step and ends the record (the spin-down)
-            ramps = [[0] + [z for _, z in w] for w in windows]
-            stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W)
-        return arrays, off
+            return arrays, off
+        # a ramp starts each step and ends the record (the spin-down)
+        return stitched_states(models, ctrls, [[0] + [z for _, z in w] for w in windows], off, sl, earth_W), off
 
-    def _assemble(self, arrays, off, mounts, steps, windows, dt, remount_s):
-        """One record from the truth (:meth:`_truth`): the times, the segments (one per step), the dial's
-        reading (mountings one after the other, filled in place) and the true pulse edges."""
+    def _assemble(self, spin, off, mounts, steps, windows, dt, remount_s):
+        """The record's small parts from the truth's spin angle ``spin`` (n,): each mounting's first time,
+        the segments (one per step), the dial's settings and the true pulse edges."""
         e = self.errors
         seg = {"start_s": [], "stop_s": [], "run": [], "rate_dial": [], "mount": []}
-        time_s, dial_all, pulse_true = np.empty(off[-1]), np.zeros(off[-1]), []
+        t0s, dials, pulse_true = [], [], []
         t0 = 0.0
         for b, m in enumerate(mounts):
             n = off[b + 1] - off[b]
-            t = time_s[off[b]:off[b + 1]]
-            t[:] = t0 + np.arange(n) * dt
-            pulse_true.append(rising_edges(arrays["spin_angle"][off[b]:off[b + 1]], t, e.pulse_width_rad))
+            t0s.append(t0)
+            for a in range(0, n - 1, 1 << 18):  # in pieces of one row's overlap: each pair of rows once
+                z = min(n, a + (1 << 18) + 1)
+                t = t0 + np.arange(a, z) * dt
+                pulse_true.append(rising_edges(spin[off[b] + a:off[b] + z], t, e.pulse_width_rad))
             st = [s for s in steps if s.mount == m]
-            dial = dial_all[off[b]:off[b + 1]]
             for s, (a, z) in zip(st, windows[b]):
                 seg["start_s"].append(t0 + a * dt)
                 seg["stop_s"].append(t0 + z * dt)
@@ -267,11 +270,9 @@ class TurnTable:
                 seg["rate_dial"].append(s.dial_dps * DEG)
                 seg["mount"].append(m)
             # the dial shows the setting from the start of each ramp to the next
-            starts = [0] + [z for _, z in windows[b][:-1]]
-            for s, a, z in zip(st, starts, starts[1:] + [n]):
-                dial[a:z] = s.dial_dps * DEG
-            t0 = t[-1] + dt + remount_s
-        return time_s, seg, dial_all, pulse_true
+            dials.append(list(zip([0] + [z for _, z in windows[b][:-1]], [s.dial_dps * DEG for s in st])))
+            t0 = (t0 + (n - 1) * dt) + dt + remount_s
+        return t0s, seg, dials, pulse_true
 
     def simulate(self, protocol: TurnTableProtocol, start_time: str, rng: np.random.Generator) -> Recording:
         """Run the schedule; Recording with set-points, the index-pulse line, true events and truth.
@@ -279,8 +280,13 @@ class TurnTable:
         Channels: ``rate_dial`` (commanded dial rate, rad/s, signed). Truth signals:
         ``f_C_*`` (m/s^2), ``w_C_*`` (rad/s, with Earth rate), ``spin_angle``
         (rad), ``pulse`` (V, the index sensor's output, an analog line for the ADC).
-        Events: ``pulse_true`` (true rising-edge times, s).
+        Events: ``pulse_true`` (true rising-edge times, s). The rows of :meth:`run`, all at once.
         """
+        return self.run(protocol, start_time, rng).recording()
+
+    def run(self, protocol: TurnTableProtocol, start_time: str, rng: np.random.Generator) -> TurnRun:
+        """Run the schedule: a :class:`imurig.rigs.turn_run.TurnRun`, whose rows (those of :meth:`simulate`)
+        are made on demand."""
         e = self.errors
         protocol.validate(e.mains_factor)
         dt = 1.0 / protocol.sample_rate_hz
@@ -310,19 +316,11 @@ class TurnTable:
             mm.body_quat[bid_mount] = _quat_wxyz(R_PM @ MOUNTS[m])
             mm.body_pos[bid_mount] = (protocol.radius_m, 0.0, 0.1)
             models.append(mm)
-        arrays, off = self._truth(models, profiles, windows, sensor_slices(base), dt)
-
+        source, off = self._truth(models, profiles, windows, sensor_slices(base), dt)
         del profiles
         # one record: mountings one after the other (remount gaps), each trimmed to its length
-        time_s, seg, dial_cmd, pulse_true = self._assemble(arrays, off, mounts, steps, windows, dt,
-                                                           protocol.remount_s)
-        spin = arrays["spin_angle"]
-        pulse = np.empty(spin.size)
-        for a in range(0, spin.size, 1 << 18):  # in pieces: no full-length temporaries
-            wrapped = np.mod(spin[a:a + (1 << 18)], 2 * np.pi)
-            pulse[a:a + (1 << 18)] = np.where(wrapped < e.pulse_width_rad, e.pulse_high_V, 0.0)
-        tsig = {"spin_angle": spin, "pulse": pulse, **{k: v for k, v in arrays.items() if k != "spin_angle"}}
-        tunits = {k: {"f": "m/s^2", "w": "rad/s", "p": "V" if k == "pulse" else "rad"}.get(k[0], "rad") for k in tsig}
+        spin = source["spin_angle"] if isinstance(source, dict) else source.theta
+        t0s, seg, dials, pulse_true = self._assemble(spin, off, mounts, steps, windows, dt, protocol.remount_s)
         segments = {k: np.array(v) for k, v in seg.items()}
         radius_known = protocol.radius_m + (rng.normal(0, self.radius_measurement_sigma_m)
                                             if protocol.radius_m > 0 else 0.0)
@@ -338,8 +336,7 @@ class TurnTable:
                            "arm_radius_m": protocol.radius_m,
                            "true_mean_rate_dps": [float(e.true_rate_dps(s.dial_dps, set_err[s.mount][i]))
                                                   for i, s in enumerate(steps)]}}
-        return Recording(time_s=time_s, channels={"rate_dial": dial_cmd},
-                         units={"rate_dial": "rad/s"}, segments=segments,
-                         segment_units={"start_s": "s", "stop_s": "s", "run": "1", "rate_dial": "rad/s", "mount": ""},
-                         meta=meta, truth=truth_d, truth_signals=tsig, truth_units=tunits,
-                         events={"pulse_true": np.concatenate(pulse_true)})
+        return TurnRun(off=off, t0=t0s, dt=dt, dial=dials, source=source, pulse_width_rad=e.pulse_width_rad,
+                       pulse_high_V=e.pulse_high_V, segments=segments,
+                       segment_units={"start_s": "s", "stop_s": "s", "run": "1", "rate_dial": "rad/s", "mount": ""},
+                       meta=meta, truth=truth_d, events={"pulse_true": np.concatenate(pulse_true)})

@@ -166,13 +166,58 @@ def _qpos_qvel(model, state: np.ndarray) -> tuple[float, float]:
 
 def stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W) -> None:
     """Fill ``arrays`` (f_C_x/y/z, w_C_x/y/z, spin_angle, each (n,); mounting b at rows off[b]:off[b + 1]):
-    MuJoCo for the ramps, the closed form for the holds between them (module doc).
+    MuJoCo for the ramps, the closed form for the holds between them (module doc): the rows of
+    :func:`stitched_states`, all at once."""
+    states = stitched_states(models, ctrls, ramps, off, sl, earth_W)
+    for a in range(0, off[-1], ROW_CHUNK):
+        for k, v in states.rows(a, min(off[-1], a + ROW_CHUNK)).items():
+            arrays[k][a:a + v.size] = v
+
+
+@dataclass
+class TurnStates:
+    """The turn table's truth as states, its rows made on demand (:meth:`rows`): the spin angle theta and
+    rate omega of every sample (omega where a rate is held), the rate commands c, the MuJoCo rows of each
+    ramp (f_C, w_C with the Earth rate) and each mounting's :class:`Spindle` (the closed form's constants).
+    Mounting b's rows are off[b]:off[b + 1]; ``spans`` lists (start, stop, b, ramp rows or None: a hold)."""
+
+    theta: np.ndarray
+    omega: np.ndarray
+    ctrl: np.ndarray
+    spans: list
+    spindles: list
+
+    def rows(self, a: int, b: int) -> dict:
+        """f_C_x/y/z, w_C_x/y/z (the closed form's :meth:`Spindle.sensors` in a hold, MuJoCo's rows in a ramp)
+        and spin_angle over samples [a, b): the same values for any split of the rows (pointwise)."""
+        out = {f"{s}_{x}": np.empty(b - a) for s in ("f_C", "w_C") for x in "xyz"}
+        for lo, hi, m, ramp in self.spans:
+            lo_, hi_ = max(lo, a), min(hi, b)
+            if lo_ >= hi_:
+                continue
+            if ramp is None:
+                self.spindles[m].sensors(self.theta[lo_:hi_], self.omega[lo_:hi_], self.ctrl[lo_:hi_], out,
+                                         slice(lo_ - a, hi_ - a))
+            else:
+                for k, v in ramp.items():
+                    out[k][lo_ - a:hi_ - a] = v[lo_ - lo:hi_ - lo]
+        out["spin_angle"] = self.theta[a:b].copy()
+        return out
+
+
+def stitched_states(models, ctrls, ramps, off, sl, earth_W) -> TurnStates:
+    """The truth's states (:class:`TurnStates`): MuJoCo steps the ramps, the closed form the holds between
+    them (module doc).
 
     ``ctrls``: each mounting's rate commands (rad/s); ``ramps``: each mounting's ramp starts (sample
     indices), every ramp ``n_ramp`` = the length of the last one (the spin-down, which ends the record)
     long; a hold runs from one ramp's end to the next ramp's start. The spindle starts at rest at 0."""
     spindles = [Spindle.from_model(m, earth_W) for m in models]
     n_ramp = ctrls[0].size - ramps[0][-1]
+    theta, omega, ctrl = np.empty(off[-1]), np.zeros(off[-1]), np.empty(off[-1])
+    for b, c in enumerate(ctrls):
+        ctrl[off[b]:off[b + 1]] = c
+    spans = []
     datas = [mujoco.MjData(models[0]) for _ in range(min(2, len(models)))]
     pos = [(0.0, 0.0) for _ in models]   # (theta, omega) at each mounting's next ramp
     with progress(total=sum(c.size for c in ctrls), desc="turn table (MuJoCo ramps, closed form)",
@@ -185,33 +230,37 @@ def stitched_truth(models, ctrls, ramps, arrays, off, sl, earth_W) -> None:
             done = 0
             for i, b in enumerate(batch):
                 a = ramps[b][k]
-                rows, dst = sd[i], slice(off[b] + a, off[b] + a + n_ramp)
-                _put_rows(arrays, dst, rows, sl, earth_W)
+                dst = slice(off[b] + a, off[b] + a + n_ramp)
+                ramp = _ramp_rows(sd[i], sl, earth_W)
+                theta[dst] = ramp.pop("spin_angle")
+                spans.append((dst.start, dst.stop, b, ramp))
                 pos[b] = _qpos_qvel(models[b], st[i, -1])
                 stop = ramps[b][k + 1] if k + 1 < len(ramps[b]) else a + n_ramp
                 if stop > a + n_ramp:
-                    pos[b] = _hold(spindles[b], pos[b], ctrls[b][a + n_ramp:stop], arrays,
-                                   slice(off[b] + a + n_ramp, off[b] + stop))
+                    hold = slice(off[b] + a + n_ramp, off[b] + stop)
+                    th, om = spindles[b].hold(pos[b][0], pos[b][1], ctrls[b][a + n_ramp:stop])
+                    theta[hold], omega[hold] = th[:-1], om[:-1]
+                    pos[b] = float(th[-1]), float(om[-1])
+                    spans.append((hold.start, hold.stop, b, None))
                 done += stop - a
             bar.update(done)
+    return TurnStates(theta, omega, ctrl, sorted(spans, key=lambda s: s[0]), spindles)
 
 
-def _hold(sp: Spindle, start: tuple[float, float], c: np.ndarray, arrays: dict, dst: slice) -> tuple[float, float]:
-    """The closed form over one hold (commands c, rows ``dst``); returns the state after it."""
-    theta, omega = sp.hold(start[0], start[1], c)
-    sp.sensors(theta[:-1], omega[:-1], c, arrays, dst)
-    arrays["spin_angle"][dst] = theta[:-1]
-    return float(theta[-1]), float(omega[-1])
+def _ramp_rows(rows: np.ndarray, sl: dict, earth_W: np.ndarray) -> dict:
+    """MuJoCo sensor rows (n, nsensordata) as truth columns; the gyro gets the Earth rate R_CW Omega_W added
+    (MuJoCo's world does not turn)."""
+    w = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
+    out = {f"f_C_{ax}": rows[:, sl["f_C"].start + j].copy() for j, ax in enumerate("xyz")}
+    out.update({f"w_C_{ax}": w[:, j].copy() for j, ax in enumerate("xyz")})
+    out["spin_angle"] = rows[:, sl["spin_angle"].start].copy()
+    return out
 
 
 def _put_rows(arrays: dict, dst: slice, rows: np.ndarray, sl: dict, earth_W: np.ndarray) -> None:
-    """MuJoCo sensor rows (n, nsensordata) into the truth columns at ``dst``; the gyro gets the Earth rate
-    R_CW Omega_W added (MuJoCo's world does not turn)."""
-    w = rows[:, sl["w_C"]] + rotate_to_body(rows[:, sl["q_WC"]], earth_W)
-    for j, ax in enumerate("xyz"):
-        arrays[f"f_C_{ax}"][dst] = rows[:, sl["f_C"].start + j]
-        arrays[f"w_C_{ax}"][dst] = w[:, j]
-    arrays["spin_angle"][dst] = rows[:, sl["spin_angle"].start]
+    """MuJoCo sensor rows (n, nsensordata) into the truth columns at ``dst`` (:func:`_ramp_rows`)."""
+    for k, v in _ramp_rows(rows, sl, earth_W).items():
+        arrays[k][dst] = v
 
 
 def full_truth(models, ctrl, arrays, off, sl, earth_W) -> None:

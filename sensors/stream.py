@@ -7,10 +7,14 @@ row piece:
     rig rows (time, set-points, truth f_C, w_C, B_C ...)
       specific_force: people transients (their resonator's state carried from piece to piece)
       sensor:         Q-Flex triad (noise-free lines; their slopes from the neighbouring rows; the
-                      current-noise bands' shaping filters carried), fluxgate, temperature sensors
+                      current-noise bands' shaping filters carried), fluxgate, FOG triad (its rate noise's
+                      filter carried, restarted per contiguous block), temperature sensors
+      analog:         the rig's analog lines (the turn table's index pulse); slip rings on every IMU line
+                      while the table turns (:mod:`imurig.sensors.stream_turn`); a loose cable on its line
       conversion:     DAQ-6036E: common mode, skew, crosstalk (slot 0 from the last slot of the
                       previous scan, across pieces), noise, rounding  -> codes (int16), V = code * lsb
       -> sinks: ``rows(a, b, time_s, channels, codes, truth_signals)`` for each piece, in order
+      events:         timers tag the rig's pulses (small: at once)
 
 Every stage draws from its own stream (:func:`imurig.sensors.noise.child_rng`, the same names as the
 whole-record chain), piece by piece. The pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's
@@ -19,8 +23,8 @@ chain takes some band by band or channel by channel over the whole record, other
 so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
-arm's terms, a thermal chamber, gyros, pump vibration in working hours, slip rings, the lab's own
-effects, GRSE hum, averaged logging. A loose cable's spikes (analog stage, on its one line) stream, their
+arm's terms, a thermal chamber, pump vibration in working hours, the lab's own effects, GRSE hum,
+averaged logging. A loose cable's spikes (analog stage, on its one line) stream, their
 rectangles carried across pieces (:class:`_Cable`).
 """
 from __future__ import annotations
@@ -37,7 +41,9 @@ from imurig.kernel.site import parse_time
 from imurig.sensors.accelerometer import AXES
 from imurig.sensors.effects.base import ChainContext
 from imurig.sensors.effects.building_vibration import working_mask
+from imurig.sensors.gyro import AXES as GYRO_AXES
 from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
+from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
 STREAM_CHUNK = 1 << 16
@@ -53,15 +59,16 @@ def _hours(start, t: np.ndarray, t0: float) -> np.ndarray:
 
 
 def unsupported(lab, run) -> str | None:
-    """Why ``lab`` cannot stream the rig record ``run`` (a :class:`imurig.rigs.tilt_table.TiltRun`), or None."""
+    """Why ``lab`` cannot stream the rig record ``run`` (a :class:`imurig.rigs.tilt_table.TiltRun` or
+    :class:`imurig.rigs.turn_run.TurnRun`), or None."""
     adc = lab.adc
     scan = set(adc.scan_list)
     if lab.effects:
         return "the lab's own effects"
     if lab.cable.enabled and lab.cable.channel not in scan:
         return "a loose cable on a line that is not scanned"
-    if any(c.startswith("gyro_") for c in scan):
-        return "gyros in the scan list"
+    if "T_air" in run.truth_units:
+        return "a thermal chamber"
     if lab.accelerometers.lever_arm().active:
         return "the accelerometers' lever arm"
     if adc.averaging != 1 or adc.bits > 16:
@@ -70,8 +77,8 @@ def unsupported(lab, run) -> str | None:
         return "GRSE mains hum"
     if adc.channel_slow_settling:
         return "a converter line's slow settling tail"
-    if run.events or run.meta.get("analog_lines"):
-        return "rig events or analog lines"
+    if any(line not in run.truth_units for line in run.meta.get("analog_lines", [])):
+        return "an analog line the rig does not give"
     if lab.pump.enabled and _pump_on(lab.pump, run):
         return "pump vibration in working hours"
     return None
@@ -211,6 +218,11 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     cable = _Cable(lab.cable, fs, child_rng(seed, lab.cable.line_stream(lab.cable.channel))) \
         if lab.cable.enabled else None
     rngs.update({k: child_rng(seed, k) for k in lab.temp_sensors if k in scan})
+    gyro = GyroNoiseRows(lab.gyros.noise(), lab.gyros.scale_V_per_rad_s, fs, child_rng(seed, "gyros")) \
+        if any(c.startswith("gyro_") for c in scan) else None
+    imu = [c for c in scan if c.split("_")[0] in ("acc", "mag", "gyro") or c in lab.temp_sensors]
+    slip = SlipRows(lab.slip_rings, {k: child_rng(seed, lab.slip_rings.line_stream(k)) for k in imu}) \
+        if lab.slip_rings.enabled and "spin_angle" in run.truth_units else None
     sens = dict(zip((f"acc_{a}" for a in AXES), acc.nominal_sensitivity_V_per_m_s2()))
     state = SimpleNamespace(saturated={}, last_in=None, f_dist_nonzero=False)
     pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
@@ -222,21 +234,23 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
             if i + AHEAD < len(pieces):
                 fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, rngs, start, t0, fs, sens))
             nxt = fronts.popleft().result() if fronts else None
-            _emit(lab, sinks, prev, cur, nxt, noise, cable, rngs["adc"], state)
+            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(acc=noise, gyro=gyro, slip=slip, cable=cable),
+                  rngs["adc"], state)
             prev, cur = cur, nxt
     report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
-    rig = SimpleNamespace(meta=run.meta, truth=run.truth, events={}, truth_signals={})
-    used = [g for p, g in (("acc", "accelerometers"), ("mag", "magnetometer")) if any(c.startswith(p + "_") for c in scan)]
+    rig = SimpleNamespace(meta=run.meta, truth=run.truth, events=run.events, truth_signals=run.truth_units)
+    used = [g for p, g in (("acc", "accelerometers"), ("mag", "magnetometer"), ("gyro", "gyros"))
+            if any(c.startswith(p + "_") for c in scan)]
     units = {**run.units, **{k: "V" for k in scan}}
     truth_units = {**run.truth_units, "T_imu": "K", **{f"f_dist_C_{a}": "m/s^2" for a in AXES}}
     return {"meta": lab._meta(rig, report), "truth": lab._truth(rig, seed, used), "units": units,
             "quantum": {k: adc.lsb_V for k in scan}, "truth_units": truth_units,
-            "f_dist_nonzero": state.f_dist_nonzero}
+            "f_dist_nonzero": state.f_dist_nonzero, "events": lab._events(rig, seed)}
 
 
-def _emit(lab, sinks, prev, cur, nxt, noise, cable, rng, state) -> None:
+def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
     """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
-    codes = _back(lab, prev, cur, nxt, noise, cable, rng, state)
+    codes = _back(lab, prev, cur, nxt, noise, rng, state)
     truth = dict(cur.truth)
     truth["T_imu"] = cur.T
     if cur.f_dist is not None or lab.people.enabled:
@@ -272,16 +286,27 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
         v = lab.magnetometer.output_voltage(B_C, rngs["magnetometer"], T)
         for j, x in enumerate(AXES):
             slope_src[f"mag_{x}"] = v[:, j]
+    if any(f"gyro_{x}" in scan for x in GYRO_AXES):
+        w_C = np.stack([ts[f"w_C_{x}"] for x in AXES], axis=1)
+        g_sens = bool(np.any(lab.gyros.g_sensitivity_rad_s_per_m_s2))
+        f_gyro = np.stack([ts[f"f_C_{x}"] for x in AXES], axis=1) + (f_dist if f_dist is not None else 0.0) \
+            if g_sens else None
+        v = lab.gyros.ideal_voltage(w_C, float(T[0]) if c.drift_C_per_h == 0 else T, f_gyro)
+        for j, x in enumerate(GYRO_AXES):
+            slope_src[f"gyro_{x}"] = v[:, j]
     for name, sensor in lab.temp_sensors.items():
         if name in scan:
             lines[name] = sensor.voltage(T, rngs[name])
+    for line in run.meta.get("analog_lines", []):
+        lines[line] = ts[line]
     return SimpleNamespace(a=a, b=b, t=t, truth=ts, channels=run.channel_rows(a, b), f_dist=f_dist, T=T,
                            lines=lines, slope_src=slope_src)
 
 
-def _back(lab, prev, cur, nxt, noise, cable, rng, state) -> dict:
-    """The piece's slopes (from its neighbours' rows), the accelerometers' noise, the analog stage (a
-    loose cable's spikes on its line; not in the slopes, as in the whole-record chain), the conversion: codes."""
+def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
+    """The piece's slopes (from its neighbours' rows), the accelerometers' and the gyros' noise, the analog
+    stage (slip rings on the IMU's lines, a loose cable's spikes on its line; not in the slopes, as in the
+    whole-record chain), the conversion: codes."""
     analog, slope = dict(cur.lines), {}
     lo = prev is not None
     t = np.concatenate(([prev.t[-1:]] if lo else []) + [cur.t] + ([nxt.t[:1]] if nxt else []))
@@ -291,13 +316,20 @@ def _back(lab, prev, cur, nxt, noise, cable, rng, state) -> dict:
         slope[name] = grad(x)[int(lo):int(lo) + v.size]
         analog[name] = v
     if any(n.startswith("acc_") for n in analog):
-        nz = noise.rows(cur.t.size) if noise.filters else None
+        nz = noise.acc.rows(cur.t.size) if noise.acc.filters else None
         R = lab.accelerometers.load_resistor_ohm
         for j, x in enumerate(AXES):
             if f"acc_{x}" in analog and nz is not None:
                 analog[f"acc_{x}"] = analog[f"acc_{x}"] + nz[:, j] * R[j]
-    if cable is not None:
-        analog[lab.cable.channel] = analog[lab.cable.channel] + cable.rows(cur.t.size)
+    if noise.gyro is not None:
+        nz = noise.gyro.rows(cur.t.size, block_starts(cur.t, prev.t[-1] if lo else None, noise.gyro.fs))
+        for j, x in enumerate(GYRO_AXES):
+            if f"gyro_{x}" in analog:
+                analog[f"gyro_{x}"] = analog[f"gyro_{x}"] + nz[:, j]
+    if noise.slip is not None:
+        noise.slip.add(analog, cur.truth["spin_angle"])
+    if noise.cable is not None:
+        analog[lab.cable.channel] = analog[lab.cable.channel] + noise.cable.rows(cur.t.size)
     return _convert(lab.adc, analog, slope, rng, state)
 
 

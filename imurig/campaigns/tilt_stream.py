@@ -61,7 +61,7 @@ class _Collect:
                          units={n: info["units"][n] for n in channels}, segments=info["segments"],
                          segment_units=info["segment_units"], meta=info["meta"], truth=info["truth"],
                          truth_signals=truth, truth_units={n: info["truth_units"][n] for n in truth},
-                         channel_quantum={n: q[n] for n in volts})
+                         channel_quantum={n: q[n] for n in volts}, events=info.get("events", {}))
 
 
 def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False) -> SimpleNamespace:

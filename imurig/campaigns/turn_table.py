@@ -25,6 +25,7 @@ from imurig.calibration.terms import TermLibrary
 from imurig.calibration.gls import delta_cov
 from imurig.campaigns.delft_2005 import check_lab
 from imurig.campaigns.delft_2005_turn import Delft2005Turn
+from imurig.campaigns.turn_stream import stream_campaign
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
@@ -105,7 +106,10 @@ class TurnTableCampaign:
 
     def simulate(self, check: bool = True) -> Recording:
         """Simulate the schedule (after refusing an unidentifiable one, unless ``check`` is off:
-        the studies below fit their own one-axis models)."""
+        the studies below fit their own one-axis models) through the whole-record chain
+        (:meth:`ImuLab.measure`). ``imurig campaign turn-table`` streams the same rig record in pieces
+        (:mod:`imurig.campaigns.turn_stream`): the same truth, the same noise models, another realisation of
+        the noise (drawn piece by piece); ``stream_campaign(camp, keep=True).recording`` is the command's data."""
         if check:
             self.check_identifiable()
         else:
@@ -113,6 +117,10 @@ class TurnTableCampaign:
         table, lab, ss = self.build()
         rig = table.simulate(self.protocol, self.start_time,
                              random_streams.generator("campaign/turn-table/rig", self.seed))
+        return self._measured(lab, rig, ss)
+
+    def _measured(self, lab: ImuLab, rig: Recording, ss: np.random.SeedSequence) -> Recording:
+        """The whole-record sensor chain over the rig record ``rig``, with the campaign's metadata and seed."""
         rec = lab.measure(rig, ss)
         note_scale_instability(rec, lab)
         rec.meta["campaign"] = {"name": "turn-table", **self.to_dict()}
@@ -153,9 +161,9 @@ def timer_study(seed: int = 2005, rates_dps=TIMER_STUDY_RATES_DPS, start_time="2
                              seed=seed, start_time=start_time, model="linear", lab=lab)
     # a single axis on the table: fit the r gyro alone, Omega = b0 + b1 V_r + b2 V_r^2 (the
     # square takes up the gyro's nonlinearity, so the residuals show the timers)
-    table, lab, _ = camp.build()
-    rig = table.simulate(camp.protocol, start_time, random_streams.generator("campaign/timer-study/rig", seed))
-    rec = lab.measure(rig, random_streams.seed_sequence("campaign/timer-study/sensor-chain", seed))
+    # streamed (the acquisition windows' rows: what the timers' round windows read), or the whole-record chain
+    # for a lab the stream does not model
+    rec = stream_campaign(camp, check=False, streams=("campaign/timer-study/rig", "campaign/timer-study/sensor-chain")).rec
     out = {"rates_dial_dps": list(rates_dps), "timers": {}}
     true = np.array(rec.truth["rig"]["true_mean_rate_dps"])
     for tm in TIMERS:

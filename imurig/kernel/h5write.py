@@ -125,15 +125,16 @@ class H5RowWriter:
             ds, c, fut = self._pending.popleft()
             ds.id.write_direct_chunk((c,), fut.result())
 
-    def finish(self, meta: dict, truth: dict | None, drop_truth=()) -> None:
-        """Write the root attributes; remove the truth signals ``drop_truth`` (e.g. disturbances that
-        stayed zero, which the whole-record writer leaves out)."""
+    def finish(self, meta: dict, truth: dict | None, drop_truth=(), events: Mapping[str, np.ndarray] | None = None) -> None:
+        """Write the root attributes and the ``events`` (name -> time stamps, s); remove the truth signals
+        ``drop_truth`` (e.g. disturbances that stayed zero, which the whole-record writer leaves out)."""
         if self._next != self.n:
             raise ValueError(f"{self._next} of {self.n} rows written")
         self._store(0)
         self.close()
         for name in drop_truth:
             del self.f["truth_signals"][name]
+        _write_group(self.f["events"], events or {}, {k: "s" for k in events or {}})
         self.f.attrs["meta"] = to_json(meta)
         if truth is not None:
             self.f.attrs["truth"] = to_json(truth)

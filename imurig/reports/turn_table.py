@@ -7,6 +7,8 @@ estimated parameter as {name, unit, injected, estimate, std_error, z}), ``calibr
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -15,6 +17,7 @@ from imurig.calibration.gyro import AXES, GyroCalibration
 from imurig.calibration.simona import SimonaCalibration, read_simona
 from imurig.calibration.simona_report import plot_fig_4_19, simona_markdown
 from imurig.reports.tilt_table import peak_rss_bytes
+from imurig.campaigns.turn_stream import stream_campaign
 from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm_study,
                                          gyro_parameters, round_time_error_at, simona_virtual, timer_study)
 from imurig.kernel.progress import StageBar
@@ -129,13 +132,13 @@ def _param_table(params) -> str:
                      for p in params])
 
 
-def _report_md(camp, rec, res, ts, arm, simona, figs, timing) -> str:
+def _report_md(camp, rec, res, ts, arm, simona, figs, timing, n: int | None = None) -> str:
     cal = res["main"]
     L = [f"# Turn-table gyro calibration — imurig {imurig.__version__}\n"]
     if camp:
         p = camp.protocol
         L.append(f"Schedule: dial {list(p.dial_rates_dps)} deg/s × {camp.mains_hz:g}/60 (mains), directions "
-                 f"{list(p.directions)}, mountings {list(p.mounts)}; {rec.n_segments} steps, {rec.n:,} samples at "
+                 f"{list(p.directions)}, mountings {list(p.mounts)}; {rec.n_segments} steps, {rec.n if n is None else n:,} samples at "
                  f"{p.sample_rate_hz:g} Hz. Timer: {TIMER_LABEL[camp.timer]}. Seed {camp.seed}.\n")
     L.append("## Recovered vs injected gyro parameters\n")
     L.append("Whole-round means per step; generalised least squares with the gyro noise model (angle random "
@@ -208,8 +211,20 @@ def _fig_z(out, params):
 
 
 #: each stage's share of the default campaign's time (2 cores): the progress bar's ETA
-STAGE_SHARES = {"simulate": 45, "analyse": 5, "timer study": 14, "arm study": 5, "SIMONA": 5, "figures": 4,
-                "recording.h5": 13, "campaign.rrd": 7, "report": 2}
+STAGE_SHARES = {"simulate": 60, "analyse": 3, "figures": 8, "campaign.rrd": 12, "studies": 15, "report": 2}
+
+
+def _studies(camp: TurnTableCampaign) -> tuple:
+    """The timer study, the arm study and SIMONA (their own records and streams: run beside the campaign, in a
+    worker thread; no figures here, pyplot is drawn from one thread)."""
+    ts = timer_study(camp.seed, lab=camp.lab)
+    arm = arm_study(camp.seed)
+    real = read_simona()
+    virt = simona_virtual(camp.seed)
+    simona = {"real": SimonaCalibration().fit(real).summary_, "virtual": SimonaCalibration().fit(virt).summary_,
+              "real_rounds": real.channels["measured_round"].tolist(),
+              "virtual_rounds": virt.channels["measured_round"].tolist()}
+    return ts, arm, simona, (real, virt)
 
 
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
@@ -218,57 +233,65 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
 
     matplotlib.use("Agg")
     out = OutputFolder(out_dir, overwrite=overwrite)
-    stages = ["simulate", "analyse"] + (["timer study", "arm study", "SIMONA"] if studies else []) + \
-        ["figures"] + (["recording.h5"] if save_recording else []) + (["campaign.rrd"] if rrd else []) + ["report"]
-    with out:  # committed on success, removed on any error
+    stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + \
+        (["studies"] if studies else []) + ["report"]
+    with out, ThreadPoolExecutor(1) as pool:  # the folder committed on success, removed on any error
         with StageBar(STAGE_SHARES, stages, "turn-table campaign") as stage:
 
             t0 = time.perf_counter()
             stage("simulate")
-            rec = camp.simulate()
+            # streamed: the HDF5 file written as the rows are made; rec holds the acquisition windows
+            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
+            rec = sim.rec
             t_sim = time.perf_counter() - t0
             stage("analyse")
             res = analyse(rec, camp.timer, camp.model)
-            ts = arm = simona = None
+            # keep the windows' segments, let go of their rows; then the studies simulate their own records beside
+            # the campaign's figures and .rrd (in a worker thread: the memory of one study at a time)
+            rec = SimpleNamespace(n=rec.n, n_segments=rec.n_segments, meta=rec.meta, truth=rec.truth, events=rec.events)
+            res["windows"] = SimpleNamespace(segments=res["windows"].segments)
+            for c in (res["main"], res["seed_final"]):
+                c.windows_ = res["windows"]
+            sim.rec = None
+            pending = pool.submit(_studies, camp) if studies else None
             figs = {}
-            if studies:
-                stage("timer study")
-                ts = timer_study(camp.seed, lab=camp.lab)
-                stage("arm study")
-                arm = arm_study(camp.seed)
-                stage("SIMONA")
-                real = read_simona()
-                virt = simona_virtual(camp.seed)
-                simona = {"real": SimonaCalibration().fit(real).summary_, "virtual": SimonaCalibration().fit(virt).summary_,
-                          "real_rounds": real.channels["measured_round"].tolist(),
-                          "virtual_rounds": virt.channels["measured_round"].tolist()}
-                plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
-                figs["simona"] = "fig_4_19_simona.png"
+            # the campaign's own figures and .rrd first: then its record is let go before the studies simulate theirs
             stage("figures")
             figs["residuals"] = _fig_residuals(out, res)
-            figs["slip_rings"] = _fig_slip_ring(out, rec)
+            figs["slip_rings"] = _fig_slip_ring(out, sim.fig)
             figs["truth_z"] = _fig_z(out, res["parameters"])
-            if ts:
-                figs["timers"] = _fig_timers(out, ts)
-            if arm:
-                figs["arm"] = _fig_arm(out, arm)
             out.write_json("calibration.json", res["main"].to_dict())
-            files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json",
-                     **{f"figure_{k}": v for k, v in figs.items()}}
+            files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
+            if save_recording:
+                files["recording"] = "recording.h5"
             from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
-            files.update(save_products(out, rec, res, write_rrd, save_recording, rrd, stage))
+            def rrd_writer(path, rec_, res_):
+                write_rrd(path, rec_, res_, rows=sim.rows)
+
+            files.update(save_products(out, rec, res, rrd_writer, False, rrd, stage))
+            n_samples = sim.n
+            del sim
+            ts = arm = simona = None
+            if studies:
+                stage("studies")
+                ts, arm, simona, (real, virt) = pending.result()
+                plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
+                figs["simona"] = "fig_4_19_simona.png"
+                figs["timers"] = _fig_timers(out, ts)
+                figs["arm"] = _fig_arm(out, arm)
+            files.update({f"figure_{k}": v for k, v in figs.items()})
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
-                      "simulated_samples_per_s": round(rec.n / t_sim), "samples": rec.n,
+                      "simulated_samples_per_s": round(n_samples / t_sim), "samples": n_samples,
                       "peak_rss_MB": round(peak_rss_bytes() / 2**20, 1)}
-            summary = summary_dict(camp, rec, res, ts, arm, simona, timing, files)
+            summary = summary_dict(camp, rec, res, ts, arm, simona, timing, files, n_samples)
             out.write_json("summary.json", summary)
-            out.write_text("report.md", _report_md(camp, rec, res, ts, arm, simona, figs, timing))
+            out.write_text("report.md", _report_md(camp, rec, res, ts, arm, simona, figs, timing, n_samples))
     return summary
 
 
-def summary_dict(camp, rec, res, ts, arm, simona, timing, files) -> dict:
+def summary_dict(camp, rec, res, ts, arm, simona, timing, files, n: int | None = None) -> dict:
     cal = res["main"]
 
     def strip(d):
@@ -292,5 +315,5 @@ def summary_dict(camp, rec, res, ts, arm, simona, timing, files) -> dict:
                                            "real_rounds_s": simona["real_rounds"],
                                            "virtual_rounds_s": simona["virtual_rounds"]},
         "seed_published": published_figures()["turn_table"],
-        "timing": timing, "files": files, "n_samples": rec.n, "n_steps": rec.n_segments,
+        "timing": timing, "files": files, "n_samples": rec.n if n is None else n, "n_steps": rec.n_segments,
     })

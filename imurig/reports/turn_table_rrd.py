@@ -2,6 +2,9 @@
 raw gyro volts and calibrated rates (10 Hz block means), references per step."""
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 import rerun.blueprint as rrb
 
@@ -19,36 +22,61 @@ from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses
 DISPLAY_HZ = 10.0
 
 
-def block_means(rec: Recording, names, k: int, source="channels"):
-    """Means over consecutive blocks of k samples (within contiguous blocks): (times, {name: means})."""
-    data = rec.channels if source == "channels" else rec.truth_signals
+@dataclass
+class Rows:
+    """What the .rrd reads of a turn-table record, row range by row range: its contiguous blocks (slices),
+    ``time(a, b)`` and ``channel(name, a, b)`` (rows [a, b)), ``spin_at(rows)`` the spin angle at given rows.
+    :meth:`of` reads a whole Recording; the streamed campaign gives its own (kept codes, on-demand times)."""
+
+    blocks: list
+    time: Callable
+    channel: Callable
+    spin_at: Callable | None
+
+    @classmethod
+    def of(cls, rec: Recording, source: str = "channels") -> "Rows":
+        data = rec.channels if source == "channels" else rec.truth_signals
+        spin = rec.truth_signals.get("spin_angle")
+        return cls(rec.blocks(), lambda a, b: rec.time_s[a:b], lambda n, a, b: data[n][a:b],
+                   None if spin is None else spin.__getitem__)
+
+
+def block_means(rec: Recording | Rows, names, k: int, source="channels", blocks_per_piece: int = 4096):
+    """Means over consecutive blocks of k samples (within contiguous blocks): (times, {name: means}); a
+    few thousand blocks at a time (each block's mean alone: the same values as at once)."""
+    rows = Rows.of(rec, source) if isinstance(rec, Recording) else rec
     ts, out = [], {n: [] for n in names}
-    for b in rec.blocks():
-        m = (b.stop - b.start) // k
-        if m == 0:
-            continue
-        sl = slice(b.start, b.start + m * k)
-        ts.append(rec.time_s[sl].reshape(m, k).mean(axis=1))
+    for a, b in _pieces(rows.blocks, k, blocks_per_piece):
+        ts.append(rows.time(a, b).reshape(-1, k).mean(axis=1))
         for n in names:
-            out[n].append(data[n][sl].reshape(m, k).mean(axis=1))
-    return np.concatenate(ts), {n: np.concatenate(v) for n, v in out.items()}
+            out[n].append(rows.channel(n, a, b).reshape(-1, k).mean(axis=1))
+    return (np.concatenate(ts) if ts else np.empty(0)), {n: np.concatenate(v) if v else np.empty(0)
+                                                          for n, v in out.items()}
 
 
-def calibrated_block_means(rec: Recording, cal, k: int, blocks_per_piece: int = 4096) -> dict:
+def _pieces(blocks, k: int, blocks_per_piece: int):
+    """Row ranges [a, b) of whole k-sample blocks within each contiguous block, ``blocks_per_piece`` at a time."""
+    for blk in blocks:
+        m = (blk.stop - blk.start) // k
+        for i in range(0, m, blocks_per_piece):
+            yield blk.start + i * k, blk.start + min(m, i + blocks_per_piece) * k
+
+
+def calibrated_block_means(rec: Recording | Rows, cal, k: int, blocks_per_piece: int = 4096,
+                           sensitivity=None) -> dict:
     """The calibrated rates' means over the blocks of :func:`block_means` (name -> means): ``cal.apply``'s
     values, the calibration applied to every sample, a few thousand blocks at a time (never to the
     whole record at once, whose design matrix alone would take ~1 GB for the seed's campaign)."""
     spec = cal.SPEC
-    s = np.asarray(cal.sensitivity_ if cal.sensitivity_ is not None else nominal_sensitivity(rec, spec)[0], float)
+    rows = Rows.of(rec) if isinstance(rec, Recording) else rec
+    s = cal.sensitivity_ if cal.sensitivity_ is not None else \
+        (sensitivity if sensitivity is not None else nominal_sensitivity(rec, spec)[0])
+    s = np.asarray(s, float)
     out = {f"{spec.cal_prefix}{a}": [] for a in spec.axes}
-    for b in rec.blocks():
-        m = (b.stop - b.start) // k
-        for i in range(0, m, blocks_per_piece):
-            j = min(m, i + blocks_per_piece)
-            sl = slice(b.start + i * k, b.start + j * k)
-            f = cal.predict(np.stack([rec.channels[c][sl] for c in spec.channels], axis=1) / s)
-            for q, name in enumerate(out):
-                out[name].append(f[:, q].reshape(j - i, k).mean(axis=1))
+    for a, b in _pieces(rows.blocks, k, blocks_per_piece):
+        f = cal.predict(np.stack([rows.channel(c, a, b) for c in spec.channels], axis=1) / s)
+        for q, name in enumerate(out):
+            out[name].append(f[:, q].reshape(-1, k).mean(axis=1))
     return {n: np.concatenate(v) if v else np.empty(0) for n, v in out.items()}
 
 
@@ -67,22 +95,23 @@ def blueprint(model, residual_range=None) -> rrb.Blueprint:
         column_shares=[2, 3]))
 
 
-def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
+def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True, rows: Rows | None = None) -> None:
     """Write ``path``: the table turning (10 Hz), raw volts and calibrated rates (10 Hz block
-    means), the reference rate and the residual of each step, the index pulses, the summary."""
+    means), the reference rate and the residual of each step, the index pulses, the summary. ``rows``:
+    the record's rows (default: those of ``rec``; the streamed campaign's ``rec`` holds its windows only)."""
     model = load_model("turn_table.xml")
-    k = max(1, int(round(rec.sample_rate_hz / DISPLAY_HZ)))
+    rows = rows or Rows.of(rec)
+    k = max(1, int(round((getattr(rows, "sample_rate_hz", None) or rec.sample_rate_hz) / DISPLAY_HZ)))
     # poses: the angle is sampled (not averaged) so the table turns smoothly in the viewer
-    idx = np.concatenate([np.arange(b.start, b.stop, k) for b in rec.blocks()])
-    t_pose = rec.time_s[idx]
-    src = rec.truth_signals.get("spin_angle")
-    if src is None:
+    idx = np.concatenate([np.arange(b.start, b.stop, k) for b in rows.blocks])
+    if rows.spin_at is None:
         return
-    qpos = src[idx][:, None]
+    t_pose = np.concatenate([rows.time(b.start, b.stop)[::k] for b in rows.blocks])
+    qpos = rows.spin_at(idx)[:, None]
     runs = rec.meta.get("runs", ["r_up"])
     tt = (rec.truth or {}).get("rig", {}).get("turn_table", {})
     e = TurnTableErrors(**{k_: v for k_, v in tt.items() if k_ in TurnTableErrors.__dataclass_fields__})
-    block_of = np.searchsorted([rec.time_s[b.start] for b in rec.blocks()], t_pose, side="right") - 1
+    block_of = np.searchsorted([rows.time(b.start, b.start + 1)[0] for b in rows.blocks], t_pose, side="right") - 1
     q_run = np.array([_quat_wxyz(e.wobble_rotation() @ MOUNTS[r]) for r in runs])
     mount_q = q_run[np.minimum(block_of, len(runs) - 1)]
     cal = res["main"]
@@ -94,9 +123,10 @@ def write_rrd(path, rec: Recording, res: dict, overwrite: bool = True) -> None:
         log_mujoco_model(w, model)
         log_body_poses(w, model, t_pose, qpos, body_quat_overrides={"imu_mount": mount_q})
         log_frame_axes(w, body_path(model, model.body("imu_mount").id), length=0.15)
-        t, raw = block_means(rec, list(GYRO), k)
+        t, raw = block_means(rows, list(GYRO), k)
         log_scalars(w, "signals/raw", *break_gaps(t, raw), {c: "V" for c in GYRO}, role="measured")
-        c = calibrated_block_means(rec, cal, k)
+        c = calibrated_block_means(rows, cal, k, sensitivity=None if cal.sensitivity_ is not None else
+                                   nominal_sensitivity(rec, cal.SPEC)[0])
         units = {f"w_{a}": "deg/s" for a in AXES}
         mid = 0.5 * (res["windows"].segments["start_s"] + res["windows"].segments["stop_s"])
         log_scalars(w, "signals/reference", mid, {f"w_{a}": np.degrees(res["reference"][:, j])
