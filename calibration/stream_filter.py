@@ -39,7 +39,7 @@ def settle_length(sos: np.ndarray, tol: float = np.finfo(float).eps ** 2) -> int
 
 
 def filtfilt_decimated(read: Callable[[int, int], np.ndarray], n: int, sos: np.ndarray, k: int, padlen: int,
-                       piece: int = PIECE_ROWS, overlap: int | None = None) -> np.ndarray:
+                       piece: int = PIECE_ROWS, overlap: int | None = None, out: np.ndarray | None = None) -> np.ndarray:
     """``sosfiltfilt(sos, x, axis=0, padlen=padlen)[::k]`` of a block x of ``n`` rows given by
     ``read(a, b)`` (rows [a, b) as an (b - a, m) float array; read in increasing order, once, but
     for the first and last padlen + 1 rows), module doc. A block of at most 2 pieces is filtered whole."""
@@ -51,7 +51,7 @@ def filtfilt_decimated(read: Callable[[int, int], np.ndarray], n: int, sos: np.n
     left = 2 * head[:1] - head[padlen:0:-1]
     right = 2 * tail[-1:] - tail[-2:-(padlen + 2):-1]
     E = n + 2 * padlen                                        # the extended block's length
-    out = np.empty((len(range(0, n, k)), head.shape[1]))
+    out = np.empty((len(range(0, n, k)), head.shape[1])) if out is None else out
 
     def keep(e0: int, yb: np.ndarray) -> None:
         """Backward outputs yb at extended rows e0.. into ``out`` (block rows i = e - padlen, i % k == 0)."""

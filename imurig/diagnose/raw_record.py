@@ -120,8 +120,8 @@ class StreamedRaw:
         self._tail = {c: np.zeros(0) for c in self.triad}
         self._next = 0
         time_s = np.empty(idx.size)
-        raw = {c: np.empty(idx.size) for c in names}
-        chans = {}
+        raw = {c: np.empty(idx.size) for c in names if c not in filtered}      # decimated as logged
+        low = np.empty((len(filtered), idx.size))        # low-passed, then decimated (one contiguous row per channel)
 
         def take(a: int, b: int, cols: dict, block: slice, off: int) -> None:
             """Rows [a, b) of every channel: their statistics (once per row, in order) and the decimated samples."""
@@ -131,8 +131,8 @@ class StreamedRaw:
             r = np.arange(a + (-(a - block.start)) % max(k, 1), b, max(k, 1))
             j = off + (r - block.start) // max(k, 1)
             time_s[j] = f.read_time(a, b)[r - a]
-            for c in names:
-                raw[c][j] = cols[c][r - a]
+            for c, dst in raw.items():
+                dst[j] = cols[c][r - a]
 
         off = 0
         for blk in f.blocks():
@@ -145,14 +145,13 @@ class StreamedRaw:
 
             if k >= 2:
                 _, sos, _ = filter_design(fs, fs / k, 50.0)
-                y = filtfilt_decimated(read, m, sos, k, min(3 * (2 * len(sos) + 1), m - 1))
-                for i, c in enumerate(filtered):
-                    chans.setdefault(c, np.empty(idx.size))[off:off + y.shape[0]] = y[:, i]
+                filtfilt_decimated(read, m, sos, k, min(3 * (2 * len(sos) + 1), m - 1),
+                                   out=low[:, off:off + len(range(0, m, k))].T)
             else:
                 for a, b in ((a, min(a + PIECE_ROWS, m)) for a in range(0, m, PIECE_ROWS)):
                     read(a, b)
             off += len(range(0, m, max(k, 1)))
-        channels = {c: chans.get(c, raw[c]) for c in names}
+        channels = {c: low[filtered.index(c)] if c in filtered else raw[c] for c in names}
         self._steps = {c: step_of(f.meta, c, self._distinct[c] if c in self._distinct else None,
                                   f.channel_quantum) for c in names}
         rec = Recording(time_s=time_s, channels=channels, units=dict(f.units), segments=dict(f.segments),
@@ -176,7 +175,7 @@ class StreamedRaw:
             xx = np.concatenate((self._tail[c], cols[c]))
             d2 = np.diff(xx, 2)
             j0 = a + cols[c].size - d2.size                    # index of d2's first value (d2[i] ends at row i + 2)
-            self._sub[c].append(d2[(-j0) % self._stride::self._stride])
+            self._sub[c].append(d2[(-j0) % self._stride::self._stride].copy())     # a copy: a view keeps the piece
             self._tail[c] = xx[-2:]
 
     def adc_step(self, ch: str) -> float:
