@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.calibration.preprocess import _decimated, filter_design
+from imurig.calibration.preprocess import filter_design
 from imurig.calibration.stream_filter import PIECE_ROWS, filtfilt_decimated
 from imurig.diagnose.position_noise import code_histogram, dither_sd, dither_sd_from
 from imurig.diagnose.samples import adc_range, adc_step, rail_positions, raw_channel_tests, working_record
@@ -90,6 +90,9 @@ class StreamedRaw:
     """The raw statistics of a :class:`FileRecord` ``f``, streamed (module doc). ``triad``: the
     channels that get the position and flat-top statistics."""
 
+    #: rows read at a time
+    piece = PIECE_ROWS
+
     def __init__(self, f: FileRecord, triad=("acc_x", "acc_y", "acc_z")):
         self.f, self.meta, self.units = f, f.meta, f.units
         self.channels = dict.fromkeys(f.channel_names)          # names only, in the file's order
@@ -108,8 +111,8 @@ class StreamedRaw:
         f, names = self.f, self.f.channel_names
         fs = self.sample_rate_hz
         k = int(np.floor(fs / 100.0 + 1e-9))           # as working_record
-        idx = np.concatenate([np.arange(b.start, b.stop, max(k, 1)) for b in f.blocks()])
-        check_memory(idx.size, len(names) + 2, f"{f.source} (the working record)")
+        rows = sum(len(range(b.start, b.stop, max(k, 1))) for b in f.blocks())
+        check_memory(rows, len(names) + 1, f"{f.source} (the working record)")
         setpoints = set(f.meta.get("setpoints", []))
         filtered = [c for c in names if c not in setpoints] if k >= 2 else []
         self._need_values = [c for c in names if step_of(f.meta, c, None, f.channel_quantum) == 0.0]
@@ -119,9 +122,9 @@ class StreamedRaw:
         self._stride = max(1, (self.n - 2) // SUBSAMPLE)
         self._tail = {c: np.zeros(0) for c in self.triad}
         self._next = 0
-        time_s = np.empty(idx.size)
-        raw = {c: np.empty(idx.size) for c in names if c not in filtered}      # decimated as logged
-        low = np.empty((len(filtered), idx.size))        # low-passed, then decimated (one contiguous row per channel)
+        time_s = np.empty(rows)
+        raw = {c: np.empty(rows) for c in names if c not in filtered}      # decimated as logged
+        low = np.empty((len(filtered), rows))        # low-passed, then decimated (one contiguous row per channel)
 
         def take(a: int, b: int, cols: dict, block: slice, off: int) -> None:
             """Rows [a, b) of every channel: their statistics (once per row, in order) and the decimated samples."""
@@ -145,21 +148,24 @@ class StreamedRaw:
 
             if k >= 2:
                 _, sos, _ = filter_design(fs, fs / k, 50.0)
-                filtfilt_decimated(read, m, sos, k, min(3 * (2 * len(sos) + 1), m - 1),
+                filtfilt_decimated(read, m, sos, k, min(3 * (2 * len(sos) + 1), m - 1), piece=self.piece,
                                    out=low[:, off:off + len(range(0, m, k))].T)
             else:
-                for a, b in ((a, min(a + PIECE_ROWS, m)) for a in range(0, m, PIECE_ROWS)):
+                for a, b in ((a, min(a + self.piece, m)) for a in range(0, m, self.piece)):
                     read(a, b)
             off += len(range(0, m, max(k, 1)))
         channels = {c: low[filtered.index(c)] if c in filtered else raw[c] for c in names}
         self._steps = {c: step_of(f.meta, c, self._distinct[c] if c in self._distinct else None,
                                   f.channel_quantum) for c in names}
-        rec = Recording(time_s=time_s, channels=channels, units=dict(f.units), segments=dict(f.segments),
-                        segment_units=dict(f.segment_units), meta=f.meta, truth=f.truth,
-                        channel_quantum=dict(f.channel_quantum) if k < 2 else {}, events=dict(f.events))
-        if k >= 2:
+        meta = f.meta
+        if k >= 2:                                   # as preprocess._decimated: the rate reached and the log
             _, _, log = filter_design(fs, fs / k, 50.0)
-            rec = _decimated(rec, np.arange(idx.size), channels, {}, log["to_hz"], log)
+            meta = {**f.meta, "sample_rate_hz": log["to_hz"],
+                    "preprocessing": list(f.meta.get("preprocessing", [])) + [log]}
+        rec = Recording(time_s=time_s, channels=channels, units=dict(f.units), segments=dict(f.segments),
+                        segment_units=dict(f.segment_units), meta=meta, truth=f.truth,
+                        channel_quantum=dict(f.channel_quantum) if k < 2 else {},
+                        events=dict(f.events) if k < 2 else {})
         self._rec100, self.decimated = rec, k >= 2
 
     def _feed(self, cols: dict, a: int) -> None:
@@ -234,7 +240,7 @@ class StreamedRaw:
     def _d2_pass(self, fn) -> None:
         """fn(channel, x piece, its first row, d2 piece) over all rows of the triad."""
         tail = {c: np.zeros(0) for c in self.triad}
-        for a, b in self.f.row_pieces(PIECE_ROWS):
+        for a, b in self.f.row_pieces(self.piece):
             for c in self.triad:
                 x = self.f.read(c, a, b)
                 xx = np.concatenate((tail[c], x))

@@ -44,6 +44,7 @@ class FileRecord:
         self.path = Path(path)
         self.source = Path(source) if source is not None else self.path
         self._tmp = tmp
+        self._cache, self._chunk_rows = {}, {}
         self._h = h = H5Recording(self.path)
         try:
             self._setup(h)
@@ -98,9 +99,28 @@ class FileRecord:
         """Rows of each segment's window [start_s, stop_s), as :meth:`Recording.segment_slices`."""
         return list(self._seg)
 
+    def _rows(self, what, a: int, b: int) -> np.ndarray:
+        """Rows [a, b) of ``what`` (``"time_s"`` or a channel entry) through whole stored chunks: the
+        last chunk read of each dataset is kept, so that pieces which do not start on a chunk's edge
+        (a block's, a segment's) do not decompress a chunk twice."""
+        key = what if isinstance(what, str) else what[0]
+        rows = self._chunk_rows.get(key)
+        if rows is None:
+            ds = self._h._f[key]
+            rows = self._chunk_rows[key] = int(ds.chunks[0]) if ds.chunks else 0
+        if not rows or (a % rows == 0 and b - a >= rows):
+            return self._h.read(what, a, b)
+        parts = []
+        for c in range(a // rows, (b - 1) // rows + 1):
+            hit = self._cache.get(key)
+            if hit is None or hit[0] != c:
+                hit = self._cache[key] = (c, self._h.read(what, c * rows, min((c + 1) * rows, self.n)))
+            parts.append(hit[1][max(a - c * rows, 0):b - c * rows])
+        return parts[0].copy() if len(parts) == 1 else np.concatenate(parts)
+
     def read(self, name: str, a: int, b: int) -> np.ndarray:
         """Rows [a, b) of channel ``name`` (float64, SI), checked finite as loading checks them."""
-        x = self._h.read(self._h.channels[name], a, b)
+        x = self._rows(self._h.channels[name], a, b)
         bad = np.flatnonzero(~np.isfinite(x))
         if bad.size:
             raise RecordingError(f"{self.source}: channel '{name}' has NaN/inf samples (first at sample "
@@ -108,7 +128,7 @@ class FileRecord:
         return x
 
     def read_time(self, a: int, b: int) -> np.ndarray:
-        return self._h.read("time_s", a, b)
+        return self._rows("time_s", a, b)
 
     def row_pieces(self, rows: int):
         """(a, b) over all rows, ``rows`` at a time."""
