@@ -15,7 +15,8 @@ from scipy import signal
 
 from imurig.calibration.preprocess import filter_design
 from imurig.calibration.stream_filter import filtfilt_decimated, settle_length
-from imurig.diagnose.raw_record import StreamedRaw, _RunTracker
+from imurig.diagnose.position_noise import code_histogram
+from imurig.diagnose.raw_record import InMemoryRaw, StreamedRaw, _RunTracker
 from imurig.diagnose.tilt_table import diagnose_tilt_table
 from imurig.kernel import import_lab
 from imurig.kernel.errors import RecordingError
@@ -118,19 +119,43 @@ def _streamed(path, monkeypatch, piece: int) -> dict:
         return clean_json(diagnose_tilt_table(f, np.random.default_rng(4), n_sim=100, dynamics=False))
 
 
-def test_streamed_diagnosis_of_a_simulated_record(small_records, tmp_path, monkeypatch):
+def test_streamed_raw_statistics_of_a_simulated_record(small_records, tmp_path, monkeypatch):
     """The small protocol at 1 kHz with the loose cable (two mountings: two blocks; spikes on acc_y),
-    saved and diagnosed from the file in pieces of 8 Ki rows (the chunked filter, the passes and the
-    order-statistic searches all run): the same findings and numbers as from the loaded recording,
-    to rounding."""
+    saved and read from the file in pieces of 8 Ki rows (the chunked filter, the passes and the
+    order-statistic searches all run): everything the diagnosis takes of the record (the working
+    record, each channel's step and rails, the positions' moments and dither, the flat-top test) is
+    what the loaded recording gives: the working record to the filter's rounding (16 eps of the
+    signal, as above), the rest to rounding of sums over pieces. (The whole diagnosis through both:
+    the next test, and the CLI's below.)"""
     rec = small_records.get(5, loose_cable=True)
     path = save_h5(rec, tmp_path / "small.h5")
+    monkeypatch.setattr(StreamedRaw, "piece", 1 << 13)
+    rec = load(path)                      # the file's recording (its metadata through JSON)
+    mem = InMemoryRaw(rec)
+    w0 = mem.working()
     with FileRecord(path) as f:
         assert len(f.blocks()) == len(rec.blocks()) == 2
         assert f.segment_slices() == rec.segment_slices() and f.sample_rate_hz == rec.sample_rate_hz
-    whole = clean_json(diagnose_tilt_table(rec, np.random.default_rng(4), n_sim=100, dynamics=False))
-    assert whole["axes"]["y"]["scatter"]["finding_spikes"]["effect"] == "cable_fault_spikes"
-    assert _same(whole, _streamed(path, monkeypatch, 1 << 13)) == []
+        raw = StreamedRaw(f)
+        w1 = raw.working()
+        assert raw.decimated and mem.decimated
+        assert np.array_equal(w0.time_s, w1.time_s) and w0.meta == w1.meta and list(w0.channels) == list(w1.channels)
+        for c, x in w0.channels.items():
+            assert np.max(np.abs(w1.channels[c] - x)) <= 16 * EPS * np.max(np.abs(x)), c
+        medians = np.linspace(-5, 5, 11)
+        for c in rec.channels:
+            if rec.units[c] == "V":
+                assert raw.adc_step(c) == mem.adc_step(c)
+                assert np.array_equal(raw.at_rail(c, medians), mem.at_rail(c, medians))
+        for c in raw.triad:
+            for u, v in zip(raw.segment_moments(c), mem.segment_moments(c)):
+                assert np.array_equal(u, v), c
+            q = raw.adc_step(c)     # the dither's codes per position (dither_sd_from is one function for both)
+            x = rec.channels[c] / q
+            for h0, h1 in zip([code_histogram(x[s]) for s in rec.segment_slices()], raw._moments[c][3]):
+                assert all(np.array_equal(u, v) for u, v in zip(h0, h1))
+            assert _same(mem.raw_tests(c, 0.01), raw.raw_tests(c, 0.01)) == []
+            assert np.array_equal(raw.segment_samples(c, 3), mem.segment_samples(c, 3))
 
 
 def test_streamed_diagnosis_of_a_clipped_lab_record(tmp_path, monkeypatch):
@@ -178,10 +203,10 @@ def _peak_bytes(path) -> int:
 def test_memory_does_not_grow_with_the_record(tmp_path):
     """Peak traced memory of the streamed raw statistics on a record and on one 4 x longer: it grows by
     at most twice the working record's growth (n / 10 rows x 4 columns x 8 bytes) plus 2 MB, where the
-    loaded record alone grows by 3 n x 8 bytes x 3 channels (the test can fail: the streamed path
-    kept whole pieces alive through views before: 10 MB at 300 k rows)."""
+    loaded record alone grows by 3 n x 8 bytes x 3 channels (the test can fail: with the
+    second differences' subsample kept as views, which hold every piece, it grows by 11 MB here)."""
     rng = np.random.default_rng(0)
-    n = 150_000
+    n = 100_000
     small, big = _synthetic(tmp_path / "a.h5", n, rng), _synthetic(tmp_path / "b.h5", 4 * n, rng)
     growth = _peak_bytes(big) - _peak_bytes(small)
     working = 3 * n // 10 * 4 * 8
@@ -198,3 +223,29 @@ def test_refused_before_allocating(tmp_path, monkeypatch, small_records):
             StreamedRaw(f).working()
         with pytest.raises(RecordingError, match="GB to import"):
             f.load()
+
+
+def test_cli_diagnoses_a_declared_lab_csv_from_the_file(tmp_path, monkeypatch, capsys):
+    """`imurig diagnose REC.csv` on a lab CSV that declares its structure (as `imurig convert` writes
+    it) reads it through a FileRecord on a temporary HDF5 file (removed afterwards) and writes its
+    report, with the clip found (the same diagnosis as from the loaded record: the test above)."""
+    import json
+
+    from imurig.cli import recordings
+    from imurig.cli.main import main
+    from imurig.kernel.labcsv import write_csv as write_lab_csv
+
+    cols, steps, _ = tilt.record(11, "saturation", 50.0, "12bit_10V", dwell_s=4.0)
+    write_csv(tmp_path / "minimal.csv", {"rig": "tilt_table", "site": "delft"}, cols, steps)
+    csv = write_lab_csv(load(tmp_path / "minimal.csv"), tmp_path / "declared.csv")
+    opened = []
+
+    def spy(path):
+        opened.append(open_file_record(path))
+        return opened[-1]
+    monkeypatch.setattr(recordings, "open_file_record", spy)
+    assert main(["diagnose", str(csv), "--out", str(tmp_path / "s")]) == 0
+    assert len(opened) == 1 and isinstance(opened[0], FileRecord) and not opened[0].path.exists()
+    streamed = json.loads((tmp_path / "s" / "diagnosis.json").read_text())
+    assert [f["effect"] for f in streamed["findings"]] == ["saturation"]
+    assert capsys.readouterr().out.strip().splitlines()[-1] == f"verdict: {streamed['verdict']}"
