@@ -142,9 +142,10 @@ class FileRecord:
         return load_h5(self.path)
 
 
-def open_file_record(path) -> FileRecord | None:
+def open_file_record(path, tmp_dir=None) -> FileRecord | None:
     """A :class:`FileRecord` of an ``.h5``/``.hdf5`` file, or of a lab ``.csv`` that declares its
-    structure (through a temporary HDF5 file, deleted on close); None for any other file (the
+    structure (through a temporary, uncompressed HDF5 file in ``tmp_dir``, default the system's
+    temporary folder, deleted on close: 8 bytes per value on disk); None for any other file (the
     caller loads it whole)."""
     p = Path(path)
     suffix = p.suffix.lower()
@@ -152,9 +153,9 @@ def open_file_record(path) -> FileRecord | None:
         return FileRecord(p)
     if suffix != ".csv":
         return None
-    tmp = tempfile.TemporaryDirectory(prefix="imurig-")
+    tmp = tempfile.TemporaryDirectory(prefix="imurig-", dir=tmp_dir)
     try:
-        dst = csv_to_h5(p, Path(tmp.name) / (p.stem + ".h5"))
+        dst = csv_to_h5(p, Path(tmp.name) / (p.stem + ".h5"), compress=False)
     except BaseException:
         tmp.cleanup()
         raise
