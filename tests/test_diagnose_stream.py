@@ -227,7 +227,8 @@ def test_refused_before_allocating(tmp_path, monkeypatch, small_records):
 
 def test_cli_diagnoses_a_declared_lab_csv_from_the_file(tmp_path, monkeypatch, capsys):
     """`imurig diagnose REC.csv` on a lab CSV that declares its structure (as `imurig convert` writes
-    it) reads it through a FileRecord on a temporary HDF5 file (removed afterwards) and writes its
+    it) reads it through a FileRecord on a temporary HDF5 file beside the report folder (removed
+    afterwards) and writes its
     report, with the clip found (the same diagnosis as from the loaded record: the test above)."""
     import json
 
@@ -240,12 +241,13 @@ def test_cli_diagnoses_a_declared_lab_csv_from_the_file(tmp_path, monkeypatch, c
     csv = write_lab_csv(load(tmp_path / "minimal.csv"), tmp_path / "declared.csv")
     opened = []
 
-    def spy(path):
-        opened.append(open_file_record(path))
+    def spy(path, **kw):
+        opened.append(open_file_record(path, **kw))
         return opened[-1]
     monkeypatch.setattr(recordings, "open_file_record", spy)
     assert main(["diagnose", str(csv), "--out", str(tmp_path / "s")]) == 0
     assert len(opened) == 1 and isinstance(opened[0], FileRecord) and not opened[0].path.exists()
+    assert opened[0].path.parent.parent == tmp_path          # beside the report folder, not in /tmp
     streamed = json.loads((tmp_path / "s" / "diagnosis.json").read_text())
     assert [f["effect"] for f in streamed["findings"]] == ["saturation"]
     assert capsys.readouterr().out.strip().splitlines()[-1] == f"verdict: {streamed['verdict']}"
