@@ -173,7 +173,7 @@ def test_streamed_diagnosis_of_a_clipped_lab_record(tmp_path, monkeypatch):
     assert _same(whole, _streamed(path, monkeypatch, 1000)) == []
 
 
-def _synthetic(path, n: int, rng: np.random.Generator):
+def _synthetic(path, n: int, rng: np.random.Generator, quantum: bool = True):
     """A 1 kHz record of n rows: three 16-bit channels at a level held for 10 s at a time (a position)
     with noise of 2 steps, one segment per level."""
     t = np.arange(n) / 1000.0
@@ -181,10 +181,26 @@ def _synthetic(path, n: int, rng: np.random.Generator):
     ch = {f"acc_{a}": np.round((0.5 * np.sin(np.floor(t / 10.0) + i) + rng.normal(0, 2 * q, n)) / q) * q
           for i, a in enumerate("xyz")}
     start = np.arange(1.0, t[-1] - 10.0, 10.0)
-    rec = Recording(time_s=t, channels=ch, units=dict.fromkeys(ch, "V"), channel_quantum=dict.fromkeys(ch, q),
+    rec = Recording(time_s=t, channels=ch, units=dict.fromkeys(ch, "V"),
+                    channel_quantum=dict.fromkeys(ch, q) if quantum else {},
                     segments={"start_s": start, "stop_s": start + 8.0}, segment_units={"start_s": "s", "stop_s": "s"},
                     meta={"rig": "tilt_table"})
     return save_h5(rec, path)
+
+
+@pytest.mark.parametrize("max_distinct", [1 << 21, 100])
+def test_step_from_the_values_streamed(tmp_path, monkeypatch, max_distinct):
+    """A channel whose step neither the file nor its metadata give: the step estimated from its
+    distinct values, gathered piece by piece (or, past ``max_distinct`` of them, from the channel
+    read whole), is the loaded record's."""
+    import imurig.diagnose.raw_record as rr
+
+    path = _synthetic(tmp_path / "f.h5", 60_000, np.random.default_rng(1), quantum=False)
+    monkeypatch.setattr(rr, "MAX_DISTINCT", max_distinct)
+    mem = InMemoryRaw(load(path))
+    with FileRecord(path) as f:
+        raw = StreamedRaw(f)
+        assert raw.adc_step("acc_x") == mem.adc_step("acc_x") > 0
 
 
 def _peak_bytes(path) -> int:

@@ -155,8 +155,8 @@ class StreamedRaw:
                     read(a, b)
             off += len(range(0, m, max(k, 1)))
         channels = {c: low[filtered.index(c)] if c in filtered else raw[c] for c in names}
-        self._steps = {c: step_of(f.meta, c, self._distinct[c] if c in self._distinct else None,
-                                  f.channel_quantum) for c in names}
+        self._steps = {c: None if c in self._distinct and self._distinct[c] is None else   # too many: adc_step
+                       step_of(f.meta, c, self._distinct.get(c), f.channel_quantum) for c in names}
         meta = f.meta
         if k >= 2:                                   # as preprocess._decimated: the rate reached and the log
             _, _, log = filter_design(fs, fs / k, 50.0)
