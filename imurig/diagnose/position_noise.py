@@ -114,7 +114,8 @@ def code_histogram(codes: np.ndarray):
 
 def dither_sd_from(hists, q: float, grid: int = 48) -> float | None:
     """:func:`dither_sd` from the positions' :func:`code_histogram` (None entries skipped)."""
-    from scipy.stats import norm   # lazy: only records on a coarse converter need it
+    from scipy.special import ndtr   # lazy: only records on a coarse converter need it (norm.cdf's own kernel,
+    #                                   without scipy.stats' argument handling: 10x faster, the same bits)
     hist = [h for h in hists if h is not None]
     if len(hist) < 2:
         return None
@@ -123,7 +124,7 @@ def dither_sd_from(hists, q: float, grid: int = 48) -> float | None:
     for k, n, m in hist:
         def ll(xv):
             z_hi = (k[None, :] + 0.5 - xv[:, None]) / sig[:, None]
-            p = norm.cdf(z_hi) - norm.cdf(z_hi - 1.0 / sig[:, None])
+            p = ndtr(z_hi) - ndtr(z_hi - 1.0 / sig[:, None])
             return np.log(np.maximum(p, 1e-300)) @ n.astype(float)
         # x profiled per sigma by bounded Newton steps from the mean code (the likelihood of an
         # interval is log-concave in the location, so the maximum is unique)
