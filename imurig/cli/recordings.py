@@ -11,6 +11,7 @@ import numpy as np
 from imurig.cli.campaigns import print_summary
 from imurig.kernel.errors import ImurigError, OutputExistsError
 from imurig.kernel.csvstream import csv_to_h5
+from imurig.kernel.filerecord import FileRecord, open_file_record
 from imurig.kernel.files import load
 from imurig.kernel.h5stream import h5_info, h5_to_csv
 from imurig.kernel.infer import inference_report, warning_banner
@@ -208,7 +209,7 @@ def _run_diagnose(a):
     elif a.recording.lower().endswith(".csv") and _is_appendix_b(a.recording):
         rec = read_simona(a.recording)
     else:
-        rec = _load(a).validate()
+        rec = _open_for_diagnosis(a)
     # the twin: the recording's own meta["diagnose_twin"] (if any), overridden by the flags given
     try:
         d = run(rec, a.out, overwrite=a.overwrite, seed=a.seed, twin_model=a.twin_model,
@@ -219,10 +220,33 @@ def _run_diagnose(a):
         raise
     except (ValueError, np.linalg.LinAlgError) as e:  # a comparison the data cannot carry: a message, not a traceback
         raise ImurigError(f"{a.recording}: the diagnosis cannot compare these data with a twin: {e}") from None
+    finally:
+        if isinstance(rec, FileRecord):
+            rec.close()
     for r in _findings_rows(d):
         print(f"- {r[1]} ({r[0]}): {r[2]}\n    {r[3]}")
     print(f"report: {Path(a.out) / 'report.md'}; machine-readable: {Path(a.out) / 'diagnosis.json'}")
     print(f"verdict: {d['verdict']}")
+
+
+def _open_for_diagnosis(a):
+    """The recording to diagnose: a tilt-table .h5 (or a lab .csv that declares its structure) read in
+    row ranges (:class:`imurig.kernel.filerecord.FileRecord`: memory of the 100 Hz working record, not
+    of the file; a CSV's temporary HDF5 file beside the report folder, not in a temporary folder that
+    may be held in memory); any other recording loaded whole, after an estimate of the memory it needs."""
+    from imurig.diagnose.dispatch import record_kind
+
+    if not (a.rig or a.site or a.pulse_channel):
+        parent = Path(a.out).resolve().parent
+        f = open_file_record(a.recording, tmp_dir=parent if parent.is_dir() else None)
+        if f is not None:
+            if record_kind(f) == "tilt_table":
+                return f
+            try:
+                return f.load().validate()
+            finally:
+                f.close()
+    return _load(a).validate()
 
 
 def _is_appendix_b(path) -> bool:

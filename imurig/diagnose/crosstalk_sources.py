@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imurig.diagnose.samples import at_rail, leak_sources
+from imurig.diagnose.samples import leak_sources
 
 #: the least fraction of a leak source's column (centred) that must lie outside the twin's columns
 MIN_SOURCE_RETAINED = 0.01
@@ -67,14 +67,15 @@ def fill_at_rail(v: np.ndarray, rail: np.ndarray, basis: np.ndarray | None) -> t
     return out, rel
 
 
-def unknown_scan_sources(rec, rec100, medians, cache: dict, ref: np.ndarray, J: np.ndarray,
+def unknown_scan_sources(raw, rec100, medians, cache: dict, ref: np.ndarray, J: np.ndarray,
                          triad: tuple[str, ...]) -> tuple[tuple, dict]:
     """(sources to test, report) for a file without a scan order; a source at the rail whose
-    lab-fixed-field fit holds gets its clipped positions filled in ``cache`` (name -> column)."""
+    lab-fixed-field fit holds gets its clipped positions filled in ``cache`` (name -> column).
+    ``raw``: the record as logged (:func:`imurig.diagnose.raw_record.as_raw`: its ``at_rail``)."""
     sources, clipped, filled = [], {}, {}
     basis = lab_axes_basis(ref, J)
     for k in leak_sources(rec100, triad):
-        rail = at_rail(rec, k, medians(k))
+        rail = raw.at_rail(k, medians(k))
         if not rail.any():
             sources.append(k)
             continue

@@ -17,6 +17,7 @@ from imurig.diagnose.tilt_table import TWIN_MODELS as TILT_TWIN_MODELS
 from imurig.diagnose.tilt_table import diagnose_tilt_table
 from imurig.diagnose.turn_table import diagnose_turn_table
 from imurig.kernel.errors import ConfigError, RecordingError
+from imurig.kernel.filerecord import FileRecord
 from imurig.kernel.recording import Recording
 
 #: the twin options each kind of recording understands (``meta["diagnose_twin"]``, ``--twin-model``...)
@@ -68,9 +69,13 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str | None = None, earth
     """Dispatch on the recording's kind (:func:`record_kind`): tilt-table recordings (twin model
     ``twin_model``, default 'physical'; the slews too), turn-table recordings (twin with or without
     the Earth's rate), thermal-chamber recordings, turn-table row recordings (appendix B) and
-    magnetometer recordings (twin 'nominal' or 'calibrated'). Options: :func:`twin_options`."""
+    magnetometer recordings (twin 'nominal' or 'calibrated'). Options: :func:`twin_options`.
+    A tilt-table ``rec`` may be a :class:`imurig.kernel.filerecord.FileRecord` (read in row ranges,
+    :mod:`imurig.diagnose.raw_record`); the other kinds take a loaded Recording."""
     kind = record_kind(rec)
     o = twin_options(rec, twin, twin_model=twin_model, earth_rate=earth_rate)
+    if isinstance(rec, FileRecord) and kind != "tilt_table":
+        rec = rec.load().validate()             # whole, after an estimate of the memory it needs
     rng = np.random.default_rng(seed)
     if kind == "rate_table_rows":
         return {"kind": kind, **diagnose_rate_rows(rec, rng)}

@@ -98,15 +98,25 @@ def dither_sd(samples_V: np.ndarray, slices, q: float, grid: int = 48) -> float 
     dozen positions sharing a few levels are not (0.23 q to 0.33 q for a true 0.3 q on 12-bit
     records, i.e. a shared variance wrong by a factor of 0.4 to 2.3). None without two positions of
     at least 10 samples or when the maximum is at the grid's end (noise far below or above q)."""
+    x = np.asarray(samples_V, float) / q
+    return dither_sd_from([code_histogram(x[sl]) for sl in slices], q, grid)
+
+
+def code_histogram(codes: np.ndarray):
+    """One position's codes (samples / q) as :func:`dither_sd_from` takes them: (codes about the
+    rounded mean, their counts, the mean's offset from it), or None below 10 samples."""
+    c = np.rint(codes)
+    if c.size < 10:
+        return None
+    k, n = np.unique(c, return_counts=True)
+    return k - np.rint(c.mean()), n, float(c.mean() - np.rint(c.mean()))
+
+
+def dither_sd_from(hists, q: float, grid: int = 48) -> float | None:
+    """:func:`dither_sd` from the positions' :func:`code_histogram` (None entries skipped)."""
     from scipy.special import ndtr   # lazy: only records on a coarse converter need it (norm.cdf's own kernel,
     #                                   without scipy.stats' argument handling: 10x faster, the same bits)
-    x = np.asarray(samples_V, float) / q
-    hist = []
-    for sl in slices:
-        c = np.rint(x[sl])
-        if c.size >= 10:
-            k, n = np.unique(c, return_counts=True)
-            hist.append((k - np.rint(c.mean()), n, float(c.mean() - np.rint(c.mean()))))
+    hist = [h for h in hists if h is not None]
     if len(hist) < 2:
         return None
     sig = np.exp(np.linspace(np.log(0.05), np.log(3.0), grid))

@@ -60,11 +60,18 @@ def at_rail(rec: Recording, ch: str, medians: np.ndarray, min_bits: int = 6) -> 
     the channel's lowest (highest) value is a rail when it is -2^n q (2^n q or (2^n - 1) q), n >=
     ``min_bits``, q the channel's ADC step, i.e. a bipolar converter's end code, and a position
     whose median is within q of it was clipped (its voltage is beyond the rail, unknown)."""
-    x, q = np.asarray(rec.channels[ch], float), adc_step(rec, ch)
+    x = np.asarray(rec.channels[ch], float)
+    if x.size == 0:
+        return np.zeros(np.shape(medians), bool)
+    return rail_positions(float(x.min()), float(x.max()), adc_step(rec, ch), medians, min_bits)
+
+
+def rail_positions(lo: float, hi: float, q: float, medians: np.ndarray, min_bits: int = 6) -> np.ndarray:
+    """:func:`at_rail` from the channel's lowest and highest values ``lo``, ``hi`` and its step ``q``."""
     out = np.zeros(np.shape(medians), bool)
-    if not q > 0 or x.size == 0:
+    if not q > 0:
         return out
-    for v in (x.min(), x.max()):
+    for v in (lo, hi):
         n = abs(v) / q
         if n >= 2 ** min_bits and min(abs(n - 2 ** round(np.log2(n))), abs(n + 1 - 2 ** round(np.log2(n + 1)))) < 0.01:
             out |= np.abs(np.asarray(medians, float) - v) <= q

@@ -37,11 +37,13 @@ from imurig.diagnose.engine import select_effects
 from imurig.diagnose.crosstalk_sources import (TRIAD_LEAK_VS_MISALIGNMENT, absorbed_note, identifiable_sources,
                                                unknown_scan_sources)
 from imurig.diagnose.position_noise import dither_sd, position_noise
-from imurig.diagnose.samples import adc_step, raw_channel_tests, scan_order, scan_order_known, working_record
+from imurig.diagnose.raw_record import as_raw
+from imurig.diagnose.samples import scan_order, scan_order_known
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.tilt_dynamics import MAX_DYNAMIC_SAMPLES, diagnose_tilt_dynamics
 from imurig.diagnose.tilt_ramps import diagnose_setpoint_delay
 from imurig.kernel.errors import ConfigError
+from imurig.kernel.filerecord import FileRecord
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import parse_time
 from imurig.sensors.effects import AdcCrosstalk, PositionView, ScatterView, for_view, run_tests
@@ -61,7 +63,7 @@ TWIN_MODELS = ("physical", "own_axis", "linear")
 MIN_SLEW_RATE_HZ = 200.0
 
 
-def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
+def diagnose_tilt_table(rec: Recording | FileRecord, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
                         twin_model: str = "physical", dynamics: bool = False, skew_in_twin: bool = True) -> dict:
     """Diagnose a tilt-table recording against the twin ``twin_model``:
 
@@ -73,12 +75,15 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     ``dynamics`` the slews between positions are compared with the dynamic twin as well
     (:func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`: time delay, lever arm, wrong
     local gravity; ``skew_in_twin``: whether that twin models the multiplexer's channel skew).
+    ``rec``: a Recording, or a FileRecord read in row ranges (the raw statistics streamed:
+    :mod:`imurig.diagnose.raw_record`; the same findings in memory of the 100 Hz working record).
     """
     if twin_model not in TWIN_MODELS:
         raise ConfigError(f"unknown twin model '{twin_model}'; choose one of {', '.join(TWIN_MODELS)}")
-    rec100 = working_record(rec)
-    stat = position_statistic(rec, rec100)
-    cal = calibrate(rec, model=twin_model, processed=rec100, statistic=stat)
+    raw = as_raw(rec)
+    rec100 = raw.working()
+    stat = position_statistic(raw, rec100)
+    cal = calibrate(rec100, model=twin_model, processed=rec100, statistic=stat)
     u, _ = indicated(rec100, stat)
     seg = rec100.segments
     mid = 0.5 * (seg["start_s"] + seg["stop_s"])
@@ -94,12 +99,12 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     # a scan order the metadata give is trusted; without one (the import's guess from the column
     # order is not), every logged channel outside the triad is a candidate leak source
     ref, J, _ = tilt_table_reference(rec100)
-    scan, scan_source = scan_order(rec)
-    known = scan_order_known(rec)
+    scan, scan_source = scan_order(raw)
+    known = scan_order_known(raw)
     sources, source_report = (), {}
     if not known:
         scan, scan_source = [], "unknown (no adc.scan_list in the metadata)"
-        sources, source_report = unknown_scan_sources(rec, rec100, medians, median_cache, ref, J,
+        sources, source_report = unknown_scan_sources(raw, rec100, medians, median_cache, ref, J,
                                                       tuple(f"acc_{a}" for a in AXES))
     out = {"twin": f"'{twin_model}' accelerometer model fitted to per-position {STATISTIC_WORDS[stat]}",
            "twin_model": twin_model, "position_statistic": stat,
@@ -124,7 +129,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         alias = _crosstalk_alias_of_drift(lib, X0, prev)
         if alias is not None:
             lib = [c for c in lib if c.name != "adc_crosstalk"]
-        noise, noise_info = _level_noise(rec, rec100, ch, y, X0, medians(ch), averaged=stat != "median")
+        noise, noise_info = _level_noise(raw, rec100, ch, y, X0, medians(ch), averaged=stat != "median")
         d = select_effects(y, X0, names0, lib, rng, alpha=alpha, n_sim=n_sim, noise=noise)
         entry = d.to_dict()
         entry["noise_model"] = noise_info
@@ -135,24 +140,24 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
             elif f["effect"] == "adc_crosstalk":
                 f.update(previous_channel=prev, scan_order_from=scan_source)
             if f["effect"] == "saturation":
-                _saturation_limit(f, rec, ch, y, u[:, j], adc_step(rec, ch))
+                _saturation_limit(f, raw, ch, y, u[:, j], raw.adc_step(ch))
             if f["effect"] == "temperature_drift":
                 # per unit of the temperature channel as read (V of a 10 mV/K sensor, or K)
-                t_ch = next((c for c in TemperatureDrift.channels if c in rec.channels), None)
+                t_ch = next((c for c in TemperatureDrift.channels if c in raw.channels), None)
                 for q in f.get("parameters", []):
-                    q["unit"] = f"m/s^2/{rec.units.get(t_ch, 'V')}"
+                    q["unit"] = f"m/s^2/{raw.units.get(t_ch, 'V')}"
         if alias is not None:
             entry["indistinguishable"] = [alias]
         if absorbed:
             entry.setdefault("indistinguishable", []).append(absorbed_note(ch, absorbed))
-        entry["scatter"] = _scatter(rec100, ch, mid, adc_step(rec, ch))
-        entry["scatter"].update(raw_channel_tests(rec, ch, alpha))
+        entry["scatter"] = _scatter(rec100, ch, mid, raw.adc_step(ch))
+        entry["scatter"].update(raw.raw_tests(ch, alpha))
         entry.update(_position_residuals(y, X0, names0, lib, d, a, hours_elapsed=(mid - rec100.time_s[0]) / 3600.0,
                                          reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry
     out["indistinguishable"] = [GRAVITY_VS_SCALE] + ([] if known else [TRIAD_LEAK_VS_MISALIGNMENT])
     if dynamics:
-        out["dynamic"] = _dynamic(rec, cal, out["axes"], rng, alpha, n_sim, skew_in_twin)
+        out["dynamic"] = _dynamic(raw, cal, out["axes"], rng, alpha, n_sim, skew_in_twin)
     return out
 
 
@@ -161,7 +166,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
 STATISTIC_WORDS = {"median": "medians", "clipped_mean": "clipped means (median +- 6 robust sigma + 1 ADC step)"}
 
 
-def position_statistic(rec: Recording, rec100: Recording, max_decimation: float = 4.0) -> str:
+def position_statistic(raw, rec100: Recording, max_decimation: float = 4.0) -> str:
     """'clipped_mean' where every accelerometer channel is logged on an ADC's grid (step q > 0)
     and the working record averages at most ``max_decimation`` logged samples per sample (the
     record as logged, or 200 Hz low-passed to 100 Hz), else 'median'. The median of values on or
@@ -170,11 +175,12 @@ def position_statistic(rec: Recording, rec100: Recording, max_decimation: float 
     48 ug/g^2 nonlinearity (non-centrality 0.7-9 per axis with the median, 100-1100 with the
     clipped mean); at 12 bits, 200 Hz it doubled the position scatter (4.6 vs 2.2 mm/s^2). A
     1 kHz record low-passed to 100 Hz averages enough codes (median and clipped mean within
-    their sqrt(pi/2) efficiency ratio), so the seed's median is kept there."""
-    if rec.sample_rate_hz / rec100.sample_rate_hz > max_decimation:
+    their sqrt(pi/2) efficiency ratio), so the seed's median is kept there. ``raw``: the record as
+    logged (:func:`imurig.diagnose.raw_record.as_raw`)."""
+    if raw.sample_rate_hz / rec100.sample_rate_hz > max_decimation:
         return "median"
     acc = [f"acc_{a}" for a in AXES]
-    return "clipped_mean" if all(c in rec.channels and adc_step(rec, c) > 0 for c in acc) else "median"
+    return "clipped_mean" if all(c in raw.channels and raw.adc_step(c) > 0 for c in acc) else "median"
 
 
 def level_statistic(name: str, stat: str) -> str:
@@ -202,23 +208,23 @@ GRAVITY_VS_SCALE = {
             "kinematic accelerations could show it, and there it equals a lever-arm error along the phi axis"}
 
 
-def _dynamic(rec: Recording, cal, axes: dict, rng: np.random.Generator, alpha: float, n_sim: int,
+def _dynamic(raw, cal, axes: dict, rng: np.random.Generator, alpha: float, n_sim: int,
              skew_in_twin: bool) -> dict:
     """The slews against the dynamic twin (:func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`),
     given what the position means found (``axes``), or why they were not tested."""
-    if "inferred" in rec.meta and not rec.meta.get("protocol"):
+    if "inferred" in raw.meta and not raw.meta.get("protocol"):
         # another lab's file: its logged (ramped) set-points are the trajectory, at any sample rate
-        return diagnose_setpoint_delay(rec, cal, alpha=alpha)
-    if rec.sample_rate_hz < MIN_SLEW_RATE_HZ or not {"theta", "phi"} <= set(rec.channels):
+        return diagnose_setpoint_delay(raw.full(), cal, alpha=alpha)
+    if raw.sample_rate_hz < MIN_SLEW_RATE_HZ or not {"theta", "phi"} <= set(raw.channels):
         return {"tested": False, "why": f"the slews need per-sample theta/phi set-point channels at >= "
                                         f"{MIN_SLEW_RATE_HZ:g} Hz"}
-    if rec.n > MAX_DYNAMIC_SAMPLES:
-        return {"tested": False, "why": f"{rec.n} samples: this version keeps five replays of the whole "
+    if raw.n > MAX_DYNAMIC_SAMPLES:
+        return {"tested": False, "why": f"{raw.n} samples: this version keeps five replays of the whole "
                                         f"record (the twin's specific force) in memory; records up to "
                                         f"{MAX_DYNAMIC_SAMPLES} samples (cut the record into runs)"}
     static_found = tuple(a for a in AXES if axes[a]["findings"])
     crosstalk = tuple(a for a in AXES if any(f["effect"] == "adc_crosstalk" for f in axes[a]["findings"]))
-    return diagnose_tilt_dynamics(rec, cal, rng, alpha=alpha, n_sim=n_sim, skew_in_twin=skew_in_twin,
+    return diagnose_tilt_dynamics(raw.full(), cal, rng, alpha=alpha, n_sim=n_sim, skew_in_twin=skew_in_twin,
                                   recalibrate_axes=static_found, crosstalk_axes=crosstalk)
 
 
@@ -231,29 +237,25 @@ _REVEAL = {"adc_crosstalk": ("median of the previously scanned channel '{prev}'"
            "saturation": ("the twin's reference beyond the clip limit, max(y − L, 0)", "m/s²")}
 
 
-def _level_noise(rec: Recording, rec100: Recording, ch: str, y: np.ndarray, X0: np.ndarray, median_V: np.ndarray,
+def _level_noise(raw, rec100: Recording, ch: str, y: np.ndarray, X0: np.ndarray, median_V: np.ndarray,
                  averaged: bool = False):
     """The position regression's noise where positions at one level share the ADC's rounding error
     (:func:`imurig.diagnose.position_noise.position_noise`): (noise generator or None, its figures).
     ``averaged``: the position statistic averages codes (a clipped mean), so the shared error is the
     rounding smoothed by the samples' own dither, as for a low-passed record, not by the median's
-    sampling spread."""
+    sampling spread. ``raw``: the record as logged (its positions' sds and codes)."""
     sens = rec100.meta.get("acc_nominal_sensitivity_V_per_m_s2")
     if sens is None or median_V is None:
         return None, {"shared_level_errors": False, "why": "no nominal sensitivity"}
-    src = rec if rec100 is not rec else rec100
-    x = np.asarray(src.channels[ch], float)
-    sl = src.segment_slices()
-    sd = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
-    n = np.array([s.stop - s.start for s in sl])
-    q = adc_step(rec, ch)
-    decimated = rec100 is not rec or averaged
-    dither = dither_sd(x, sl, q) if decimated and q > 0 else None
+    _, sd, n = raw.segment_moments(ch)
+    q = raw.adc_step(ch)
+    decimated = raw.decimated or averaged
+    dither = raw.dither(ch, q) if decimated and q > 0 else None
     return position_noise(y, X0, y, median_V, q, float(sens["xyz".index(ch[-1])]), sd, n,
                           decimated=decimated, dither_V=dither)
 
 
-def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:
+def _saturation_limit(f: dict, raw, ch: str, y: np.ndarray, reading: np.ndarray, quantum_V: float) -> None:
     """Complete an accepted clipping finding ``f`` (the engine's hinge at (side, L) in m/s^2): the
     positions it clips, the limit in volts refitted from their logged samples
     (:func:`imurig.sensors.effects.saturation.limit_from_samples`) and the evidence: the clipped
@@ -261,11 +263,8 @@ def _saturation_limit(f: dict, rec: Recording, ch: str, y: np.ndarray, reading: 
     before the converter leaves only the converter's noise)."""
     side, limit = (float(v) for v in f["scan"]["side, limit_m_s2"])
     S = side * (y - limit) > 0
-    sl = rec.segment_slices()
-    x = np.asarray(rec.channels[ch], float)
-    means = np.array([x[s].mean() for s in sl])
-    sds = np.array([x[s].std(ddof=1) if s.stop - s.start > 1 else 0.0 for s in sl])
-    L, se = limit_from_samples([x[s] for s, c in zip(sl, S) if c], quantum_V)
+    _, sds, _ = raw.segment_moments(ch)
+    L, se = limit_from_samples([raw.segment_samples(ch, i) for i in np.flatnonzero(S)], quantum_V)
     name = "upper_limit_V" if side > 0 else "lower_limit_V"
     f["parameters"].append({"name": f"saturation:{name}", "estimate": L, "std_error": se})
     f.update(channel=ch, clipped_positions=np.flatnonzero(S).tolist(), limit_m_s2=limit,

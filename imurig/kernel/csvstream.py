@@ -38,9 +38,10 @@ class _Refused(Exception):
     """The block checks found what the whole-file import refuses: let it say so."""
 
 
-def csv_to_h5(src, dst, overwrite: bool = False) -> Path | None:
+def csv_to_h5(src, dst, overwrite: bool = False, compress: bool = True) -> Path | None:
     """Convert the lab CSV ``src`` to the HDF5 recording ``dst`` in row blocks (module doc); None
-    when the file needs the whole-file import (nothing written)."""
+    when the file needs the whole-file import (nothing written). ``compress=False``: the long
+    datasets stored without gzip (a temporary file read once more: less CPU, more disk)."""
     import h5py  # heavy: loaded when a file is written
 
     path = Path(src)
@@ -62,7 +63,7 @@ def csv_to_h5(src, dst, overwrite: bool = False) -> Path | None:
         with h5py.File(tmp, "w") as f, open(path, encoding="utf-8") as fh:
             for _ in range(n_head):
                 next(fh)
-            seg, events, units = _stream_rows(f, fh, header, meta, setpoints, str(path))
+            seg, events, units = _stream_rows(f, fh, header, meta, setpoints, str(path), compress)
             f.attrs["format"], f.attrs["version"], f.attrs["meta"] = FORMAT_NAME, FORMAT_VERSION, to_json(meta)
             sg = f.create_group("segments")
             for k, v in seg.items():
@@ -80,10 +81,10 @@ def csv_to_h5(src, dst, overwrite: bool = False) -> Path | None:
         return None
 
 
-def _append(f, name: str, x: np.ndarray, unit: str | None = None) -> None:
+def _append(f, name: str, x: np.ndarray, unit: str | None = None, compress: bool = True) -> None:
     if name not in f:
-        ds = f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=float, chunks=(16384,), compression="gzip",
-                              compression_opts=1, shuffle=True)
+        kw = dict(compression="gzip", compression_opts=1, shuffle=True) if compress else {}
+        ds = f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=float, chunks=(16384,), **kw)
         if unit is not None:
             ds.attrs["unit"] = unit
     ds = f[name]
@@ -92,7 +93,7 @@ def _append(f, name: str, x: np.ndarray, unit: str | None = None) -> None:
     ds[n:] = x
 
 
-def _stream_rows(f, fh, header, meta, setpoints, where):
+def _stream_rows(f, fh, header, meta, setpoints, where, compress: bool = True):
     """Blocks of rows to /time_s and /channels; returns the segments table, the events and the units."""
     seg = _Segments("segment" in header, "run" in header, setpoints)
     events: dict[str, list] = {}
@@ -125,9 +126,9 @@ def _stream_rows(f, fh, header, meta, setpoints, where):
         if not units and any(s not in channels for s in setpoints):
             raise _Refused()                     # a set-point without its column
         units = units or u
-        _append(f, "time_s", t)
+        _append(f, "time_s", t, compress=compress)
         for k, x in channels.items():
-            _append(f, f"channels/{k}", x, u[k])
+            _append(f, f"channels/{k}", x, u[k], compress)
         for k, x in ev.items():
             events.setdefault(k, []).append(x)
         seg.add(t, cols.get("segment"), cols.get("run"), [channels[s] for s in setpoints])

@@ -128,34 +128,49 @@ class Saturation(Effect):
     def test(self, view: RawChannelView) -> dict:
         """The flat-top test at both extremes (module doc); 'finding' when one holds."""
         x = np.asarray(view.samples, float)
-        n = x.size
-        if n < 10:
+        if x.size < 10:
             return {}
         q = float(view.quantum_V or 0.0)
         s, sigma = _noise_before_rounding(x, q)
-        P = (1.0 if sigma <= 0 else float(2 * norm.cdf(q / (2 * sigma)) - 1)) if q > 0 else 0.0
-        k_min = 3 if P <= 0 else (np.inf if P >= MAX_REPEAT else max(3, int(np.ceil(1 + np.log(view.alpha / n) / np.log(P)))))
-        out = {"saturation_noise_V": s, "saturation_min_run": None if not np.isfinite(k_min) else int(k_min)}
-        best = None
-        for L in (float(np.max(x)), float(np.min(x))):
-            tol = max(0.5 * q, 1e-9 * abs(L))
-            starts, lengths = _runs(np.abs(x - L) <= tol)
-            at_range = view.range_V is not None and abs(L) >= float(view.range_V) - 1.5 * q
-            keep = lengths >= (2 if at_range else k_min)
-            if not keep.any():
-                continue
-            m = int(lengths[keep].sum())
-            if best is None or m > best["samples"]:
-                best = {"effect": self.name, "physics": f"'{view.channel}' is clipped at {L:.6g} V (flat tops)",
-                        "level_V": L, "fraction": m / n, "samples": m, "runs": int(keep.sum()),
-                        "first_time_s": float(np.asarray(view.time_s)[starts[keep][0]]),
-                        "evidence": "at the converter's range" if at_range else
-                                    f"runs of >= {int(k_min)} equal samples where the noise ({s:.3g} V) resolves the step"}
-        if best is not None:
-            out["finding"] = best
-        elif not np.isfinite(k_min) and view.range_V is None:
-            out["saturation_tested"] = "no: the ADC step exceeds the noise and the converter's range is unknown"
-        return out
+        extremes = (float(np.max(x)), float(np.min(x)))
+        runs = {L: _runs(np.abs(x - L) <= flat_tolerance(L, q)) for L in extremes}
+        return flat_top_result(view, x.size, s, sigma, extremes, runs,
+                               lambda i: float(np.asarray(view.time_s)[i]))
+
+
+def flat_tolerance(L: float, q: float) -> float:
+    """A sample is at the level L when within this of it: q / 2 (1e-9 |L| for unquantised values)."""
+    return max(0.5 * q, 1e-9 * abs(L))
+
+
+def flat_top_result(view, n: int, s: float, sigma: float, extremes, runs: dict, time_at) -> dict:
+    """The flat-top test's output from the record's statistics: ``n`` samples, the noise ``s`` and
+    ``sigma`` (:func:`_noise_before_rounding`), ``extremes`` (max, min), ``runs`` {L: (starts,
+    lengths)} of the samples within :func:`flat_tolerance` of L, ``time_at(i)`` the time of sample i.
+    ``view``: channel, quantum_V, range_V, alpha (a :class:`RawChannelView`, its samples unused)."""
+    q = float(view.quantum_V or 0.0)
+    P = (1.0 if sigma <= 0 else float(2 * norm.cdf(q / (2 * sigma)) - 1)) if q > 0 else 0.0
+    k_min = 3 if P <= 0 else (np.inf if P >= MAX_REPEAT else max(3, int(np.ceil(1 + np.log(view.alpha / n) / np.log(P)))))
+    out = {"saturation_noise_V": s, "saturation_min_run": None if not np.isfinite(k_min) else int(k_min)}
+    best = None
+    for L in extremes:
+        starts, lengths = runs[L]
+        at_range = view.range_V is not None and abs(L) >= float(view.range_V) - 1.5 * q
+        keep = lengths >= (2 if at_range else k_min)
+        if not keep.any():
+            continue
+        m = int(lengths[keep].sum())
+        if best is None or m > best["samples"]:
+            best = {"effect": Saturation.name, "physics": f"'{view.channel}' is clipped at {L:.6g} V (flat tops)",
+                    "level_V": L, "fraction": m / n, "samples": m, "runs": int(keep.sum()),
+                    "first_time_s": time_at(int(starts[keep][0])),
+                    "evidence": "at the converter's range" if at_range else
+                                f"runs of >= {int(k_min)} equal samples where the noise ({s:.3g} V) resolves the step"}
+    if best is not None:
+        out["finding"] = best
+    elif not np.isfinite(k_min) and view.range_V is None:
+        out["saturation_tested"] = "no: the ADC step exceeds the noise and the converter's range is unknown"
+    return out
 
 
 def _noise_before_rounding(x: np.ndarray, q: float) -> tuple[float, float]:
@@ -166,9 +181,20 @@ def _noise_before_rounding(x: np.ndarray, q: float) -> tuple[float, float]:
     (module doc)."""
     d2 = np.diff(x, 2)
     c = np.median(d2)
-    cut = 5 * max(1.4826 * float(np.median(np.abs(d2 - c))), q)
+    cut = noise_cut(float(np.median(np.abs(d2 - c))), q)
     inner = d2[np.abs(d2 - c) <= cut] if cut > 0 else d2
-    s2 = float(np.mean((inner - c) ** 2)) / 6 if inner.size else 0.0
+    return noise_from_moments(float(np.sum((inner - c) ** 2)) if inner.size else 0.0, inner.size, q)
+
+
+def noise_cut(mad: float, q: float) -> float:
+    """The cut of :func:`_noise_before_rounding`: 5 max(1.4826 MAD, q)."""
+    return 5 * max(1.4826 * mad, q)
+
+
+def noise_from_moments(sum_sq: float, count: int, q: float) -> tuple[float, float]:
+    """(s, sigma) of :func:`_noise_before_rounding` from the sum of squares of the kept second
+    differences about their median and their count."""
+    s2 = sum_sq / count / 6 if count else 0.0
     s = float(np.sqrt(max(s2, q * q / 12)))
     return s, max(s - q / 2, 0.0)
 
