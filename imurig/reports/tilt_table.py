@@ -50,7 +50,7 @@ def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
     models (Tables 4.4-4.6) on the seed's per-position medians. ``processed``: the low-passed 100 Hz
     record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
     # only the windows are analysed (bounded memory)
-    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True)
+    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True, filtered=ACC)
     with reuse_statistics():   # the fits share their per-position statistics: each computed once
         return _analyse(rec, rec100, model, statistic)
 
