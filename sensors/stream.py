@@ -216,13 +216,15 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
     # the fronts run ahead in one worker thread (their streams drawn in piece order), the backs here
     with ThreadPoolExecutor(1) as pool:
-        fronts = deque(pool.submit(_front, lab, run, p, people, rngs, start, t0, fs, sens) for p in pieces[:AHEAD])
+        fronts = deque(pool.submit(_front, lab, run, p, people, noise, rngs, start, t0, fs, sens)
+                       for p in pieces[:AHEAD])
         prev, cur = None, fronts.popleft().result()
         for i, _ in enumerate(pieces):
             if i + AHEAD < len(pieces):
-                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, rngs, start, t0, fs, sens))
+                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, noise, rngs, start, t0, fs,
+                                          sens))
             nxt = fronts.popleft().result() if fronts else None
-            _emit(lab, sinks, prev, cur, nxt, noise, cable, rngs["adc"], state)
+            _emit(lab, sinks, prev, cur, nxt, cable, rngs["adc"], state)
             prev, cur = cur, nxt
     report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
     rig = SimpleNamespace(meta=run.meta, truth=run.truth, events={}, truth_signals={})
@@ -234,9 +236,9 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
             "f_dist_nonzero": state.f_dist_nonzero}
 
 
-def _emit(lab, sinks, prev, cur, nxt, noise, cable, rng, state) -> None:
+def _emit(lab, sinks, prev, cur, nxt, cable, rng, state) -> None:
     """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
-    codes = _back(lab, prev, cur, nxt, noise, cable, rng, state)
+    codes = _back(lab, prev, cur, nxt, cable, rng, state)
     truth = dict(cur.truth)
     truth["T_imu"] = cur.T
     if cur.f_dist is not None or lab.people.enabled:
@@ -247,9 +249,11 @@ def _emit(lab, sinks, prev, cur, nxt, noise, cable, rng, state) -> None:
         s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
 
 
-def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespace:
+def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleNamespace:
     """One piece's rig rows, disturbances, temperatures and the lines that need no neighbours: the
-    accelerometers' noise-free volts, the fluxgate's and the temperature sensors' volts."""
+    accelerometers' noise-free volts and current noise (A), the fluxgate's and the temperature sensors'
+    volts. The fronts are made one after the other in piece order (one worker), so each stream is drawn
+    in piece order."""
     a, b = piece
     t = run.time_rows(a, b)
     ts = run.truth_rows(a, b)
@@ -258,8 +262,9 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
     c = lab.climate
     T = 273.15 + c.temperature_C + c.self_heating_K + c.drift_C_per_h * (t - t0) / 3600
     scan = set(lab.adc.scan_list)
-    lines, slope_src = {}, {}
+    lines, slope_src, nz = {}, {}, None
     if any(f"acc_{x}" in scan for x in AXES):
+        nz = noise.rows(t.size) if noise.filters else None
         f = np.stack([ts[f"f_C_{x}"] for x in AXES], axis=1)
         if f_dist is not None:
             f += f_dist
@@ -276,10 +281,10 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
         if name in scan:
             lines[name] = sensor.voltage(T, rngs[name])
     return SimpleNamespace(a=a, b=b, t=t, truth=ts, channels=run.channel_rows(a, b), f_dist=f_dist, T=T,
-                           lines=lines, slope_src=slope_src)
+                           lines=lines, slope_src=slope_src, noise=nz)
 
 
-def _back(lab, prev, cur, nxt, noise, cable, rng, state) -> dict:
+def _back(lab, prev, cur, nxt, cable, rng, state) -> dict:
     """The piece's slopes (from its neighbours' rows), the accelerometers' noise, the analog stage (a
     loose cable's spikes on its line; not in the slopes, as in the whole-record chain), the conversion: codes."""
     analog, slope = dict(cur.lines), {}
@@ -291,7 +296,7 @@ def _back(lab, prev, cur, nxt, noise, cable, rng, state) -> dict:
         slope[name] = grad(x)[int(lo):int(lo) + v.size]
         analog[name] = v
     if any(n.startswith("acc_") for n in analog):
-        nz = noise.rows(cur.t.size) if noise.filters else None
+        nz = cur.noise
         R = lab.accelerometers.load_resistor_ohm
         for j, x in enumerate(AXES):
             if f"acc_{x}" in analog and nz is not None:
