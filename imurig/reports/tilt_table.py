@@ -299,7 +299,7 @@ class _FiguresBeside:
         ctx = multiprocessing.get_context("fork")
         self._fits, give = ctx.Pipe(duplex=False)
         self._figs, send = ctx.Pipe(duplex=False)
-        self.child = ctx.Process(target=_draw, args=(self._fits, send, out, rec100), daemon=True)
+        self.child = ctx.Process(target=_draw, args=(self._fits, give, send, out, rec100), daemon=True)
         self.child.start()
         send.close()
         self._fits.close()
@@ -333,7 +333,8 @@ class _FiguresBeside:
         return figs
 
 
-def _draw(fits, send, out: OutputFolder, rec100: Recording) -> None:
+def _draw(fits, give, send, out: OutputFolder, rec100: Recording) -> None:
+    give.close()   # the parent's end, copied by the fork: closed here, so the parent closing it ends recv()
     try:
         import matplotlib  # loaded while the parent fits
 
