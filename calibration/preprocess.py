@@ -27,9 +27,10 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     Truth signals are filtered the same way so that they stay comparable.
     ``windows_only`` (zero phase only) filters just the segments' acquisition windows, one
     window at a time, and decimates the rest unfiltered (:mod:`imurig.calibration.window_filter`): the
-    same values in the windows, in bounded memory. ``filtered`` (with ``windows_only``): the channels
-    low-passed in the windows, e.g. just those an analysis reads (default: every channel but the
-    set-points); the others are decimated as sampled, as outside the windows.
+    same values in the windows, in bounded memory. ``filtered`` (with ``windows_only``): the channels and
+    truth signals low-passed in the windows, e.g. just those an analysis reads (default: every channel
+    but the set-points, and the truth signals above); the others are decimated as sampled, as outside
+    the windows.
     """
     fs = rec.sample_rate_hz
     k, sos, log = filter_design(fs, rate_hz, cutoff_hz, order, zero_phase)
@@ -42,8 +43,9 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     setpoints = set(rec.meta.get("setpoints", []))
     if windows_only and zero_phase and rec.n_segments:
         low = [n for n in names if n not in setpoints and (filtered is None or n in filtered)]
-        idx, channels, tsig = lowpass_windows(rec, sos, k, low, tnames)
-        return _decimated(rec, idx, channels, tsig, rate_hz, window_log(log, low))
+        tlow = [n for n in tnames if filtered is None or n in filtered]
+        idx, channels, tsig = lowpass_windows(rec, sos, k, low, tlow)
+        return _decimated(rec, idx, channels, tsig, rate_hz, window_log(log, low, tlow))
     x = rec.stack(names) if names else np.zeros((rec.n, 0))
     xt = np.stack([rec.truth_signals[n] for n in tnames], 1) if tnames else np.zeros((rec.n, 0))
     out_x, out_t = [], []
@@ -70,9 +72,9 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
                                            **{n: rec.truth_signals[n][idx] for n in others}}, rate_hz, log)
 
 
-def window_log(log: dict, filtered) -> dict:
-    """The preprocessing log entry of a low-pass in the segment windows of the channels ``filtered``."""
-    return {**log, "where": "segment windows", "channels": list(filtered)}
+def window_log(log: dict, channels, truth_signals) -> dict:
+    """The preprocessing log entry of a low-pass in the segment windows of ``channels`` and ``truth_signals``."""
+    return {**log, "where": "segment windows", "channels": list(channels), "truth_signals": list(truth_signals)}
 
 
 def filter_design(fs: float, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,

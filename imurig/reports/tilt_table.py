@@ -22,7 +22,7 @@ import numpy as np
 import imurig
 from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
 from imurig.calibration.preprocess import lowpass_downsample, reuse_statistics
-from imurig.campaigns.tilt_stream import stream_campaign
+from imurig.campaigns.tilt_stream import ANALYSED, stream_campaign
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
 from imurig.kernel.errors import UnidentifiableTermsError
@@ -51,7 +51,7 @@ def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
     models (Tables 4.4-4.6) on the seed's per-position medians. ``processed``: the low-passed 100 Hz
     record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
     # only the windows are analysed (bounded memory)
-    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True, filtered=ACC)
+    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True, filtered=ANALYSED)
     with reuse_statistics():   # the fits share their per-position statistics: each computed once
         return _analyse(rec, rec100, model, statistic)
 
