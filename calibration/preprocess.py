@@ -14,7 +14,7 @@ from imurig.kernel.recording import Recording
 
 
 def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,
-                       zero_phase: bool = True, windows_only: bool = False) -> Recording:
+                       zero_phase: bool = True, windows_only: bool = False, filtered=None) -> Recording:
     """Digital low-pass then keep every k-th sample, per contiguous block (seed C.1.1).
 
     The seed filters 1 kHz data with a 5th-order Butterworth, Wn = 50 / (1000 / 2), then
@@ -27,7 +27,10 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     Truth signals are filtered the same way so that they stay comparable.
     ``windows_only`` (zero phase only) filters just the segments' acquisition windows, one
     window at a time, and decimates the rest unfiltered (:mod:`imurig.calibration.window_filter`): the
-    same values in the windows, in bounded memory.
+    same values in the windows, in bounded memory. ``filtered`` (with ``windows_only``): the channels and
+    truth signals low-passed in the windows, e.g. just those an analysis reads (default: every channel
+    but the set-points, and the truth signals above); the others are decimated as sampled, as outside
+    the windows.
     """
     fs = rec.sample_rate_hz
     k, sos, log = filter_design(fs, rate_hz, cutoff_hz, order, zero_phase)
@@ -39,8 +42,10 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     others = [n for n in rec.truth_signals if n not in tnames]
     setpoints = set(rec.meta.get("setpoints", []))
     if windows_only and zero_phase and rec.n_segments:
-        idx, channels, tsig = lowpass_windows(rec, sos, k, [n for n in names if n not in setpoints], tnames)
-        return _decimated(rec, idx, channels, tsig, rate_hz, {**log, "where": "segment windows"})
+        low = [n for n in names if n not in setpoints and (filtered is None or n in filtered)]
+        tlow = [n for n in tnames if filtered is None or n in filtered]
+        idx, channels, tsig = lowpass_windows(rec, sos, k, low, tlow)
+        return _decimated(rec, idx, channels, tsig, rate_hz, window_log(log, low, tlow))
     x = rec.stack(names) if names else np.zeros((rec.n, 0))
     xt = np.stack([rec.truth_signals[n] for n in tnames], 1) if tnames else np.zeros((rec.n, 0))
     out_x, out_t = [], []
@@ -65,6 +70,11 @@ def lowpass_downsample(rec: Recording, rate_hz: float = 100.0, cutoff_hz: float 
     channels = {n: (rec.channels[n][idx] if n in setpoints else fx[:, i]) for i, n in enumerate(names)}
     return _decimated(rec, idx, channels, {**{n: ft[:, i] for i, n in enumerate(tnames)},
                                            **{n: rec.truth_signals[n][idx] for n in others}}, rate_hz, log)
+
+
+def window_log(log: dict, channels, truth_signals) -> dict:
+    """The preprocessing log entry of a low-pass in the segment windows of ``channels`` and ``truth_signals``."""
+    return {**log, "where": "segment windows", "channels": list(channels), "truth_signals": list(truth_signals)}
 
 
 def filter_design(fs: float, rate_hz: float = 100.0, cutoff_hz: float = 50.0, order: int = 5,

@@ -228,11 +228,13 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
     # the fronts run ahead in one worker thread (their streams drawn in piece order), the backs here
     with ThreadPoolExecutor(1) as pool:
-        fronts = deque(pool.submit(_front, lab, run, p, people, rngs, start, t0, fs, sens) for p in pieces[:AHEAD])
+        fronts = deque(pool.submit(_front, lab, run, p, people, noise, rngs, start, t0, fs, sens)
+                       for p in pieces[:AHEAD])
         prev, cur = None, fronts.popleft().result()
         for i, _ in enumerate(pieces):
             if i + AHEAD < len(pieces):
-                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, rngs, start, t0, fs, sens))
+                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, noise, rngs, start, t0, fs,
+                                          sens))
             nxt = fronts.popleft().result() if fronts else None
             _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(acc=noise, gyro=gyro, slip=slip, cable=cable),
                   rngs["adc"], state)
@@ -261,9 +263,11 @@ def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
         s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
 
 
-def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespace:
+def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleNamespace:
     """One piece's rig rows, disturbances, temperatures and the lines that need no neighbours: the
-    accelerometers' noise-free volts, the fluxgate's and the temperature sensors' volts."""
+    accelerometers' noise-free volts and current noise (A), the fluxgate's and the temperature sensors'
+    volts. The fronts are made one after the other in piece order (one worker), so each stream is drawn
+    in piece order."""
     a, b = piece
     t = run.time_rows(a, b)
     ts = run.truth_rows(a, b)
@@ -272,8 +276,9 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
     c = lab.climate
     T = 273.15 + c.temperature_C + c.self_heating_K + c.drift_C_per_h * (t - t0) / 3600
     scan = set(lab.adc.scan_list)
-    lines, slope_src = {}, {}
+    lines, slope_src, nz = {}, {}, None
     if any(f"acc_{x}" in scan for x in AXES):
+        nz = noise.rows(t.size) if noise.filters else None
         f = np.stack([ts[f"f_C_{x}"] for x in AXES], axis=1)
         if f_dist is not None:
             f += f_dist
@@ -300,7 +305,7 @@ def _front(lab, run, piece, people, rngs, start, t0, fs, sens) -> SimpleNamespac
     for line in run.meta.get("analog_lines", []):
         lines[line] = ts[line]
     return SimpleNamespace(a=a, b=b, t=t, truth=ts, channels=run.channel_rows(a, b), f_dist=f_dist, T=T,
-                           lines=lines, slope_src=slope_src)
+                           lines=lines, slope_src=slope_src, noise=nz)
 
 
 def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
@@ -316,7 +321,7 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
         slope[name] = grad(x)[int(lo):int(lo) + v.size]
         analog[name] = v
     if any(n.startswith("acc_") for n in analog):
-        nz = noise.acc.rows(cur.t.size) if noise.acc.filters else None
+        nz = cur.noise
         R = lab.accelerometers.load_resistor_ohm
         for j, x in enumerate(AXES):
             if f"acc_{x}" in analog and nz is not None:

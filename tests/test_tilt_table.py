@@ -326,3 +326,16 @@ def test_lowpass_in_windows_only_equals_whole_record(small_recording):
     np.testing.assert_array_equal(win.channels["acc_x"][~inside], rec.channels["acc_x"][idx])
     np.testing.assert_allclose(segment_statistic(win, ["acc_x", "acc_z"]), segment_statistic(full, ["acc_x", "acc_z"]),
                                rtol=0, atol=1e-9 * lsb)
+
+
+def test_figure_process_ends_without_drawing_when_the_fits_fail():
+    """The report's figure process is forked before the fits (it loads matplotlib meanwhile); when the
+    fits fail it gets no fits (a closed pipe) and ends cleanly, drawing nothing."""
+    from imurig.reports.tilt_table import _FiguresBeside
+
+    f = _FiguresBeside(None, None)
+    f.cancel()
+    assert f.child is None or (not f.child.is_alive() and f.child.exitcode == 0)
+    if f.child is not None:
+        with pytest.raises(EOFError):
+            f._figs.recv()

@@ -7,8 +7,8 @@
          (:class:`imurig.calibration.window_filter.WindowTap`), and optionally the whole record
 
 No 1 kHz array of the record's length is held but ``time_s`` while the windows are located. The 100 Hz
-record is what :func:`imurig.calibration.preprocess.lowpass_downsample` (``windows_only``) gives on the
-whole record, bit for bit, and the HDF5 file is what :func:`imurig.kernel.recording.save_h5` writes of it
+record is what :func:`imurig.calibration.preprocess.lowpass_downsample` (``windows_only``, ``filtered``:
+the :data:`ANALYSED` channels and truth signals) gives on the whole record, bit for bit, and the HDF5 file is what :func:`imurig.kernel.recording.save_h5` writes of it
 (read back by ``load_h5`` to the same values). A campaign the streamed chain does not model
 (:func:`imurig.sensors.stream.unsupported`) runs the whole-record chain instead, with the same outputs.
 """
@@ -18,7 +18,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from imurig.calibration.preprocess import filter_design, lowpass_downsample
+from imurig.calibration.accelerometer import ACC
+from imurig.calibration.preprocess import filter_design, lowpass_downsample, window_log
 from imurig.calibration.window_filter import WindowTap
 from imurig.kernel import random_streams
 from imurig.kernel.h5write import H5RowWriter
@@ -28,6 +29,10 @@ from imurig.sensors.accelerometer import AXES
 from imurig.sensors.stream import measure_stream, unsupported
 
 FILTERED_UNITS = ("m/s^2", "rad/s", "T")
+#: the channels and truth signals the tilt-table analysis reads (the accelerometer calibration, its figures
+#: and .rrd: the accelerometers' volts and the true specific force): the only ones low-passed in the windows;
+#: the others (fluxgate, temperature sensors, the true rates and field) are decimated as sampled
+ANALYSED = ACC + tuple(f"f_C_{a}" for a in AXES)
 
 
 class _Collect:
@@ -67,7 +72,8 @@ class _Collect:
 def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False) -> SimpleNamespace:
     """Simulate the campaign ``camp`` (:class:`imurig.campaigns.tilt_table.TiltTableCampaign`) in pieces.
 
-    Returns rec100 (the 100 Hz record: low-passed in the windows, decimated elsewhere), n (1 kHz samples),
+    Returns rec100 (the 100 Hz record: the :data:`ANALYSED` channels and truth low-passed in the windows,
+    everything decimated elsewhere), n (1 kHz samples),
     n_segments, truth, streamed (False: the whole-record chain ran, see ``why``) and ``recording`` (the
     whole 1 kHz Recording with ``keep``, else None); writes the HDF5 recording to ``h5_path`` if given."""
     camp.check_identifiable()
@@ -84,8 +90,9 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     truth_units = {**run.truth_units, "T_imu": "K"}
     if lab.people.enabled:
         truth_units.update({f"f_dist_C_{a}": "m/s^2" for a in AXES})
-    tap = WindowTap(frame, sos, k, chan_names, [n for n in chan_names if n not in setpoints], list(truth_units),
-                    [n for n, u in truth_units.items() if u in FILTERED_UNITS], {c: lab.adc.lsb_V for c in scan})
+    low = [n for n in chan_names if n not in setpoints and n in ANALYSED]
+    tlow = [n for n, u in truth_units.items() if u in FILTERED_UNITS and n in ANALYSED]
+    tap = WindowTap(frame, sos, k, chan_names, low, list(truth_units), tlow, {c: lab.adc.lsb_V for c in scan})
     del frame
     sinks = [tap] + ([_Collect(run.n, {c: lab.adc.lsb_V for c in scan})] if keep else [])
     info = {}
@@ -114,7 +121,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     drop = info["drop"]
     meta = dict(info["meta"])
     meta["sample_rate_hz"] = log["to_hz"]
-    meta["preprocessing"] = list(meta.get("preprocessing", [])) + [{**log, "where": "segment windows"}]
+    meta["preprocessing"] = list(meta.get("preprocessing", [])) + [window_log(log, low, tlow)]
     tsig = {n: v for n, v in tap.truth.items() if n not in drop}
     rec100 = Recording(time_s=tap.time_s, channels=tap.channels, units={n: info["units"][n] for n in chan_names},
                        segments=dict(run.segments), segment_units=dict(run.segment_units), meta=meta,
@@ -163,6 +170,6 @@ def _whole(camp, lab, run, ss, h5_path, overwrite, why) -> SimpleNamespace:
     rec = _whole_record(camp, lab, run, ss)
     if h5_path is not None:
         save_h5(rec, h5_path, overwrite=overwrite)
-    rec100 = lowpass_downsample(rec, windows_only=True)
+    rec100 = lowpass_downsample(rec, windows_only=True, filtered=ANALYSED)
     return SimpleNamespace(rec100=rec100, n=rec.n, n_segments=rec.n_segments, truth=rec.truth, streamed=False,
                            why=why, recording=rec)

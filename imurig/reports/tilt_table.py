@@ -6,7 +6,8 @@ estimated parameter as {name, unit, injected, estimate, std_error, z}), ``record
 
 :func:`run` streams the campaign (:mod:`imurig.campaigns.tilt_stream`): the 1 kHz record goes to
 ``recording.h5`` piece by piece while its windows are low-passed for the analysis, so no array of the
-record's length is held; the figures are drawn in a second process beside the .rrd writer.
+record's length is held; the figures are drawn in a second process, started before the fits (it loads
+matplotlib while they run), beside the .rrd writer.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ import numpy as np
 import imurig
 from imurig.calibration.accelerometer import ACC, AXES, AccelerometerCalibration
 from imurig.calibration.preprocess import lowpass_downsample, reuse_statistics
-from imurig.campaigns.tilt_stream import stream_campaign
+from imurig.campaigns.tilt_stream import ANALYSED, stream_campaign
 from imurig.campaigns.tilt_table import (Z_BOUND, TiltTableCampaign, calibrate, coefficient_table,
                                          compare_with_truth, tilt_table_reference)
 from imurig.kernel.errors import UnidentifiableTermsError
@@ -50,7 +51,7 @@ def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
     models (Tables 4.4-4.6) on the seed's per-position medians. ``processed``: the low-passed 100 Hz
     record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
     # only the windows are analysed (bounded memory)
-    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True)
+    rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True, filtered=ANALYSED)
     with reuse_statistics():   # the fits share their per-position statistics: each computed once
         return _analyse(rec, rec100, model, statistic)
 
@@ -285,33 +286,65 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
 STAGE_SHARES = {"simulate": 70, "analyse": 14, "figures": 8, "campaign.rrd": 6, "report": 2}
 
 
-def _figures_beside(out: OutputFolder, rec100: Recording, res: dict):
-    """Start :func:`make_figures` in a forked process (on a second core, beside the .rrd writer); returns
-    a function that waits for it and gives its figures (draws them here where fork is not available)."""
-    if "fork" not in multiprocessing.get_all_start_methods():
-        figs = make_figures(out, rec100, res)
-        return lambda: figs
-    ctx = multiprocessing.get_context("fork")
-    recv, send = ctx.Pipe(duplex=False)
-    child = ctx.Process(target=_draw, args=(send, out, rec100, res), daemon=True)
-    child.start()
-    send.close()
+class _FiguresBeside:
+    """:func:`make_figures` in a forked process (a second core), started before the fits: it loads
+    matplotlib while this process fits, gets the fits it draws (:meth:`draw`: the main calibration and
+    the parameters; the 100 Hz record it has from the fork) and draws beside the .rrd writer. Where fork
+    is not available, :meth:`draw` draws here."""
 
-    def wait() -> dict:
+    def __init__(self, out: OutputFolder, rec100: Recording):
+        self.out, self.rec100, self.child, self.figs = out, rec100, None, None
+        if "fork" not in multiprocessing.get_all_start_methods():
+            return
+        ctx = multiprocessing.get_context("fork")
+        self._fits, give = ctx.Pipe(duplex=False)
+        self._figs, send = ctx.Pipe(duplex=False)
+        self.child = ctx.Process(target=_draw, args=(self._fits, give, send, out, rec100), daemon=True)
+        self.child.start()
+        send.close()
+        self._fits.close()
+        self._fits = give
+
+    def draw(self, res: dict) -> None:
+        """Start drawing the figures of the fits ``res`` (:func:`analyse`)."""
+        if self.child is None:
+            self.figs = make_figures(self.out, self.rec100, res)
+            return
+        self._fits.send({"main": res["main"], "parameters": res["parameters"]})
+        self._fits.close()
+
+    def cancel(self) -> None:
+        """No figures (the fits failed): the child ends on the closed pipe."""
+        if self.child is not None:
+            self._fits.close()
+            self.child.join()
+
+    def wait(self) -> dict:
+        """The figures drawn: name -> file (raises if the drawing failed)."""
+        if self.child is None:
+            return self.figs
         try:
-            figs = recv.recv()
+            figs = self._figs.recv()
         except EOFError:
             figs = "the figure process ended without an answer"
-        child.join()
-        if not isinstance(figs, dict) or child.exitcode:
+        self.child.join()
+        if not isinstance(figs, dict) or self.child.exitcode:
             raise RuntimeError(f"drawing the figures failed: {figs}")
         return figs
-    return wait
 
 
-def _draw(send, out: OutputFolder, rec100: Recording, res: dict) -> None:
+def _draw(fits, give, send, out: OutputFolder, rec100: Recording) -> None:
+    give.close()   # the parent's end, copied by the fork: closed here, so the parent closing it ends recv()
     try:
-        send.send(make_figures(out, rec100, res))
+        import matplotlib  # loaded while the parent fits
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot  # noqa: F401
+        try:
+            res = fits.recv()
+        except EOFError:  # the parent stopped before the fits (an error there): nothing to draw
+            return
+        send.send(make_figures(out, rec100, {**res, "rec100": rec100}))
     except Exception as e:  # reported by the parent, which fails the run
         send.send(f"{type(e).__name__}: {e}")
     finally:
@@ -334,17 +367,22 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             t_sim = time.perf_counter() - t0
             t1 = time.perf_counter()
             stage("analyse")
-            res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
+            figures = _FiguresBeside(out, rec100)   # loads matplotlib beside the fits, then draws beside the .rrd
+            try:
+                res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
+            except BaseException:
+                figures.cancel()
+                raise
             t_cal = time.perf_counter() - t1
             t2 = time.perf_counter()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
-            figures = _figures_beside(out, rec100, res)   # drawn in a second process, beside the .rrd
+            figures.draw(res)
             from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
             products = save_products(out, rec100, res, write_rrd, False, rrd, stage)
-            figs = figures()
+            figs = figures.wait()
             files.update({f"figure_{k}": v for k, v in figs.items()})
             if save_recording:
                 files["recording"] = "recording.h5"
