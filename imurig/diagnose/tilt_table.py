@@ -76,6 +76,52 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     """
     if twin_model not in TWIN_MODELS:
         raise ConfigError(f"unknown twin model '{twin_model}'; choose one of {', '.join(TWIN_MODELS)}")
+    out, cal = _static(rec, rng, alpha, n_sim, twin_model)
+    if dynamics:
+        dyn = _dynamic(rec, cal, out["axes"], rng, alpha, n_sim, skew_in_twin)
+        guard = settle_guard(dyn)
+        if guard is not None:
+            # the position means are tested again without the samples the table still moves in
+            out, _ = _static(_guarded(rec, *guard), rng, alpha, n_sim, twin_model)
+            out["settle_guard_s"] = {"start": guard[0], "stop": guard[1], "why": SETTLE_WHY}
+        out["dynamic"] = dyn
+    return out
+
+
+#: why the position means are taken again after a set-point delay is accepted
+SETTLE_WHY = ("a table that follows its set-points tau late is still moving for tau after each plateau of the "
+              "set-points begins (or has left tau before it ends, for tau < 0): those samples hold the move's "
+              "angle error (1 deg at 20 deg/s and 50 ms), which a clipped mean on a coarse converter keeps and a "
+              "median shifts towards, a bias ordered like the moves' directions; each position is cut by "
+              "|tau| + 3 SE + one sample at that end and the position means are tested again")
+
+
+def settle_guard(dyn: dict) -> tuple[float, float] | None:
+    """(start, stop) seconds to cut from each position where the set-point ramps' test
+    (:func:`imurig.diagnose.tilt_ramps.diagnose_setpoint_delay`) accepted a delay tau +- se: the
+    table reaches each plateau |tau| late (tau > 0) or leaves it |tau| early (tau < 0), so
+    |tau| + 3 se + one sample (the interpolation between a ramp's last sample and the plateau)
+    is cut at that end; None where no delay was accepted or the slews were the dynamic twin's."""
+    f = next((f for f in dyn.get("findings", []) if f["effect"] == "time_delay" and f["channel"] == "acc"), None)
+    if f is None or "setpoint_sample_s" not in dyn:
+        return None
+    tau, se = next((q["estimate"], q["std_error"]) for q in f["parameters"] if q["name"] == "tau_s")
+    cut = abs(tau) + 3 * se + dyn["setpoint_sample_s"]
+    return (cut, 0.0) if tau > 0 else (0.0, cut)
+
+
+def _guarded(rec: Recording, start_s: float, stop_s: float) -> Recording:
+    """``rec`` with every segment cut by ``start_s`` at its start and ``stop_s`` at its end (at most
+    a quarter of the segment at each end)."""
+    seg = dict(rec.segments)
+    a, b = np.asarray(seg["start_s"], float), np.asarray(seg["stop_s"], float)
+    q = 0.25 * (b - a)
+    seg["start_s"], seg["stop_s"] = a + np.minimum(start_s, q), b - np.minimum(stop_s, q)
+    return rec.replace(segments=seg)
+
+
+def _static(rec: Recording, rng: np.random.Generator, alpha: float, n_sim: int, twin_model: str):
+    """(the position means' and scatter's diagnosis, the twin's calibration) of :func:`diagnose_tilt_table`."""
     rec100 = working_record(rec)
     stat = position_statistic(rec, rec100)
     cal = calibrate(rec, model=twin_model, processed=rec100, statistic=stat)
@@ -151,9 +197,7 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
                                          reading=inputs[f"a{a}"], prev=prev))
         out["axes"][a] = entry
     out["indistinguishable"] = [GRAVITY_VS_SCALE] + ([] if known else [TRIAD_LEAK_VS_MISALIGNMENT])
-    if dynamics:
-        out["dynamic"] = _dynamic(rec, cal, out["axes"], rng, alpha, n_sim, skew_in_twin)
-    return out
+    return out, cal
 
 
 #: the per-position statistic: the median (seed C.1.1), or for a record on an ADC's grid that is
