@@ -72,7 +72,8 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
     Effects the twin lacks (misalignment, nonlinearity) join the candidate library. With
     ``dynamics`` the slews between positions are compared with the dynamic twin as well
     (:func:`imurig.diagnose.tilt_dynamics.diagnose_tilt_dynamics`: time delay, lever arm, wrong
-    local gravity; ``skew_in_twin``: whether that twin models the multiplexer's channel skew).
+    local gravity; ``skew_in_twin``: whether that twin models the multiplexer's channel skew); a
+    set-point delay on logged ramps re-tests the positions without the settling (:func:`settle_guard`).
     """
     if twin_model not in TWIN_MODELS:
         raise ConfigError(f"unknown twin model '{twin_model}'; choose one of {', '.join(TWIN_MODELS)}")
@@ -82,17 +83,16 @@ def diagnose_tilt_table(rec: Recording, rng: np.random.Generator, alpha: float =
         guard = settle_guard(dyn)
         if guard is not None:
             # the position means are tested again without the samples the table still moves in
-            out, _ = _static(_guarded(rec, *guard), rng, alpha, n_sim, twin_model)
+            out, _ = _static(guarded(rec, *guard), rng, alpha, n_sim, twin_model)
             out["settle_guard_s"] = {"start": guard[0], "stop": guard[1], "why": SETTLE_WHY}
         out["dynamic"] = dyn
     return out
 
 
 #: why the position means are taken again after a set-point delay is accepted
-SETTLE_WHY = ("a table that follows its set-points tau late is still moving for tau after each plateau of the "
-              "set-points begins (or has left tau before it ends, for tau < 0): those samples hold the move's "
-              "angle error (1 deg at 20 deg/s and 50 ms), which a clipped mean on a coarse converter keeps and a "
-              "median shifts towards, a bias ordered like the moves' directions; each position is cut by "
+SETTLE_WHY = ("the table follows its set-points tau late, so it is still moving for tau after each plateau of the "
+              "set-points begins (leaves it tau early for tau < 0): a clipped mean on a coarse converter keeps those "
+              "samples (1 deg off at 20 deg/s and 50 ms), a bias ordered like the moves; each position is cut by "
               "|tau| + 3 SE + one sample at that end and the position means are tested again")
 
 
@@ -110,7 +110,7 @@ def settle_guard(dyn: dict) -> tuple[float, float] | None:
     return (cut, 0.0) if tau > 0 else (0.0, cut)
 
 
-def _guarded(rec: Recording, start_s: float, stop_s: float) -> Recording:
+def guarded(rec: Recording, start_s: float, stop_s: float) -> Recording:
     """``rec`` with every segment cut by ``start_s`` at its start and ``stop_s`` at its end (at most
     a quarter of the segment at each end)."""
     seg = dict(rec.segments)
