@@ -47,7 +47,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize
 
-from imurig.diagnose.pulse_timer import N_SIM, SETTLE_S, _bracket
+from imurig.diagnose.pulse_timer import N_SIM, SETTLE_S, _bracket, timer_finding
 
 #: the table's rate at a pulse: the gyro averaged this long around it (s)
 RATE_WINDOW_S = 0.1
@@ -264,15 +264,8 @@ def angle_timer_test(c: dict, edges: dict, dt_s: float, q_V: float, rng: np.rand
            "grid_rms_s": float(np.sqrt(np.mean(v)))}
     out["accepted"] = bool(p < alpha and j2 > 0)
     if out["accepted"]:
-        out["finding"] = {"effect": "timer_quantisation",
-                          "physics": "the index pulses scatter about the table angle the gyro integrates by more "
-                                     f"than the sample grid's {np.sqrt(np.mean(v)) * 1e3:.2f} ms rms: a timer "
-                                     f"jitter of {np.sqrt(j2) * 1e3:.2f} ms",
-                          "parameters": [{"name": "sigma_T_s", "estimate": sig, "std_error": out["sigma_T_se_s"]},
-                                         {"name": "jitter_s", "estimate": float(np.sqrt(j2)),
-                                          "std_error": se_j2 / (2.0 * float(np.sqrt(j2)))}],
-                          "p_value": p,
-                          "fit": {"before_rms": out["scatter_rms_s"], "after_rms": out["grid_rms_s"], "unit": "s",
-                                  "note": "pulse-time residual rms against the gyro's angle (ordinary fit), and the "
-                                          "grid's alone"}}
+        out["finding"] = timer_finding(
+            "the index pulses scatter about the table angle the gyro integrates by more than the sample grid's "
+            f"{np.sqrt(np.mean(v)) * 1e3:.2f} ms rms: a timer jitter of {np.sqrt(j2) * 1e3:.2f} ms", out,
+            "pulse-time residual rms against the gyro's angle (ordinary fit), and the grid's alone")
     return out

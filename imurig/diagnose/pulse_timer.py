@@ -212,14 +212,20 @@ def pulse_timer_test(edges: dict, start_s, stop_s, dial, dt_s: float, rng: np.ra
            "pulse_width_s": edges["width_s"], "sloped_edges": edges["sloped"], "null": null}
     out["accepted"] = bool(p < alpha and j2 > 0)
     if out["accepted"]:
-        out["finding"] = {"effect": "timer_quantisation",
-                          "physics": "the index pulse's edge scatters about each plateau's constant-rate line by "
-                                     f"{np.sqrt(rss / m) * 1e3:.2f} ms rms, where the sample grid gives "
-                                     f"{np.sqrt(trV / m) * 1e3:.2f} ms: a timer jitter",
-                          "parameters": [{"name": "sigma_T_s", "estimate": sig, "std_error": out["sigma_T_se_s"]},
-                                         {"name": "jitter_s", "estimate": float(np.sqrt(j2)),
-                                          "std_error": se_j2 / (2.0 * float(np.sqrt(j2)))}],
-                          "p_value": p,
-                          "fit": {"before_rms": float(np.sqrt(rss / m)), "after_rms": float(np.sqrt(trV / m)),
-                                  "unit": "s", "note": "pulse-time residual rms: observed, and the grid's alone"}}
+        out["finding"] = timer_finding(
+            "the index pulse's edge scatters about each plateau's constant-rate line by "
+            f"{np.sqrt(rss / m) * 1e3:.2f} ms rms, where the sample grid gives {np.sqrt(trV / m) * 1e3:.2f} ms: "
+            "a timer jitter", out, "pulse-time residual rms: observed, and the grid's alone")
     return out
+
+
+def timer_finding(physics: str, out: dict, note: str) -> dict:
+    """The accepted timer's finding from a test's ``out`` (sigma_T_s = sqrt(jitter^2 + dt^2 / 12) and the
+    jitter, each +- SE by the delta method from jitter2_s2 +- jitter2_se_s2; the pulse-time residual rms
+    before (scatter_rms_s) and after (grid_rms_s, the sample grid's alone))."""
+    j = float(np.sqrt(out["jitter2_s2"]))
+    return {"effect": "timer_quantisation", "physics": physics,
+            "parameters": [{"name": "sigma_T_s", "estimate": out["sigma_T_s"], "std_error": out["sigma_T_se_s"]},
+                           {"name": "jitter_s", "estimate": j, "std_error": out["jitter2_se_s2"] / (2.0 * j)}],
+            "p_value": out["p_value"],
+            "fit": {"before_rms": out["scatter_rms_s"], "after_rms": out["grid_rms_s"], "unit": "s", "note": note}}
