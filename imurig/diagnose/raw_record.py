@@ -249,7 +249,10 @@ class StreamedRaw:
 
     def _flat_top_passes(self, alpha: float) -> None:
         if tuple(for_view(RawChannelView.kind)) != (Saturation,):
-            raise NotImplementedError("the streamed raw-sample tests know the saturation test only")
+            # a guard for the library's next raw-sample effect, not a user error: the streamed passes below
+            # are the saturation test's, so another effect needs its own passes here (or the whole-record path)
+            raise RuntimeError("a raw-sample effect other than saturation is in the library; the streamed raw "
+                               "tests (StreamedRaw._flat_top_passes) know the saturation test only: add its passes")
         self.working()
         m = self.n - 2
         cs = [c for c in self.triad if self.n >= 10]
