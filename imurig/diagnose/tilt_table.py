@@ -87,8 +87,7 @@ def diagnose_tilt_table(rec: Recording | FileRecord, rng: np.random.Generator, a
         dyn = _dynamic(raw, cal, out["axes"], rng, alpha, n_sim, skew_in_twin)
         guard = settle_guard(dyn)
         if guard is not None:
-            # the position means are tested again without the samples the table still moves in (the
-            # set-point ramps' test runs on a record held whole, so the guarded record is one too)
+            # the positions tested again without the samples the table still moves in (on the whole record)
             out, _ = _static(as_raw(guarded(raw.full(), *guard)), rng, alpha, n_sim, twin_model)
             out["settle_guard_s"] = {"start": guard[0], "stop": guard[1], "why": SETTLE_WHY}
         out["dynamic"] = dyn
