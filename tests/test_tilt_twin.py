@@ -48,10 +48,10 @@ def _recording(theta_max_deg: float = 60.0) -> Recording:
                            "table_azimuth_deg": 20.0, "protocol": {"slew_rate_deg_s": 30.0}}).validate()
 
 
-def _labels(rec: Recording, tol: float = SETTLE_TOL) -> np.ndarray:
+def _labels(rec: Recording, tol: float = SETTLE_TOL, stops: str = "infer") -> np.ndarray:
     """Per sample: 1 at rest (closed form), 2 stepped, 3 stepped near a joint's limit."""
     out = np.zeros(rec.n, int)
-    for b, _, m, ctrl in _plan(rec, None, 1e-5)["replays"]:
+    for b, _, m, ctrl in _plan(rec, None, 1e-5, stops)["replays"]:
         near = _near_limits(m, ctrl, 0.0)
         for a, e, hold in _pieces(ctrl, servo_settle_samples(m, tol), near):
             out[b.start + a:b.start + e] = 1 if hold else (3 if near[a:e].any() else 2)
@@ -148,9 +148,36 @@ def test_limits_are_stepped():
     constraint, not the servo, sets where the table rests, so MuJoCo steps it as the full replay does;
     the two agree to the constraint solver's tolerance (opt.tolerance of g)."""
     rec = _recording(theta_max_deg=120.0)
-    full, new = tilt_table_twin_full(rec), tilt_table_twin(rec)
-    lab = _labels(rec)
+    full, new = tilt_table_twin_full(rec, stops="model"), tilt_table_twin(rec, stops="model")
+    lab = _labels(rec, stops="model")
     assert np.any(lab == 3)
     m = load_model("tilt_table.xml")
     diff = np.abs(new["f_C"] - full["f_C"]).max(axis=1)
     assert diff.max() < m.opt.tolerance * full["gravity_m_s2"]
+
+
+def test_stops_past_the_set_points_are_removed():
+    """Another lab's table commanded to theta 150 deg (past the MJCF's +-1.75 rad stops) evidently gets
+    there: by default the twin removes the stops it is commanded past, says so, and rests at the
+    commanded attitude (the closed form of tilt_kinematics to rounding, at 150 deg too); with
+    stops="model" it rests at the stop instead, tens of degrees away (metres per second squared in f_C)."""
+    sp = _run([(0, 0, 2.0), (150, 30, 12.0), (10, 0, 8.0)])
+    survey = {"theta_zero_rad": 1.1 * ARCMIN, "level_x_rad": 0.3 * ARCMIN, "phi_zero_rad": {"z_up": 101 * ARCMIN}}
+    rec = Recording(time_s=np.arange(sp.shape[0]) / FS, channels={"theta": sp[:, 0], "phi": sp[:, 1]},
+                    units={"theta": "rad", "phi": "rad"},
+                    segments={"start_s": np.array([0.5]), "stop_s": np.array([1.5]), "mount": np.array(["z_up"])},
+                    meta={"rig": "tilt_table", "runs": ["z_up"], "table_survey": survey, "table_azimuth_deg": 0.0,
+                          "protocol": {"slew_rate_deg_s": 30.0}}).validate()
+    new, kept = tilt_table_twin(rec), tilt_table_twin(rec, stops="model")
+    assert len(new["stops_removed"]) == 1 and new["stops_removed"][0].startswith("theta")
+    assert kept["stops_removed"] == []
+    rest = _labels(rec) == 1
+    far = rest & (rec.channels["theta"] > 2.0)
+    assert far.sum() > FS
+    th, ph = rec.channels["theta"][rest], rec.channels["phi"][rest]
+    f = specific_force_C(th, ph, "z_up", new["gravity_m_s2"], survey["theta_zero_rad"], survey["phi_zero_rad"]["z_up"],
+                         survey["level_x_rad"])
+    np.testing.assert_allclose(new["f_C"][rest], f, rtol=0, atol=16 * np.spacing(new["gravity_m_s2"]))
+    assert np.abs(kept["f_C"][far] - new["f_C"][far]).min() > 1.0
+    with pytest.raises(ValueError, match="stops must be"):
+        tilt_table_twin(rec, stops="none")

@@ -291,7 +291,8 @@ def diagnose_tilt_dynamics(rec: Recording, cal, rng: np.random.Generator, alpha:
     out.update({
         "twin": "set-points -> the table's slew law and servo (MuJoCo replay), surveyed table errors, g = "
                 f"{tw['gravity_m_s2']:.8g} m/s^2" + ("; multiplexer skew modelled" if skew_in_twin else
-                                                     "; channels taken as sampled at their time tags"),
+                                                     "; channels taken as sampled at their time tags")
+                + "".join(f"; {note}" for note in tw.get("stops_removed", [])),
         "skew_in_twin": bool(skew_in_twin), "skew_s": sl.skew.tolist(), "averaging_samples": block,
         "noise_model": {"ar1": rho.tolist(), "innovation_sigma_m_s2": sig.tolist()},
         "gravity_check": {"g_twin_m_s2": tw["gravity_m_s2"], **_gravity_check(yp, X0, lib_cols, d)},

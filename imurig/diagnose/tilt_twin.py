@@ -80,7 +80,7 @@ def _run_mounts(rec: Recording, blocks) -> list[str]:
 
 
 def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad: float = 1e-5,
-                    settle_tol: float = SETTLE_TOL) -> dict:
+                    settle_tol: float = SETTLE_TOL, stops: str = "infer") -> dict:
     """Replay the recording's set-points through the twin of the table (MuJoCo, the rig's own
     model and servo) with the surveyed table errors and the site's gravity; per contiguous run.
 
@@ -94,8 +94,12 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
     MuJoCo steps only where the table moves (module doc): from each change of the commands until
     ``settle_tol`` of the servo's transient is left (:func:`imurig.rigs.mujoco_rig.servo_settle_samples`);
     at rest, the closed form f_C = R_CW (0, 0, g), w_C = 0. :func:`tilt_table_twin_full` steps every sample.
+
+    ``stops``: "model" keeps the MJCF's joint ranges (the Delft table's theta stops at +-1.75 rad); "infer"
+    (the default) removes a joint's stops when the recording commands it beyond them: another lab's table
+    evidently reaches its own set-points (:func:`_widen_stops`; ``stops_removed`` in the result names them).
     """
-    plan = _plan(rec, gravity_m_s2, delta_rad)
+    plan = _plan(rec, gravity_m_s2, delta_rad, stops)
     f = np.empty((5, rec.n, 3))
     w = np.empty((rec.n, 3))
     up = np.array([0.0, 0.0, plan["gravity_m_s2"]])
@@ -124,10 +128,11 @@ def tilt_table_twin(rec: Recording, gravity_m_s2: float | None = None, delta_rad
     return _result(plan, f, w, delta_rad)
 
 
-def tilt_table_twin_full(rec: Recording, gravity_m_s2: float | None = None, delta_rad: float = 1e-5) -> dict:
+def tilt_table_twin_full(rec: Recording, gravity_m_s2: float | None = None, delta_rad: float = 1e-5,
+                         stops: str = "infer") -> dict:
     """:func:`tilt_table_twin` with MuJoCo stepping every sample of the record (the reference the
     stitched twin is tested against)."""
-    plan = _plan(rec, gravity_m_s2, delta_rad)
+    plan = _plan(rec, gravity_m_s2, delta_rad, stops)
     f = np.empty((5, rec.n, 3))
     w = np.empty((rec.n, 3))
     sl = plan["sl"]
@@ -171,7 +176,23 @@ def _near_limits(m, ctrl: np.ndarray, margin: float) -> np.ndarray:
     return np.any(lim & ((ctrl <= lo + margin) | (ctrl >= hi - margin)), axis=(0, 2))
 
 
-def _plan(rec: Recording, gravity_m_s2: float | None, delta_rad: float) -> dict:
+def _widen_stops(m, rec: Recording, theta_zero_rad: float) -> list[str]:
+    """Remove the stops of each limited joint that the recording's set-points (plus the surveyed zero
+    offset for theta) command beyond, less :data:`LIMIT_MARGIN_RAD`: the lab's table reaches where it is
+    commanded, so the Delft table's stops do not apply. Returns the joints whose stops were removed."""
+    out = []
+    for name, zero in (("theta", theta_zero_rad), ("phi", 0.0)):
+        j = m.joint(name).id
+        sp = np.asarray(rec.channels[name], float) + zero
+        lo, hi = m.jnt_range[j]
+        if m.jnt_limited[j] and sp.size and (sp.min() < lo + LIMIT_MARGIN_RAD or sp.max() > hi - LIMIT_MARGIN_RAD):
+            m.jnt_limited[j] = 0
+            out.append(f"{name}: set-points {np.degrees(sp.min()):.1f} to {np.degrees(sp.max()):.1f} deg reach past "
+                       f"the model's stops ({np.degrees(lo):.1f} to {np.degrees(hi):.1f} deg): stops removed")
+    return out
+
+
+def _plan(rec: Recording, gravity_m_s2: float | None, delta_rad: float, stops: str = "infer") -> dict:
     """Per contiguous run of the record: (slice, mounting, model, commands (5, n, 2) rad: the commanded
     trajectory and its four window-offset perturbations), with the window starts, the lever arm r0_C and
     the sensor slices."""
@@ -182,6 +203,9 @@ def _plan(rec: Recording, gravity_m_s2: float | None, delta_rad: float) -> dict:
     rate = float(proto.get("slew_rate_deg_s", 6.0)) * DEG
     dt = 1.0 / rec.sample_rate_hz
     base = load_model("tilt_table.xml")
+    if stops not in ("infer", "model"):
+        raise ValueError(f"stops must be 'infer' or 'model', not {stops!r}")
+    removed = _widen_stops(base, rec, float(sv.get("theta_zero_rad", 0.0))) if stops == "infer" else []
     base.opt.timestep = dt
     base.opt.gravity[:] = (0.0, 0.0, -g)
     bid_base, bid_mount = base.body("base").id, base.body("imu_mount").id
@@ -220,7 +244,7 @@ def _plan(rec: Recording, gravity_m_s2: float | None, delta_rad: float) -> dict:
         r0[b] = MOUNTS[mnt].T @ base.body_pos[bid_mount] + base.site_pos[base.site("imu").id]
         starts.append(b.start + ch)
     return {"replays": replays, "R_WB": R_WB, "sl": sensor_slices(base), "gravity_m_s2": g, "mounts": mounts,
-            "r0_C": r0, "window_start": np.concatenate(starts)}
+            "r0_C": r0, "window_start": np.concatenate(starts), "stops_removed": removed}
 
 
 def _result(plan: dict, f: np.ndarray, w: np.ndarray, delta_rad: float) -> dict:
@@ -229,7 +253,7 @@ def _result(plan: dict, f: np.ndarray, w: np.ndarray, delta_rad: float) -> dict:
     resp -= f[0][None]
     resp /= delta_rad
     return {"f_C": f[0], "w_C": w, "r0_C": plan["r0_C"], "resp": resp, "window_start": plan["window_start"],
-            "gravity_m_s2": plan["gravity_m_s2"], "mounts": plan["mounts"]}
+            "gravity_m_s2": plan["gravity_m_s2"], "mounts": plan["mounts"], "stops_removed": plan["stops_removed"]}
 
 
 def _ramped(sp: np.ndarray) -> bool:
