@@ -148,7 +148,8 @@ class H5RowWriter:
         for c in range(a, b, self._rows):
             piece = x[c - a:min(b, c + self._rows) - a]
             bits = piece.view(f"u{piece.dtype.itemsize}")   # compared bit for bit (0.0 is not -0.0)
-            if piece.size and np.all(bits == bits[0]):   # a held value (or zeros): its bytes deflated once
+            # a held value (or zeros): its bytes deflated once (the ends first: most chunks differ there)
+            if piece.size and bits[-1] == bits[0] and np.all(bits == bits[0]):
                 key = (piece.dtype.str, piece[:1].tobytes(), piece.size, strategy)
                 if key not in self._constant:
                     self._constant[key] = self._pool.submit(_deflate, piece.copy(), self._rows, strategy)
