@@ -62,7 +62,9 @@ def diagnose_table_rate(dial_rad_s: np.ndarray, measured_rad_s: np.ndarray, rng:
                                                 "std_error": mf["mean_ratio_se"]}],
                                 "matched_factor": mf["factor"]}
     if np.unique(np.round(r_dps, 6)).size >= 3:
-        _lib, diag = _shortfall(d, r_dps, rng, alpha, n_sim)
+        # pulse-timed windows: relative rate errors sqrt(2) sigma_e / T_w, so weights T_w^2 (:func:`_shortfall`)
+        wts = None if window_s is None else np.asarray(window_s, float)[ok] ** 2
+        _lib, diag = _shortfall(d, r_dps, rng, alpha, n_sim, weights=wts)
         out["shortfall"] = diag.to_dict()
         out["residuals"] = {"unit": "1", "rate_dps": r_dps.tolist(), "before": diag.before.residuals_.tolist(),
                             "after": diag.after.residuals_.tolist()}
