@@ -236,13 +236,16 @@ def scores(eps: np.ndarray, vs: np.ndarray, Cg: np.ndarray, X: np.ndarray, om: n
         P = projector(Cg + np.diag(om**2 * vs[0]), X)
         return np.einsum("ik,kl,il->i", eps, P, eps)
     Q = np.empty(n_sim)
-    for i in range(0, n_sim, batch):
+    p = X.shape[1]
+    for i in range(0, n_sim, batch):               # Q = e'C^-1 e - (X'C^-1 e)' (X'C^-1 X)^-1 (X'C^-1 e)
+        e = eps[i:i + batch]
         C = Cg[None] + (om**2)[None, :, None] * vs[i:i + batch, :, None] * np.eye(K)[None]
-        Ci = np.linalg.inv(C)
-        CiX = Ci @ X
-        P = Ci - CiX @ np.linalg.solve(X.T[None] @ CiX, np.swapaxes(CiX, 1, 2))
-        Pe = np.einsum("bkl,bl->bk", P, eps[i:i + batch])
-        Q[i:i + batch] = np.sum(Pe * eps[i:i + batch], axis=1)
+        R = np.broadcast_to(np.concatenate([X, np.zeros((K, 1))], axis=1), (e.shape[0], K, p + 1)).copy()
+        R[:, :, p] = e
+        S = np.linalg.solve(C, R)                    # C^-1 [X, e]
+        XtS = np.swapaxes(R[:, :, :p], 1, 2) @ S     # X' C^-1 [X, e]
+        b = np.linalg.solve(XtS[:, :, :p], XtS[:, :, p:])[:, :, 0]
+        Q[i:i + batch] = np.einsum("bk,bk->b", e, S[:, :, p]) - np.einsum("bj,bj->b", XtS[:, :, p], b)
     return Q
 
 
