@@ -73,7 +73,7 @@ MAX_TURN_ERROR = 0.25
 #: the pulse width's fractions of a sample the test and the estimate range over (:func:`class_test`)
 PHI_GRID = np.linspace(0.05, 0.95, 19)
 #: draws of the simulated null per fraction of the width
-N_SIM_WIDTH = 1000
+N_SIM_WIDTH = 600
 
 
 def rounding_bias_amplitude(q: float, sigma_pre: float, k_max: int = 200) -> float:
