@@ -24,8 +24,10 @@ slip of the manifest) so the index crossings and the whole rounds are those of t
   built from the same crossings: no jitter, each settled plateau's pulses at one uniform grid phase,
   the others at independent ones); its power at level alpha is expressed as the non-centrality of a
   chi-square on the same m residual degrees of freedom that has that power, needed: the one with 90 %
-  power. The sample grid fixes the pulse width to a whole sample only, so each pulse is bracketed by
-its rising edge (dt^2 / 12), as the test does.
+  power. A width of whole samples leaves each pulse bracketed by its rising edge (dt^2 / 12), as the
+  test does; a width of n + phi samples shows n or n + 1 high samples, and the test times each pulse
+  at its middle with phi unknown: it rejects where its statistic passes its null's 1 - alpha point at
+  every phi of its grid, and so does the power here.
 
 The mains factor and the slip are read from the table's mean rate over many rounds, far above the
 timer's error at the lab's sizes: always scored (None).
@@ -46,6 +48,8 @@ ALPHA, POWER = 0.01, 0.9
 SETTLE_S = 2.0
 #: harmonics 2..5 of the table angle (cos and sin): the ripple test's degrees of freedom
 RIPPLE_DOF = 8
+#: draws per fraction of the width where the width is n + phi samples (19 fractions, each a batch of inverses)
+N_SIM_CLASSES = 500
 #: the running mean (samples) whose half is cut from each window's ends
 RUNNING_MEAN = 51
 
@@ -137,29 +141,57 @@ def timer(truth: dict, effect: dict, motion, n_sim: int = 2000, seed: int = 0) -
          "G2": np.interp(cross, t, w2), "N": np.zeros(cross.size), "a0": 1.0 / S, "groups": groups,
          "sigma_u": math.sqrt(g["noise_V_rms_per_sample"] ** 2 + (adc["input_noise_lsb_rms"] * q) ** 2 + q * q / 12),
          "segments": [(a, b) for a, b, v, v2 in zip(knots_t[:-1], knots_t[1:], knots_v[:-1], knots_v[1:]) if v == v2]}
-    # the grid fixes the pulse width to a whole sample only, so the test brackets by the rising edge
+    X = pa.design(c)
+    m = cross.size - X.shape[1]
+    if abs(w / dt - round(w / dt)) > 1e-6:           # n + phi samples: each pulse at its middle, phi unknown
+        return _timer_classes(truth, effect, c, cross, dt, w, j, q, X, m, rng, N_SIM_CLASSES)
+    # a whole-sample width: one count, so the test brackets by the rising edge
     wr = (-np.inf, np.inf)
     v_grid = np.full(cross.size, dt**2 / 12)
     C0, _D, _parts = pa.covariance(c, v_grid, dt, q)
     Cg = C0 - np.diag(c["omega"] ** 2 * v_grid)
-    X = pa.design(c)
-    m = cross.size - X.shape[1]
     u0 = pa.score_null(c, v_grid, dt, w, Cg, X, rng, n_sim, w_range=wr)
     # H1: the recording's crossings, jittered, on the sample grid as it lies (the phases the schedule gives)
     tau = cross[None, :] + j * rng.standard_normal((n_sim, cross.size))
     mid, vs = _bracket(tau, dt, w, wr)
-    Lg = np.linalg.cholesky(Cg + 1e-12 * np.max(np.diag(Cg)) * np.eye(cross.size))
-    eps = (mid - cross[None, :]) * c["omega"][None, :] + rng.standard_normal((n_sim, cross.size)) @ Lg.T
+    eps = (mid - cross[None, :]) * c["omega"][None, :] + pa.gyro_draws(Cg, rng, n_sim)
     u1 = pa.scores(eps, vs, Cg, X, c["omega"])
     u0s = np.sort(u0)
     p1 = (1 + u0.size - np.searchsorted(u0s, u1, side="left")) / (1 + u0.size)
-    power = float(np.mean(p1 < ALPHA))
+    return _power(effect, float(np.mean(p1 < ALPHA)), m)
+
+
+def _power(effect: dict, power: float, m: int) -> dict:
+    """The test's ``power`` as the non-centrality of a chi-square on ``m`` with that power, against the 90 % point."""
     need = lambda_needed(m, ALPHA)
     cc = stats.chi2.isf(ALPHA, m)
     lam = 1e5 if power >= 1 - 1e-9 else (0.0 if power <= ALPHA else
                                            float(optimize.brentq(lambda x: stats.ncx2.sf(cc, m, x) - power, 1e-9, 1e5)))
     return {"effect": effect["effect"], "lambda": {"rate": lam}, "lambda_90": need, "dof": m, "power": power,
             "detectable": power >= POWER}
+
+
+def _timer_classes(truth, effect, c, cross, dt, w, j, q, X, m, rng, n_sim) -> dict:
+    """The power of the test where the width is n + phi samples (:func:`imurig.diagnose.pulse_angle.class_test`):
+    it rejects where Q(phi) passes its null's 1 - alpha point at every phi of the grid; H1 draws are the
+    recording's crossings, jittered, on the grid as they lie, each pulse at its middle."""
+    om = c["omega"]
+    phi0 = w / dt - math.floor(w / dt)
+    Cg, _D, _parts = pa.covariance(c, np.zeros(cross.size), dt, q)
+    tau0 = pa.null_times(c, np.full(cross.size, dt**2 / 48), dt, rng, n_sim)
+    g0 = pa.gyro_draws(Cg, rng, n_sim)
+    tau1 = cross[None, :] + j * rng.standard_normal((n_sim, cross.size))
+    g1 = pa.gyro_draws(Cg, rng, n_sim)
+    a0, a1 = (np.ceil(tau0 / dt) - 1.0) * dt, (np.ceil(tau1 / dt) - 1.0) * dt
+    c1 = ((tau1 - a1) / dt > 1.0 - phi0).astype(float)               # the recording's classes, at its true width
+    eps1 = (a1 + 0.5 * dt * (1.0 + c1) - cross[None, :]) * om[None, :] + g1
+    reject = np.ones(n_sim, bool)
+    for phi in pa.PHI_GRID:
+        cs = ((tau0 - a0) / dt > 1.0 - phi).astype(float)
+        u0 = pa.scores((a0 + 0.5 * dt * (1.0 + cs) - tau0) * om[None, :] + g0, pa.class_var(cs, phi, dt), Cg, X, om)
+        u1 = pa.scores(eps1, pa.class_var(c1, phi, dt), Cg, X, om)
+        reject &= u1 > np.quantile(u0, 1.0 - ALPHA)
+    return _power(effect, float(np.mean(reject)), m)
 
 
 def detectability(truth: dict, turn) -> dict | None:

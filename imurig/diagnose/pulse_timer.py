@@ -56,8 +56,10 @@ SETTLE_S = 2.0
 def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = None) -> dict:
     """The pulses' rising-edge times (s) bracketed by both edges, with their grid variance (s^2).
 
-    Returns {time_s, var_s2, width_s, sloped}: per pulse the middle of I_k and |I_k|^2/12 (module
-    doc), the mean width w and how many edges had an intermediate sample."""
+    Returns {time_s, var_s2, width_s, width_range_s, sloped, high_samples}: per pulse the middle of
+    I_k and |I_k|^2/12 (module doc), the width w, the widths all pulses allow, how many edges had an
+    intermediate sample, and per pulse its count of samples at or above the threshold (-1 where an
+    edge is sloped)."""
     t, x = np.asarray(t_s, float), np.asarray(x_V, float)
     lo, hi = np.percentile(x, [1.0, 99.9])
     thr = 0.5 * (lo + hi) if threshold_V is None else threshold_V
@@ -88,7 +90,8 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     frac = np.where(binary, 0.5, (thr - x[rise]) / np.where(x[rise + 1] > x[rise], x[rise + 1] - x[rise], 1.0))
     mid = np.where(binary, mid, a1 + frac * dt[rise])
     var = np.where(binary, var, dt[rise] ** 2 / 12.0)
-    return {"time_s": mid, "var_s2": var, "width_s": w, "width_range_s": (w_lo, w_hi), "sloped": int(np.sum(~binary))}
+    return {"time_s": mid, "var_s2": var, "width_s": w, "width_range_s": (w_lo, w_hi), "sloped": int(np.sum(~binary)),
+            "high_samples": np.where(binary, fall - rise, -1)}
 
 
 def _bracket(tau: np.ndarray, dt: float, w: float, w_range=None) -> tuple[np.ndarray, np.ndarray]:

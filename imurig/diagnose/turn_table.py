@@ -43,7 +43,7 @@ from imurig.calibration.gyro import (
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.pulse_angle import angle_timer_test
+from imurig.diagnose.pulse_angle import angle_timer_test, pulse_times
 from imurig.diagnose.pulse_angle import chain as angle_chain
 from imurig.diagnose.pulse_timer import SETTLE_S, edge_times, pulse_timer_test
 from imurig.diagnose.samples import adc_step, raw_channel_tests
@@ -172,7 +172,7 @@ def _pulse_timer(rec: Recording, rng: np.random.Generator, alpha: float) -> dict
         return plateau
     j, sign = AXIS_OF_MOUNT[next(iter(mounts))]
     ch = f"gyro_{AXES[j]}"
-    c = angle_chain(rec.time_s, sign * rec.channels[ch], edges["time_s"], seg["start_s"], seg["stop_s"],
+    c = angle_chain(rec.time_s, sign * rec.channels[ch], pulse_times(edges, dt), seg["start_s"], seg["stop_s"],
                     seg["rate_dial"])
     if c is None:
         plateau["angle_test"] = {"tested": False, "why": f"{ch}'s integral does not count the table's turns "
