@@ -53,13 +53,15 @@ N_SIM = 4000
 SETTLE_S = 2.0
 
 
-def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = None) -> dict:
+def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = None, levels=None) -> dict:
     """The pulses' rising-edge times (s) bracketed by both edges, with their grid variance (s^2).
 
     Returns {time_s, var_s2, width_s, sloped}: per pulse the middle of I_k and |I_k|^2/12 (module
-    doc), the mean width w and how many edges had an intermediate sample."""
+    doc), the mean width w and how many edges had an intermediate sample. ``levels``: the low and
+    high levels (default the channel's 1st and 99.9th percentiles), for samples that hold only the
+    threshold crossings (a streamed record's, :mod:`imurig.diagnose.turn_record`)."""
     t, x = np.asarray(t_s, float), np.asarray(x_V, float)
-    lo, hi = np.percentile(x, [1.0, 99.9])
+    lo, hi = np.percentile(x, [1.0, 99.9]) if levels is None else levels
     thr = 0.5 * (lo + hi) if threshold_V is None else threshold_V
     rise = np.flatnonzero((x[:-1] < thr) & (x[1:] >= thr))
     fall = np.flatnonzero((x[:-1] >= thr) & (x[1:] < thr))
