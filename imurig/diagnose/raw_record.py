@@ -30,7 +30,7 @@ from imurig.calibration.stream_filter import PIECE_ROWS, filtfilt_decimated
 from imurig.diagnose.position_noise import code_histogram, dither_sd, dither_sd_from
 from imurig.diagnose.samples import adc_range, adc_step, rail_positions, raw_channel_tests, working_record
 from imurig.kernel.filerecord import FileRecord, check_memory
-from imurig.kernel.ranks import median_search
+from imurig.kernel.ranks import LIMIT, median_search
 from imurig.kernel.recording import Recording
 from imurig.sensors.effects import for_view
 from imurig.sensors.effects.adc_quantisation import step_of
@@ -42,6 +42,8 @@ from imurig.sensors.effects.views import RawChannelView
 MAX_DISTINCT = 1 << 21
 #: the second differences' subsample that brackets their order statistics
 SUBSAMPLE = 1 << 17
+#: distinct values an order-statistic search keeps before it narrows its bracket instead (kernel.ranks)
+RANK_LIMIT = LIMIT
 
 
 class InMemoryRaw:
@@ -281,7 +283,7 @@ class StreamedRaw:
         ext = {c: (self._ext[c][1], self._ext[c][0]) for c in cs}          # (max, min), as the test
         runs = {c: {L: _RunTracker() for L in ext[c]} for c in cs}
         sub = {c: np.concatenate(self._sub[c]) for c in cs}
-        med = {c: median_search(m, sub[c]) for c in cs}
+        med = {c: median_search(m, sub[c], limit=RANK_LIMIT) for c in cs}
 
         def first(c, x, a):
             for L, tr in runs[c].items():
@@ -291,7 +293,7 @@ class StreamedRaw:
             for tr in runs[c].values():
                 tr.close()
         centre = {c: med[c].median() for c in cs}
-        mad = {c: median_search(m, np.abs(sub[c] - centre[c])) for c in cs}
+        mad = {c: median_search(m, np.abs(sub[c] - centre[c]), limit=RANK_LIMIT) for c in cs}
         self._search(mad, lambda c, d2: np.abs(d2 - centre[c]))
         cut = {c: noise_cut(mad[c].median(), q[c]) for c in cs}
         sums = {c: [0.0, 0] for c in cs}

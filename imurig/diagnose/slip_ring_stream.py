@@ -37,7 +37,7 @@ class _Thinned:
         self.kept, self.count, self.k, self.seen = [], 0, 1, 0
 
     def feed(self, v: np.ndarray) -> None:
-        take = v[(-self.seen) % self.k::self.k]
+        take = v[(-self.seen) % self.k::self.k].copy()       # a view would keep the whole window
         self.seen += v.size
         self.kept.append(take)
         self.count += take.size

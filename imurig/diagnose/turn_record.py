@@ -42,6 +42,8 @@ from imurig.sensors.effects.views import TurnSampleView
 LEVELS_PERCENT = (1.0, 99.9)
 #: values of the pulse channel kept, strided, to bracket its percentiles
 SUBSAMPLE = 1 << 16
+#: distinct values a percentile's search keeps before it narrows its bracket instead (kernel.ranks)
+RANK_LIMIT = 1 << 16
 
 
 class InMemoryTurn:
@@ -50,6 +52,10 @@ class InMemoryTurn:
     def __init__(self, rec: Recording):
         self.rec, self.meta, self.segments, self.events = rec, rec.meta, rec.segments, rec.events
         self.channels, self.sample_rate_hz = rec.channels, rec.sample_rate_hz
+
+    @property
+    def n_segments(self) -> int:
+        return self.rec.n_segments
 
     def require(self, needed) -> None:
         self.rec.require(needed)
@@ -113,6 +119,10 @@ class StreamedTurn:
         self.sample_rate_hz, self.dt = f.sample_rate_hz, f.dt
         self._raw = None
         self._adc = None
+
+    @property
+    def n_segments(self) -> int:
+        return self.f.n_segments
 
     def require(self, needed) -> None:
         self.f.require(needed)
@@ -201,14 +211,18 @@ class StreamedTurn:
         below = np.floor(virtual).astype(np.int64)
         above = np.minimum(below + 1, n - 1)
         stride = max(1, n // SUBSAMPLE)
-        sub = np.concatenate([f.read(ch, a, b)[(-a) % stride::stride] for a, b in f.row_pieces(self.piece)])
-        s = RankSearch(n, np.concatenate([below, above]), sub)
-        while True:
+        # copies: a strided view would keep its whole piece
+        sub = np.concatenate([f.read(ch, a, b)[(-a) % stride::stride].copy() for a, b in f.row_pieces(self.piece)])
+        # a search per percentile: one bracket around both would keep every value between them
+        todo = [RankSearch(n, (i, j), sub, limit=RANK_LIMIT) for i, j in zip(below, above)]
+        done = list(todo)
+        while todo:
             for a, b in f.row_pieces(self.piece):
-                s.feed(f.read(ch, a, b))
-            if s.end():
-                break
-        val = dict(zip(s.ranks, s.result))
+                x = f.read(ch, a, b)
+                for s in todo:
+                    s.feed(x)
+            todo = [s for s in todo if not s.end()]
+        val = {r: v for s in done for r, v in zip(s.ranks, s.result)}
         lo_v, hi_v = np.array([val[int(i)] for i in below]), np.array([val[int(i)] for i in above])
         gamma = virtual - below
         d = hi_v - lo_v                               # numpy's _lerp
