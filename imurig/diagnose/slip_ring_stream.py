@@ -9,7 +9,7 @@ record reads them again from the file). The test's statistics, per the effect's 
   (``brown_forsythe_from``);
 - the robust noise by bin, 1.4826 median |r - median(r)| over all windows' samples of a bin: exact
   order statistics in passes (:class:`imurig.kernel.ranks.RankSearch`, one per bin, their brackets
-  from a thinned subsample; at most ``LIMIT`` distinct values kept per bin);
+  from a thinned subsample; at most ``LIMIT`` distinct values kept and ``FEED`` values gathered per bin);
 - the refit: each bin's mean of r^2 and the variance of r^2 from sums (``refit_from``);
 - the ripple: the Gram matrix of each window's detrended columns, summed (``ripple_from_gram``).
 
@@ -28,6 +28,8 @@ from imurig.sensors.effects.views import TurnSampleView
 LIMIT = 1 << 16
 #: values per bin kept (thinned by halves) to bracket its order statistics
 THIN = 1 << 14
+#: values per bin gathered before they are fed to its search
+FEED = 1 << 14
 
 
 class _Thinned:
@@ -106,11 +108,19 @@ def _bin_medians(eff: SlipRingNoise, pieces, n_b: np.ndarray, samples: list, val
     searches = [median_search(int(n_b[b]), samples[b], limit=LIMIT) for b in range(B)]
     todo = set(range(B))
     while todo:
+        buf, size = [[] for _ in range(B)], np.zeros(B, np.int64)
         for ang, res, _, _ in pieces():
             idx = eff.bin_index(ang)
             order = np.argsort(idx, kind="stable")
             for b, g in enumerate(np.split(res[order], np.cumsum(np.bincount(idx, minlength=B))[:-1])):
-                if b in todo:
-                    searches[b].feed(value(b, g))
+                if b in todo and g.size:
+                    buf[b].append(np.array(value(b, g)))          # a copy: a view would keep the window
+                    size[b] += g.size
+                    if size[b] >= FEED:                          # fed in batches: fewer, larger sorts
+                        searches[b].feed(np.concatenate(buf[b]))
+                        buf[b], size[b] = [], 0
+        for b in todo:
+            if buf[b]:
+                searches[b].feed(np.concatenate(buf[b]))
         todo = {b for b in todo if not searches[b].end()}
     return np.array([s.median() for s in searches])

@@ -328,5 +328,7 @@ class StreamedGyro:
 
 
 def as_turn(rec) -> InMemoryTurn | StreamedTurn:
-    """The turn-table diagnosis' reads of a Recording (in memory) or a FileRecord (streamed)."""
+    """The turn-table diagnosis' reads of a Recording (in memory) or a FileRecord (streamed); reads are kept."""
+    if isinstance(rec, (InMemoryTurn, StreamedTurn)):
+        return rec
     return StreamedTurn(rec) if isinstance(rec, FileRecord) else InMemoryTurn(rec)

@@ -154,11 +154,13 @@ def diagnose_turn_table(rec: Recording | FileRecord, rng: np.random.Generator, a
     return out
 
 
-def _pulse_timer(rec: InMemoryTurn | StreamedTurn, rng: np.random.Generator, alpha: float) -> dict:
+def _pulse_timer(rec: Recording | FileRecord | InMemoryTurn | StreamedTurn, rng: np.random.Generator,
+                 alpha: float) -> dict:
     """The index pulses' timing error from the pulse voltage channel: every pulse against the
     table-axis gyro's integrated angle (:mod:`imurig.diagnose.pulse_angle`) where one mounting puts
     one gyro on the axis, else the dial plateaus' lines (:mod:`imurig.diagnose.pulse_timer`, reported
     beside the first as ``plateau_test``); untested without a pulse channel or plateaus."""
+    rec = as_turn(rec)
     seg = rec.segments
     if "pulse" not in rec.channels or not {"start_s", "stop_s", "rate_dial"} <= set(seg):
         return {"tested": False, "why": "no pulse voltage channel with dial plateaus"}
