@@ -110,12 +110,24 @@ def test_one_seed_one_data_set(streamed):
     assert not np.array_equal(a.channels["gyro_p"], c.channels["gyro_p"])
 
 
+def test_simulate_gives_the_commands_data(streamed):
+    """The Python API's simulate() runs the command's streamed chain: the same seed, the same data, bit for
+    bit (channels, truth signals, events); the whole-record chain draws another realisation."""
+    camp, _, s = streamed
+    a, b = camp.simulate(), s.recording
+    assert set(a.channels) == set(b.channels) and set(a.truth_signals) == set(b.truth_signals)
+    assert all(np.array_equal(a.channels[k], b.channels[k]) for k in a.channels)
+    assert all(np.array_equal(a.truth_signals[k], b.truth_signals[k]) for k in a.truth_signals)
+    assert all(np.array_equal(a.events[k], b.events[k]) for k in a.events) and a.truth == b.truth
+    assert not np.array_equal(camp.simulate(chain="whole").channels["gyro_p"], a.channels["gyro_p"])
+
+
 def test_streamed_noise_has_the_whole_chain_size(streamed):
     """Per channel, the scatter about each window's mean: the streamed and the whole-record chain draw different
     realisations of the same noise (gyro rate noise, current noise, slip rings, converter), so the pooled sd agree
     within 4 standard errors (sd of a pooled sd ~ sd / sqrt(2 N), the two independent)."""
     camp, _, s = streamed
-    whole = camp.simulate()
+    whole = camp.simulate(chain="whole")
     # the same metadata and truth, but for the count of clipped samples (the 5 V pulse at the converter's top)
     ma, mb = (dict(r.meta, adc={k: v for k, v in r.meta["adc"].items() if k != "saturated_samples"})
               for r in (whole, s.recording))
@@ -136,7 +148,7 @@ def test_delft_lab_runs_the_whole_chain():
     camp = TurnTableCampaign(protocol=SMALL, seed=3, lab="delft-2005")
     s = stream_campaign(camp)
     assert not s.streamed and "effects" in s.why
-    ref = camp.simulate()
+    ref = camp.simulate(chain="whole")
     for k in ref.channels:
         assert np.array_equal(s.recording.channels[k], ref.channels[k]), k
     t, raw = block_means(s.rows, ["gyro_p"], 100)   # the report's .rrd reads the whole record's rows

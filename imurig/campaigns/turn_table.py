@@ -27,7 +27,7 @@ from imurig.campaigns.delft_2005 import check_lab
 from imurig.campaigns.delft_2005_turn import Delft2005Turn
 from imurig.campaigns.turn_stream import stream_campaign
 from imurig.kernel import random_streams
-from imurig.kernel.errors import ScheduleError, UnidentifiableTermsError
+from imurig.kernel.errors import ConfigError, ScheduleError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
 from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
 from imurig.sensors.adc import DAQ6036E
@@ -104,12 +104,17 @@ class TurnTableCampaign:
                     "Add distinct rates, the other direction, or a mounting with that axis on the table.",
                     e.terms) from None
 
-    def simulate(self, check: bool = True) -> Recording:
+    def simulate(self, check: bool = True, chain: str = "stream") -> Recording:
         """Simulate the schedule (after refusing an unidentifiable one, unless ``check`` is off:
-        the studies below fit their own one-axis models) through the whole-record chain
-        (:meth:`ImuLab.measure`). ``imurig campaign turn-table`` streams the same rig record in pieces
-        (:mod:`imurig.campaigns.turn_stream`): the same truth, the same noise models, another realisation of
-        the noise (drawn piece by piece); ``stream_campaign(camp, keep=True).recording`` is the command's data."""
+        the studies below fit their own one-axis models). ``chain="stream"`` (default): the streamed sensor
+        chain, ``stream_campaign(camp, keep=True).recording`` (:mod:`imurig.campaigns.turn_stream`), the data of
+        ``imurig campaign turn-table`` for the same seed (a lab the stream does not model runs the whole-record
+        chain there); ``chain="whole"``: the whole-record chain (:meth:`ImuLab.measure`), the same truth and
+        noise models, another realisation of the noise (the stream draws it piece by piece)."""
+        if chain == "stream":
+            return stream_campaign(self, keep=True, check=check).recording
+        if chain != "whole":
+            raise ConfigError(f"chain must be 'stream' or 'whole', got {chain!r}")
         if check:
             self.check_identifiable()
         else:

@@ -230,17 +230,17 @@ def _run_diagnose(a):
 
 
 def _open_for_diagnosis(a):
-    """The recording to diagnose: a tilt-table .h5 (or a lab .csv that declares its structure) read in
+    """The recording to diagnose: a tilt- or turn-table .h5 (or a lab .csv that declares its structure) read in
     row ranges (:class:`imurig.kernel.filerecord.FileRecord`: memory of the 100 Hz working record, not
     of the file; a CSV's temporary HDF5 file beside the report folder, not in a temporary folder that
     may be held in memory); any other recording loaded whole, after an estimate of the memory it needs."""
-    from imurig.diagnose.dispatch import record_kind
+    from imurig.diagnose.dispatch import STREAMED, record_kind
 
     if not (a.rig or a.site or a.pulse_channel):
         parent = Path(a.out).resolve().parent
         f = open_file_record(a.recording, tmp_dir=parent if parent.is_dir() else None)
         if f is not None:
-            if record_kind(f) == "tilt_table":
+            if record_kind(f) in STREAMED:
                 return f
             try:
                 return f.load().validate()

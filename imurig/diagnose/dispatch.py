@@ -24,6 +24,9 @@ from imurig.kernel.recording import Recording
 TWIN_OPTIONS = {"tilt_table": {"twin_model", "dynamics", "skew_in_twin"}, "turn_table": {"earth_rate"},
                 "thermal": set(), "rate_table_rows": set(), "magnetometer": {"twin_model"}}
 
+#: the kinds whose diagnosis reads a FileRecord in row ranges (the others load it whole)
+STREAMED = ("tilt_table", "turn_table")
+
 
 def record_kind(rec: Recording) -> str:
     """The kind of recording the diagnosis dispatches on (a key of :data:`TWIN_OPTIONS`)."""
@@ -70,11 +73,12 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str | None = None, earth
     ``twin_model``, default 'physical'; the slews too), turn-table recordings (twin with or without
     the Earth's rate), thermal-chamber recordings, turn-table row recordings (appendix B) and
     magnetometer recordings (twin 'nominal' or 'calibrated'). Options: :func:`twin_options`.
-    A tilt-table ``rec`` may be a :class:`imurig.kernel.filerecord.FileRecord` (read in row ranges,
-    :mod:`imurig.diagnose.raw_record`); the other kinds take a loaded Recording."""
+    A tilt-table or turn-table ``rec`` may be a :class:`imurig.kernel.filerecord.FileRecord` (read in
+    row ranges, :mod:`imurig.diagnose.raw_record`, :mod:`imurig.diagnose.turn_record`); the other kinds
+    take a loaded Recording."""
     kind = record_kind(rec)
     o = twin_options(rec, twin, twin_model=twin_model, earth_rate=earth_rate)
-    if isinstance(rec, FileRecord) and kind != "tilt_table":
+    if isinstance(rec, FileRecord) and kind not in STREAMED:
         rec = rec.load().validate()             # whole, after an estimate of the memory it needs
     rng = np.random.default_rng(seed)
     if kind == "rate_table_rows":

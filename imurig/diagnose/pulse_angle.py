@@ -90,15 +90,45 @@ def chain(t_s: np.ndarray, u_V: np.ndarray, t_pulse: np.ndarray, start_s, stop_s
     cannot count the turns (fewer than two turning plateaus, or a count off by more than
     ``MAX_TURN_ERROR``). Returns {N, G1, G2, t, omega (turns/s), a0 (turns per V s), b0 (V), groups,
     sigma_u (V), segments [(start, stop)]}; ``groups``: per plateau the index of its settled pulses."""
-    t, u, tp = np.asarray(t_s, float), np.asarray(u_V, float), np.asarray(t_pulse, float)
-    dtv = np.diff(t)
-    G1 = np.concatenate([[0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * dtv)])
-    G2 = np.concatenate([[0.0], np.cumsum(0.5 * (u[1:] ** 2 + u[:-1] ** 2) * dtv)])
+    return chain_from(GyroSamples(t_s, u_V), t_pulse, start_s, stop_s, dial)
+
+
+class GyroSamples:
+    """What :func:`chain_from` reads of the gyro's samples u at times t (in memory; a streamed record's
+    reader, :class:`imurig.diagnose.turn_record.StreamedTurn`, gives the same values from a file):
+    ``dt`` = median(diff(t)); :meth:`window` u[i0:i1] with (i0, i1) = searchsorted(t, (a, b));
+    :meth:`integrals` G1, G2 (module doc, trapezoids) at times ``tp`` by np.interp; :meth:`sums`
+    cs[i + h] - cs[i - h], cs the running sum of u from 0, i = clip(searchsorted(t, tp), h, n - h)."""
+
+    def __init__(self, t_s: np.ndarray, u_V: np.ndarray):
+        self.t, self.u = np.asarray(t_s, float), np.asarray(u_V, float)
+        self.dt = float(np.median(np.diff(self.t)))
+
+    def window(self, a: float, b: float) -> np.ndarray:
+        i0, i1 = np.searchsorted(self.t, [a, b])
+        return self.u[i0:i1]
+
+    def integrals(self, tp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t, u = self.t, self.u
+        dtv = np.diff(t)
+        G1 = np.concatenate([[0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * dtv)])
+        G2 = np.concatenate([[0.0], np.cumsum(0.5 * (u[1:] ** 2 + u[:-1] ** 2) * dtv)])
+        return np.interp(tp, t, G1), np.interp(tp, t, G2)
+
+    def sums(self, tp: np.ndarray, h: int) -> np.ndarray:
+        idx = np.clip(np.searchsorted(self.t, tp), h, self.t.size - h)
+        cs = np.concatenate([[0.0], np.cumsum(self.u)])
+        return cs[idx + h] - cs[idx - h]
+
+
+def chain_from(g, t_pulse: np.ndarray, start_s, stop_s, dial) -> dict | None:
+    """:func:`chain` on the gyro's samples as ``g`` gives them (:class:`GyroSamples`)."""
+    tp = np.asarray(t_pulse, float)
     rates, means, groups, sd = [], [], [], []
     for a, b, d in zip(start_s, stop_s, dial):
-        i0, i1 = np.searchsorted(t, [a, b])
-        if i1 - i0 > 10:
-            sd.append(float(np.std(np.diff(u[i0:i1])) / np.sqrt(2.0)))
+        w = g.window(a, b)
+        if w.size > 10:
+            sd.append(float(np.std(np.diff(w)) / np.sqrt(2.0)))
         k = np.flatnonzero((tp >= a + SETTLE_S) & (tp <= b))
         if d == 0 or k.size < 2:
             continue
@@ -106,24 +136,21 @@ def chain(t_s: np.ndarray, u_V: np.ndarray, t_pulse: np.ndarray, start_s, stop_s
         n = np.round((tp[k] - tp[k[0]]) / T0)
         T = float(np.polyfit(n, tp[k], 1)[0]) if k.size >= 3 else T0
         rates.append(np.sign(d) / T)
-        j0, j1 = np.searchsorted(t, [tp[k[0]], tp[k[-1]]])
-        means.append(float(np.mean(u[j0:j1])))
+        means.append(float(np.mean(g.window(tp[k[0]], tp[k[-1]]))))
         if k.size >= 3:
             groups.append(k)
     if len(rates) < 2 or np.ptp(rates) == 0:
         return None
     S, b0 = np.polyfit(rates, means, 1)               # u = b0 + S omega (V; V per turn/s)
     a0 = 1.0 / S
-    g1 = np.interp(tp, t, G1)
+    g1, g2 = g.integrals(tp)
     turns = a0 * (np.diff(g1) - b0 * np.diff(tp))
     dN = np.round(turns)
     if np.max(np.abs(turns - dN), initial=0.0) > MAX_TURN_ERROR:
         return None
-    h = max(1, int(round(0.5 * RATE_WINDOW_S / np.median(dtv))))
-    idx = np.clip(np.searchsorted(t, tp), h, t.size - h)
-    cs = np.concatenate([[0.0], np.cumsum(u)])
-    omega = a0 * ((cs[idx + h] - cs[idx - h]) / (2 * h) - b0)
-    return {"N": np.concatenate([[0.0], np.cumsum(dN)]), "G1": g1, "G2": np.interp(tp, t, G2), "t": tp,
+    h = max(1, int(round(0.5 * RATE_WINDOW_S / g.dt)))
+    omega = a0 * (g.sums(tp, h) / (2 * h) - b0)
+    return {"N": np.concatenate([[0.0], np.cumsum(dN)]), "G1": g1, "G2": g2, "t": tp,
             "omega": omega, "a0": float(a0), "b0": float(b0), "groups": groups,
             "sigma_u": float(np.median(sd)) if sd else 0.0,
             "segments": [(float(a), float(b)) for a, b in zip(start_s, stop_s)]}

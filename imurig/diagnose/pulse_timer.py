@@ -53,15 +53,18 @@ N_SIM = 4000
 SETTLE_S = 2.0
 
 
-def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = None) -> dict:
+def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = None, levels=None) -> dict:
     """The pulses' rising-edge times (s) bracketed by both edges, with their grid variance (s^2).
 
     Returns {time_s, var_s2, width_s, width_range_s, sloped, high_samples}: per pulse the middle of
     I_k and |I_k|^2/12 (module doc), the width w, the widths all pulses allow, how many edges had an
     intermediate sample, and per pulse its count of samples at or above the threshold (-1 where an
-    edge is sloped)."""
+    edge is sloped), counted from the edge samples' times (so that it holds for a streamed record's
+    samples too). ``levels``: the low and high levels (default the channel's 1st and 99.9th
+    percentiles), for samples that hold only the threshold crossings (a streamed record's,
+    :mod:`imurig.diagnose.turn_record`)."""
     t, x = np.asarray(t_s, float), np.asarray(x_V, float)
-    lo, hi = np.percentile(x, [1.0, 99.9])
+    lo, hi = np.percentile(x, [1.0, 99.9]) if levels is None else levels
     thr = 0.5 * (lo + hi) if threshold_V is None else threshold_V
     rise = np.flatnonzero((x[:-1] < thr) & (x[1:] >= thr))
     fall = np.flatnonzero((x[:-1] >= thr) & (x[1:] < thr))
@@ -91,7 +94,7 @@ def edge_times(t_s: np.ndarray, x_V: np.ndarray, threshold_V: float | None = Non
     mid = np.where(binary, mid, a1 + frac * dt[rise])
     var = np.where(binary, var, dt[rise] ** 2 / 12.0)
     return {"time_s": mid, "var_s2": var, "width_s": w, "width_range_s": (w_lo, w_hi), "sloped": int(np.sum(~binary)),
-            "high_samples": np.where(binary, fall - rise, -1)}
+            "high_samples": np.where(binary, np.rint((a2 - a1) / np.where(b1 > a1, b1 - a1, 1.0)).astype(int), -1)}
 
 
 def _bracket(tau: np.ndarray, dt: float, w: float, w_range=None) -> tuple[np.ndarray, np.ndarray]:

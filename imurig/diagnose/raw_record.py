@@ -30,7 +30,7 @@ from imurig.calibration.stream_filter import PIECE_ROWS, filtfilt_decimated
 from imurig.diagnose.position_noise import code_histogram, dither_sd, dither_sd_from
 from imurig.diagnose.samples import adc_range, adc_step, rail_positions, raw_channel_tests, working_record
 from imurig.kernel.filerecord import FileRecord, check_memory
-from imurig.kernel.ranks import median_search
+from imurig.kernel.ranks import LIMIT, median_search
 from imurig.kernel.recording import Recording
 from imurig.sensors.effects import for_view
 from imurig.sensors.effects.adc_quantisation import step_of
@@ -42,6 +42,8 @@ from imurig.sensors.effects.views import RawChannelView
 MAX_DISTINCT = 1 << 21
 #: the second differences' subsample that brackets their order statistics
 SUBSAMPLE = 1 << 17
+#: distinct values an order-statistic search keeps before it narrows its bracket instead (kernel.ranks)
+RANK_LIMIT = LIMIT
 
 
 class InMemoryRaw:
@@ -93,8 +95,9 @@ class StreamedRaw:
     #: rows read at a time
     piece = PIECE_ROWS
 
-    def __init__(self, f: FileRecord, triad=("acc_x", "acc_y", "acc_z")):
+    def __init__(self, f: FileRecord, triad=("acc_x", "acc_y", "acc_z"), working: bool = True):
         self.f, self.meta, self.units = f, f.meta, f.units
+        self._with_working = working            # False: the statistics' pass reads the triad only (no working record)
         self.channels = dict.fromkeys(f.channel_names)          # names only, in the file's order
         self.n, self.sample_rate_hz = f.n, f.sample_rate_hz
         self.triad = [c for c in triad if c in self.channels]
@@ -107,6 +110,33 @@ class StreamedRaw:
             self._main_pass()
         return self._rec100
 
+    def _begin_stats(self, names) -> None:
+        f = self.f
+        self._need_values = [c for c in names if step_of(f.meta, c, None, f.channel_quantum) == 0.0]
+        self._distinct = {c: np.zeros(0) for c in self._need_values}
+        self._ext = {c: (np.inf, -np.inf) for c in names}
+        self._sub = {c: [] for c in self.triad}
+        self._stride = max(1, (self.n - 2) // SUBSAMPLE)
+        self._tail = {c: np.zeros(0) for c in self.triad}
+        self._next = 0
+
+    def _end_stats(self, names) -> None:
+        self._steps = {c: None if c in self._distinct and self._distinct[c] is None else   # too many: adc_step
+                       step_of(self.f.meta, c, self._distinct.get(c), self.f.channel_quantum) for c in names}
+
+    def _stats(self) -> None:
+        """The rows' statistics (extremes, steps, the second differences' subsample): in the working
+        record's pass, or (``working=False``) in a pass over the triad's rows alone."""
+        if self._steps:
+            return
+        if self._with_working:
+            self.working()
+            return
+        self._begin_stats(self.triad)
+        for a, b in self.f.row_pieces(self.piece):
+            self._feed({c: self.f.read(c, a, b) for c in self.triad}, a)
+        self._end_stats(self.triad)
+
     def _main_pass(self) -> None:
         f, names = self.f, self.f.channel_names
         fs = self.sample_rate_hz
@@ -115,13 +145,7 @@ class StreamedRaw:
         check_memory(rows, len(names) + 1, f"{f.source} (the working record)")
         setpoints = set(f.meta.get("setpoints", []))
         filtered = [c for c in names if c not in setpoints] if k >= 2 else []
-        self._need_values = [c for c in names if step_of(f.meta, c, None, f.channel_quantum) == 0.0]
-        self._distinct = {c: np.zeros(0) for c in self._need_values}
-        self._ext = {c: (np.inf, -np.inf) for c in names}
-        self._sub = {c: [] for c in self.triad}
-        self._stride = max(1, (self.n - 2) // SUBSAMPLE)
-        self._tail = {c: np.zeros(0) for c in self.triad}
-        self._next = 0
+        self._begin_stats(names)
         time_s = np.empty(rows)
         raw = {c: np.empty(rows) for c in names if c not in filtered}      # decimated as logged
         low = np.empty((len(filtered), rows))        # low-passed, then decimated (one contiguous row per channel)
@@ -155,8 +179,7 @@ class StreamedRaw:
                     read(a, b)
             off += len(range(0, m, max(k, 1)))
         channels = {c: low[filtered.index(c)] if c in filtered else raw[c] for c in names}
-        self._steps = {c: None if c in self._distinct and self._distinct[c] is None else   # too many: adc_step
-                       step_of(f.meta, c, self._distinct.get(c), f.channel_quantum) for c in names}
+        self._end_stats(names)
         meta = f.meta
         if k >= 2:                                   # as preprocess._decimated: the rate reached and the log
             _, _, log = filter_design(fs, fs / k, 50.0)
@@ -185,14 +208,14 @@ class StreamedRaw:
             self._tail[c] = xx[-2:]
 
     def adc_step(self, ch: str) -> float:
-        self.working()
+        self._stats()
         if self._steps.get(ch) is None and ch in self._distinct:      # too many values kept: the whole channel
             check_memory(self.n, 2, f"{self.f.source} (channel '{ch}' whole, for its ADC step)")
             self._steps[ch] = step_of(self.meta, ch, self.f.read(ch, 0, self.n), self.f.channel_quantum)
         return self._steps[ch]
 
     def at_rail(self, ch: str, medians: np.ndarray) -> np.ndarray:
-        self.working()
+        self._stats()
         lo, hi = self._ext[ch]
         return rail_positions(lo, hi, self.adc_step(ch), medians)
 
@@ -253,14 +276,14 @@ class StreamedRaw:
             # are the saturation test's, so another effect needs its own passes here (or the whole-record path)
             raise RuntimeError("a raw-sample effect other than saturation is in the library; the streamed raw "
                                "tests (StreamedRaw._flat_top_passes) know the saturation test only: add its passes")
-        self.working()
+        self._stats()
         m = self.n - 2
         cs = [c for c in self.triad if self.n >= 10]
         q = {c: self.adc_step(c) for c in self.triad}
         ext = {c: (self._ext[c][1], self._ext[c][0]) for c in cs}          # (max, min), as the test
         runs = {c: {L: _RunTracker() for L in ext[c]} for c in cs}
         sub = {c: np.concatenate(self._sub[c]) for c in cs}
-        med = {c: median_search(m, sub[c]) for c in cs}
+        med = {c: median_search(m, sub[c], limit=RANK_LIMIT) for c in cs}
 
         def first(c, x, a):
             for L, tr in runs[c].items():
@@ -270,7 +293,7 @@ class StreamedRaw:
             for tr in runs[c].values():
                 tr.close()
         centre = {c: med[c].median() for c in cs}
-        mad = {c: median_search(m, np.abs(sub[c] - centre[c])) for c in cs}
+        mad = {c: median_search(m, np.abs(sub[c] - centre[c]), limit=RANK_LIMIT) for c in cs}
         self._search(mad, lambda c, d2: np.abs(d2 - centre[c]))
         cut = {c: noise_cut(mad[c].median(), q[c]) for c in cs}
         sums = {c: [0.0, 0] for c in cs}
@@ -280,7 +303,7 @@ class StreamedRaw:
             sums[c][0] += float(np.sum((inner - centre[c]) ** 2))
             sums[c][1] += inner.size
         self._d2_pass(lambda c, x, a, d2: moments(c, x, a, d2) if c in cs else None)
-        rng_V = adc_range(self._rec100)
+        rng_V = adc_range(self)                     # from the metadata
         for c in self.triad:
             if c not in cs:
                 self._tests[c] = (q[c], {})

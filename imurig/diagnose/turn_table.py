@@ -36,20 +36,18 @@ from imurig.calibration.gyro import (
     MODELS,
     SPEC,
     reference_rates,
-    round_windows,
     segment_covariance,
     timer_difference_sigma,
-    timer_pulses,
 )
 from imurig.calibration.triad import indicated
 from imurig.diagnose.engine import select_effects
-from imurig.diagnose.pulse_angle import angle_timer_test, pulse_times
-from imurig.diagnose.pulse_angle import chain as angle_chain
-from imurig.diagnose.pulse_timer import SETTLE_S, edge_times, pulse_timer_test
-from imurig.diagnose.samples import adc_step, raw_channel_tests
+from imurig.diagnose.pulse_angle import angle_timer_test, chain_from, pulse_times
+from imurig.diagnose.pulse_timer import SETTLE_S, pulse_timer_test
 from imurig.diagnose.steps import effect_steps
 from imurig.diagnose.table_rate import diagnose_table_rate
+from imurig.diagnose.turn_record import InMemoryTurn, StreamedTurn, as_turn
 from imurig.kernel.errors import RecordingError
+from imurig.kernel.filerecord import FileRecord
 from imurig.kernel.recording import Recording
 from imurig.kernel.site import EARTH_RATE_RAD_S, Site
 from imurig.sensors.effects import GSensitivity, SlipRingNoise, TurnSampleView, TurnView, for_view
@@ -63,18 +61,21 @@ def _mounts(rw: Recording) -> list[str]:
     return [str(x) for x in m]
 
 
-def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
+def diagnose_turn_table(rec: Recording | FileRecord, rng: np.random.Generator, alpha: float = 0.01, n_sim: int = 300,
                         timer: str = "hp6700", earth_rate: bool = True) -> dict:
     """Diagnose the gyro channels of a turn-table recording against the nominal twin
-    (``earth_rate``: whether the twin's reference includes the Earth's vertical rate)."""
-    rec.require({"gyro_p": "V", "gyro_q": "V", "gyro_r": "V"})
-    if "pulse" not in rec.channels and not any(k.startswith("pulse_") for k in rec.events):
+    (``earth_rate``: whether the twin's reference includes the Earth's vertical rate). ``rec``: a
+    Recording, or a FileRecord read in row ranges (:mod:`imurig.diagnose.turn_record`: the same
+    findings in memory of one window)."""
+    src = as_turn(rec)
+    src.require({"gyro_p": "V", "gyro_q": "V", "gyro_r": "V"})
+    if "pulse" not in src.channels and not any(k.startswith("pulse_") for k in rec.events):
         raise RecordingError("the turn-table diagnosis times the table's whole rounds by its index pulses, and "
                              "this recording has none; add the index pulse as a voltage column 'pulse_V' (high "
                              "once per revolution; another column by --pulse-channel NAME) or a timer's pulse "
                              "times as 'event_pulse_<timer>_s'. Without them the table's true rate (mains factor, "
                              "slip) cannot be told from the gyros' own scale factor")
-    rw, rate = round_windows(rec, timer)
+    rw, rate = src.windows(timer)
     ref = reference_rates(rw, rate)
     mounts = _mounts(rw)
     site = Site.from_dict(rec.meta.get("site", {}))
@@ -85,10 +86,10 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
         e[i, j] = s
     if not earth_rate:
         ref = ref - omega_v * e
-    u, _ = indicated(rw, SPEC, "mean")
+    u = src.per_window(rw, SPEC.channels, lambda r: indicated(r, SPEC, "mean")[0])
     inputs = {n: u[:, k] for k, n in enumerate(INPUTS)}
-    if {"acc_x", "acc_y", "acc_z"} <= set(rw.channels):
-        f, _ = acc_indicated(rw, "mean")
+    if {"acc_x", "acc_y", "acc_z"} <= set(src.channels):
+        f = src.per_window(rw, ("acc_x", "acc_y", "acc_z"), lambda r: acc_indicated(r, "mean")[0])
         f_source = "accelerometer channels (nominal sensitivity)"
     else:
         f = e * site.gravity_m_s2  # at rest on a level table the specific force points up the spin axis
@@ -100,7 +101,7 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                              "the steps; add it as a '# gyro_noise_model: {...}' line in the CSV")
     cov = segment_covariance(rw, rate, noise, timer_difference_sigma(rec, timer))
     # the table's rate on its own stream (spawned: the gyros' threshold draws stay as they were)
-    timer_test = _pulse_timer(rec, rng.spawn(1)[0], alpha)
+    timer_test = _pulse_timer(src, rng.spawn(1)[0], alpha)
     table = diagnose_table_rate(rw.segments["rate_dial"], rate, rng.spawn(1)[0], mains_hz=float(rec.meta.get("mains_hz", 50.0)),
                                 alpha=alpha, n_sim=n_sim, window_s=rw.segments["stop_s"] - rw.segments["start_s"],
                                 edge_sigma_s=timer_test.get("sigma_T_s"))
@@ -147,22 +148,24 @@ def diagnose_turn_table(rec: Recording, rng: np.random.Generator, alpha: float =
                               "mount": mounts, "time_s": (0.5 * (rw.segments["start_s"] + rw.segments["stop_s"])).tolist(),
                               "convention": "residual = the twin's reference rate - the recording through the "
                                             "gyro calibration (whole-round means per step)"}
-        entry["scatter"] = _slip_rings(rec, rw, timer, f"gyro_{a}", alpha / 3)
-        entry["scatter"].update(raw_channel_tests(rec, f"gyro_{a}", alpha))
+        entry["scatter"] = _slip_rings(src, rw, timer, f"gyro_{a}", alpha / 3)
+        entry["scatter"].update(src.raw_tests(f"gyro_{a}", alpha))
         out["gyros"][a] = entry
     return out
 
 
-def _pulse_timer(rec: Recording, rng: np.random.Generator, alpha: float) -> dict:
+def _pulse_timer(rec: Recording | FileRecord | InMemoryTurn | StreamedTurn, rng: np.random.Generator,
+                 alpha: float) -> dict:
     """The index pulses' timing error from the pulse voltage channel: every pulse against the
     table-axis gyro's integrated angle (:mod:`imurig.diagnose.pulse_angle`) where one mounting puts
     one gyro on the axis, else the dial plateaus' lines (:mod:`imurig.diagnose.pulse_timer`, reported
     beside the first as ``plateau_test``); untested without a pulse channel or plateaus."""
+    rec = as_turn(rec)
     seg = rec.segments
     if "pulse" not in rec.channels or not {"start_s", "stop_s", "rate_dial"} <= set(seg):
         return {"tested": False, "why": "no pulse voltage channel with dial plateaus"}
-    edges = edge_times(rec.time_s, rec.channels["pulse"], rec.meta.get("pulse_threshold_V"))
-    dt = float(np.median(np.diff(rec.time_s)))
+    edges = rec.edges(rec.meta.get("pulse_threshold_V"))
+    dt = rec.dt
     plateau = pulse_timer_test(edges, seg["start_s"], seg["stop_s"], seg["rate_dial"], dt, rng.spawn(1)[0], alpha)
     # every pulse against the table-axis gyro's angle, where one mounting puts one gyro on the axis
     mounts = set(_mounts(rec))
@@ -172,13 +175,12 @@ def _pulse_timer(rec: Recording, rng: np.random.Generator, alpha: float) -> dict
         return plateau
     j, sign = AXIS_OF_MOUNT[next(iter(mounts))]
     ch = f"gyro_{AXES[j]}"
-    c = angle_chain(rec.time_s, sign * rec.channels[ch], pulse_times(edges, dt), seg["start_s"], seg["stop_s"],
-                    seg["rate_dial"])
+    c = chain_from(rec.gyro(ch, sign), pulse_times(edges, dt), seg["start_s"], seg["stop_s"], seg["rate_dial"])
     if c is None:
         plateau["angle_test"] = {"tested": False, "why": f"{ch}'s integral does not count the table's turns "
                                                          "between the index pulses"}
         return plateau
-    out = angle_timer_test(c, edges, dt, adc_step(rec, ch), rng.spawn(1)[0], alpha)
+    out = angle_timer_test(c, edges, dt, rec.adc_step(ch), rng.spawn(1)[0], alpha)
     if not out.get("tested"):
         plateau["angle_test"] = out
         return plateau
@@ -228,7 +230,7 @@ def _whitened_correlation(a: np.ndarray, b: np.ndarray, X0: np.ndarray, cov: np.
     return float(R[:, 0] @ R[:, 1] / (n[0] * n[1])) if np.all(n > 0) else 0.0
 
 
-def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float) -> dict:
+def _slip_rings(rec: InMemoryTurn | StreamedTurn, rw: Recording, timer: str, ch: str, alpha: float) -> dict:
     """Is the sample noise of ``ch`` periodic in the table angle (slip-ring contact noise)?
 
     Within each whole-round window (on inferred dial plateaus, its rounds from ``SETTLE_S`` after
@@ -240,45 +242,35 @@ def _slip_rings(rec: Recording, rw: Recording, timer: str, ch: str, alpha: float
     the refit of the excess noise by angle) gives the statistics and, when p < ``alpha``, the
     finding with the angles where the spread rises and by how much.
     """
-    pulses = timer_pulses(rec, timer)
-    t, x = rec.time_s, rec.channels[ch]
+    pulses = rec.timer_pulses(timer)
     w = SlipRingNoise.window
     h = w // 2
-    ang, res, sig, tim, win = [], [], [], [], []
     # segments inferred as dial plateaus begin where a ramp ended, the table still settling (its lag
     # is a rate transient, not a ripple): the rounds count from SETTLE_S later. A logged segment
     # (acquisition started on an index pulse) is taken as it is.
     inferred = "segments" in (rec.meta.get("inferred") or {}) and rec.segments["start_s"].size == rw.n_segments
     plateau_start = rec.segments["start_s"] + SETTLE_S if inferred else rw.segments["start_s"]
+    spans = []
     for a, b, rate, a0 in zip(rw.segments["start_s"], rw.segments["stop_s"], rw.segments["rate_dial"], plateau_start):
         p = pulses[(pulses >= max(a, a0) - 1e-9) & (pulses <= b + 1e-9)]   # the angle: the window's rounds
         if p.size < 2:      # the table at rest (dial 0): no angle to lock to
             continue
         if p.size >= 4:     # the first round holds the table's settling after the dial change: whole
             p = p[1:]       # rounds kept (they keep the Earth's once-per-round rate out of the ripple)
-        a = p[0]
-        i0, i1 = np.searchsorted(t, [a, b])
-        if i1 - i0 < 200:
-            continue
-        tt = t[i0:i1]
-        r = x[i0:i1] - ndimage.uniform_filter1d(x[i0:i1], w, mode="nearest")
-        k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
-        frac = (tt - p[k]) / (p[k + 1] - p[k])
-        ang.append(2 * np.pi * (frac if rate >= 0 else 1 - frac))
-        # the signal as logged (the ripple test removes each window's mean and trend): a ripple
-        # locked to the angle stays
-        cut = slice(h, -h) if r.size > 2 * h else slice(None)
-        res.append(r[cut])
-        sig.append(x[i0:i1][cut])
-        tim.append(tt[cut])
-        win.append(np.full(tim[-1].size, len(win)))
-        ang[-1] = ang[-1][cut]
-    if not ang:
-        return {"tested": False}
-    view = TurnSampleView(channel=ch, angle_rad=np.concatenate(ang), residual_V=np.concatenate(res), alpha=alpha,
-                          signal_V=np.concatenate(sig), quantum_V=adc_step(rec, ch), window=np.concatenate(win),
-                          time_s=np.concatenate(tim))
-    out = {"tested": True}
-    for cls in for_view(TurnSampleView.kind):
-        out.update(cls().test(view))
-    return out
+        spans.append((p, b, rate))
+
+    def pieces():
+        """Each window's (angle, residual, signal, time), its ends cut by the running mean's half-length."""
+        for (p, b, rate), (tt, xx) in zip(spans, rec.window_samples(ch, [(p[0], b) for p, b, _ in spans])):
+            if tt.size < 200:
+                continue
+            r = xx - ndimage.uniform_filter1d(xx, w, mode="nearest")
+            k = np.clip(np.searchsorted(p, tt, side="right") - 1, 0, p.size - 2)
+            frac = (tt - p[k]) / (p[k + 1] - p[k])
+            # the signal as logged (the ripple test removes each window's mean and trend): a ripple
+            # locked to the angle stays
+            cut = slice(h, -h) if r.size > 2 * h else slice(None)
+            yield (2 * np.pi * (frac if rate >= 0 else 1 - frac))[cut], r[cut], xx[cut], tt[cut]
+    view = TurnSampleView(channel=ch, angle_rad=np.zeros(0), residual_V=np.zeros(0), alpha=alpha,
+                          quantum_V=rec.adc_step(ch))
+    return rec.slip_ring_test(view, pieces)

@@ -36,9 +36,10 @@ class FileRecord:
     """An imurig HDF5 recording whose channels are read in row ranges (module doc).
 
     ``meta``, ``truth``, ``units``, ``channel_quantum``, ``segments``, ``segment_units``, ``events``
-    (small, in memory), ``channel_names`` (the file's order), ``n``, ``sample_rate_hz``, ``t0``
-    (the first time), :meth:`blocks`, :meth:`segment_slices`; :meth:`read`, :meth:`read_time`,
-    :meth:`load` (the whole Recording, after a memory check). Use as a context manager."""
+    (small, in memory), ``channel_names`` (the file's order), ``n``, ``dt`` (median(diff(time_s))),
+    ``sample_rate_hz``, ``t0`` (the first time), :meth:`blocks`, :meth:`segment_slices`, :meth:`require`;
+    :meth:`read`, :meth:`read_time`, :meth:`rows_at`, :meth:`load` (the whole Recording, after a memory
+    check). Use as a context manager."""
 
     def __init__(self, path, source=None, tmp=None):
         self.path = Path(path)
@@ -63,7 +64,7 @@ class FileRecord:
         marks = {"lo": seg["start_s"], "hi": seg["stop_s"]} if seg else {}
         idx = h.time_pass(marks)
         self._seg = [slice(int(a), int(b)) for a, b in zip(idx["lo"], idx["hi"])] if seg else []
-        dt = h.median_dt()
+        self.dt = dt = h.median_dt()
         self.sample_rate_hz = float(1.0 / dt)
         cuts, last = [], None
         for a, b in h.row_chunks():
@@ -129,6 +130,15 @@ class FileRecord:
 
     def read_time(self, a: int, b: int) -> np.ndarray:
         return self._rows("time_s", a, b)
+
+    def rows_at(self, times) -> np.ndarray:
+        """``searchsorted(time_s, times, side="left")`` in one pass over the time column."""
+        return self._h.time_pass({"t": np.asarray(times, float)})["t"]
+
+    def require(self, needed) -> None:
+        """As :meth:`Recording.require`: each channel of ``needed`` (name -> SI unit) exists with that unit."""
+        Recording(time_s=np.zeros(0), channels=dict.fromkeys(self.channel_names), units=dict(self.units),
+                  meta=self.meta).require(needed)
 
     def row_pieces(self, rows: int):
         """(a, b) over all rows, ``rows`` at a time."""

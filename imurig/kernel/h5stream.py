@@ -10,8 +10,9 @@ Channels stored as integer codes with a ``quantum`` are scaled chunk by chunk ex
 same, byte for byte, as ``write_csv(load_h5(path))``.
 
 The summary's sample rate is 1 / median(diff(time_s)), the median taken exactly from the counts
-of the distinct sample intervals (a clock of a few periods has a handful; a jittered clock with
-more than ``MAX_DISTINCT_DT`` distinct intervals falls back to reading ``/time_s`` whole).
+of the distinct sample intervals (a clock of a few periods has a handful; for a jittered clock with
+more than ``MAX_DISTINCT_DT`` distinct intervals, exact order statistics in passes,
+:class:`imurig.kernel.ranks.RankSearch`).
 """
 from __future__ import annotations
 
@@ -22,12 +23,13 @@ import numpy as np
 
 from imurig.kernel.errors import RecordingError
 from imurig.kernel.outputs import atomic_write
+from imurig.kernel.ranks import median_search
 from imurig.kernel.recording import FORMAT_NAME, _float_attr, _json_attr
 from imurig.kernel.units import from_si
 
 #: rows read at a time (64 Ki rows: ~0.5 MB per float64 column)
 CHUNK_ROWS = 1 << 16
-#: distinct sample intervals kept for the exact median before falling back to a whole read
+#: distinct sample intervals counted for the exact median before searching it in passes instead
 MAX_DISTINCT_DT = 1 << 16
 
 
@@ -196,20 +198,39 @@ class H5Recording:
         """median(diff(time_s)), exact (see the module doc)."""
         counts: dict[float, int] = {}
         last = None
+        stride = max(1, (self.n - 1) // MAX_DISTINCT_DT)
+        sub = []
         for a, b in self.row_chunks():
             t = self.read("time_s", a, b)
             d = np.diff(t if last is None else np.concatenate(([last], t)))
+            j0 = a if last is None else a - 1                 # the index of d's first interval
+            sub.append(d[(-j0) % stride::stride].copy())
             last = t[-1]
-            vals, cnt = np.unique(d, return_counts=True)
-            for v, c in zip(vals.tolist(), cnt.tolist()):
-                counts[v] = counts.get(v, 0) + c
-            if len(counts) > MAX_DISTINCT_DT:       # a jittered clock: the whole column, once
-                return float(np.median(np.diff(self.read("time_s", 0, self.n))))
+            if counts is not None:
+                vals, cnt = np.unique(d, return_counts=True)
+                for v, c in zip(vals.tolist(), cnt.tolist()):
+                    counts[v] = counts.get(v, 0) + c
+                if len(counts) > MAX_DISTINCT_DT:       # a jittered clock: exact order statistics in passes
+                    counts = None
+        if counts is None:
+            return self._median_dt_search(np.concatenate(sub))
         vals = np.array(sorted(counts))
         cum = np.cumsum([counts[v] for v in vals.tolist()])
         m = int(cum[-1])
         lo, hi = vals[np.searchsorted(cum, (m - 1) // 2 + 1)], vals[np.searchsorted(cum, m // 2 + 1)]
         return float(np.mean(np.array([lo, hi]))) if m % 2 == 0 else float(hi)
+
+    def _median_dt_search(self, sample: np.ndarray) -> float:
+        """median(diff(time_s)) by :class:`imurig.kernel.ranks.RankSearch` (passes over ``/time_s``)."""
+        s = median_search(self.n - 1, sample, limit=MAX_DISTINCT_DT)
+        while True:
+            last = None
+            for a, b in self.row_chunks():
+                t = self.read("time_s", a, b)
+                s.feed(np.diff(t if last is None else np.concatenate(([last], t))))
+                last = t[-1]
+            if s.end():
+                return s.median()
 
     def count_gaps(self, limit_s: float) -> int:
         """How many sample intervals exceed ``limit_s``."""

@@ -191,8 +191,15 @@ class SlipRingNoise(Effect):
         else:
             stat, p = stats.levene(*groups, center="median")
         spread = np.array([1.4826 * np.median(np.abs(g - np.median(g))) for g in groups])
+        return self.verdict(view, res.size, stat, p, spread, lambda: self.refit(groups), ripple)
+
+    def verdict(self, view: TurnSampleView, n: int, stat: float, p: float, spread: np.ndarray, refit, ripple: dict) -> dict:
+        """The test's report from its statistics (:meth:`test`; a streamed record's, whose samples are not
+        held, :mod:`imurig.diagnose.slip_ring_stream`): ``n`` samples, the spread test's (stat, p), the
+        robust noise by angle bin ``spread``, ``refit()`` the refit (called when the spread test fires),
+        the ripple's regression."""
         base = float(np.median(spread))
-        out = {"samples": int(res.size), "levene_statistic": float(stat), "p_value": float(p),
+        out = {"samples": int(n), "levene_statistic": float(stat), "p_value": float(p),
                "threshold_p": view.alpha, "noise_V_by_angle_bin": spread.tolist(), "bin_deg": 360.0 / self.n_bins}
         # a step above the noise leaves most bins' MAD at 0 and the code transitions of the slow
         # signal at fixed angles: the spread is then not measured, and not tested
@@ -201,7 +208,7 @@ class SlipRingNoise(Effect):
             out["spread_tested"] = f"no: the noise ({base:.3g} V, robust) is below the ADC step's q/sqrt(12)"
         elif p < view.alpha:
             high = np.flatnonzero(spread > base * 1.1)
-            refit = self.refit(groups)
+            refit = refit()
             out["finding"] = {"effect": self.name,
                               "physics": f"contact noise of the slip rings on '{view.channel}': the noise rises at "
                                          "fixed table angles where a brush passes a rough spot (seed Fig. 4.16)",
@@ -243,43 +250,64 @@ class SlipRingNoise(Effect):
         z = z - (np.bincount(iw, z) / np.bincount(iw))[iw]
         n_b = np.bincount(idx, minlength=B)
         gm = np.bincount(idx, z, minlength=B) / np.maximum(n_b, 1)
-        dof2 = z.size - B - (iw.max() + 1) + 1
-        F = float((np.sum(n_b * gm**2) / (B - 1)) / (np.sum((z - gm[idx]) ** 2) / dof2))
+        return self.brown_forsythe_from(n_b, gm, float(np.sum((z - gm[idx]) ** 2)), int(iw.max() + 1))
+
+    def brown_forsythe_from(self, n_b: np.ndarray, gm: np.ndarray, ss_within: float, n_windows: int) -> tuple[float, float]:
+        """(F, p) of :meth:`brown_forsythe_within_windows` from the bins' counts ``n_b``, their means of z'
+        ``gm`` and the within-bin sum of squares of z'."""
+        B = self.n_bins
+        dof2 = int(np.sum(n_b)) - B - n_windows + 1
+        F = float((np.sum(n_b * gm**2) / (B - 1)) / (ss_within / dof2))
         return F, float(stats.f.sf(F, B - 1, dof2))
 
     def ripple(self, view: TurnSampleView, harmonics: int = 4) -> dict:
         """The harmonic regression of the signal on the table angle (module doc); {} without a signal."""
         if getattr(view, "signal_V", None) is None:
             return {}
-        s = np.asarray(view.signal_V, float).copy()
+        s = np.asarray(view.signal_V, float)
         th = np.asarray(view.angle_rad, float)
-        k = np.arange(2, harmonics + 2)
-        H = np.column_stack([np.cos(np.outer(th, k)), np.sin(np.outer(th, k))])
-        H1 = np.column_stack([np.cos(th), np.sin(th)])       # harmonic 1: nuisance (module doc)
         win = np.zeros(s.size, int) if view.window is None else np.asarray(view.window)
         t = np.arange(s.size, dtype=float) if view.time_s is None else np.asarray(view.time_s, float)
-        for w in np.unique(win):                   # per window: mean and trend off the signal and H
+        G = np.zeros((3 + 2 * harmonics, 3 + 2 * harmonics))
+        for w in np.unique(win):
             i = win == w
-            T = np.column_stack([np.ones(int(i.sum())), t[i] - t[i].mean()])
-            A = np.column_stack([s[i], H[i], H1[i]])
-            A -= T @ np.linalg.lstsq(T, A, rcond=None)[0]
-            s[i], H[i], H1[i] = A[:, 0], A[:, 1:1 + H.shape[1]], A[:, 1 + H.shape[1]:]
-        Q1, _ = np.linalg.qr(H1)                   # harmonic 1 off the signal and the tested harmonics
-        c1 = np.linalg.lstsq(H1, s, rcond=None)[0]  # the 1/rev signal (V), whose rounding makes harmonics
-        s -= Q1 @ (Q1.T @ s)
-        H -= Q1 @ (Q1.T @ H)
-        n, p = H.shape
-        n_nuis = 2 * np.unique(win).size + 2
-        if n <= p + 2 * np.unique(win).size + 2:
+            A = self.ripple_columns(s[i], th[i], t[i], harmonics)
+            G += A.T @ A
+        return self.ripple_from_gram(G, s.size, np.unique(win).size, view.quantum_V, view.alpha, harmonics)
+
+    @staticmethod
+    def ripple_columns(signal: np.ndarray, angle_rad: np.ndarray, time_s: np.ndarray, harmonics: int = 4) -> np.ndarray:
+        """One window's columns [s, H, H1] (n, 3 + 2 harmonics): the signal, the tested harmonics
+        cos, sin k theta (k = 2..harmonics + 1) and harmonic 1 (a nuisance, module doc), each with the
+        window's mean and trend removed."""
+        th = np.asarray(angle_rad, float)
+        k = np.arange(2, harmonics + 2)
+        A = np.column_stack([signal, np.cos(np.outer(th, k)), np.sin(np.outer(th, k)), np.cos(th), np.sin(th)])
+        T = np.column_stack([np.ones(th.size), time_s - np.mean(time_s)])
+        return A - T @ np.linalg.lstsq(T, A, rcond=None)[0]
+
+    def ripple_from_gram(self, G: np.ndarray, n: int, n_windows: int, quantum_V, alpha: float,
+                         harmonics: int = 4) -> dict:
+        """:meth:`ripple` from the Gram matrix G = sum over windows of A'A (A: :meth:`ripple_columns`) of
+        ``n`` samples in ``n_windows`` windows: harmonic 1 projected off the signal and the tested
+        harmonics, their least squares, its F test and the amplitude's SE."""
+        p = 2 * harmonics
+        n_nuis = 2 * n_windows + 2
+        if n <= p + n_nuis:
             return {}
-        coef, *_ = np.linalg.lstsq(H, s, rcond=None)
-        r = s - H @ coef
+        ss, sH, sH1 = G[0, 0], G[0, 1:1 + p], G[0, 1 + p:]
+        HH, HH1, H1H1 = G[1:1 + p, 1:1 + p], G[1:1 + p, 1 + p:], G[1 + p:, 1 + p:]
+        c1 = np.linalg.solve(H1H1, sH1)            # the 1/rev signal (V), whose rounding makes harmonics
+        K = np.linalg.solve(H1H1, HH1.T)           # harmonic 1 off the tested harmonics and the signal
+        HHp, sHp = HH - HH1 @ K, sH - K.T @ sH1
+        coef = np.linalg.solve(HHp, sHp)
+        rr = float(ss - sH1 @ c1 - coef @ sHp)     # the residual sum of squares
         dof = n - p - n_nuis
-        var = max(float(r @ r) / dof, float(view.quantum_V or 0.0) ** 2 / 12.0)
-        ss_reg = float(np.sum((H @ coef) ** 2))
+        var = max(rr / dof, float(quantum_V or 0.0) ** 2 / 12.0)
+        ss_reg = float(coef @ HHp @ coef)
         F = (ss_reg / p) / var
         pv = float(stats.f.sf(F, p, dof))
-        cov = var * np.linalg.inv(H.T @ H)
+        cov = var * np.linalg.inv(HHp)
         a, b = coef[:harmonics], coef[harmonics:]
         amp = np.hypot(a, b)
         j = int(np.argmax(amp))
@@ -289,11 +317,11 @@ class SlipRingNoise(Effect):
         # the converter's rounding of the 1/rev signal makes harmonics of its own (module doc): a
         # ripple must exceed that bound, with the 1/rev amplitude taken 3 SE high and the dither
         # (the noise before rounding) low, from the residual variance less the rounding's q^2/12
-        q = float(view.quantum_V or 0.0)
-        a1 = float(np.hypot(*c1)) + 3.0 * float(np.sqrt(var / np.min(np.sum(H1**2, axis=0))))
-        dither = float(np.sqrt(max(float(r @ r) / dof - q * q / 12.0, 0.0)))
+        q = float(quantum_V or 0.0)
+        a1 = float(np.hypot(*c1)) + 3.0 * float(np.sqrt(var / np.min(np.diag(H1H1))))
+        dither = float(np.sqrt(max(rr / dof - q * q / 12.0, 0.0)))
         bound = rounding_harmonic_bound_V(q, a1, dither, j + 2)
-        return {"found": bool(pv < view.alpha and amp[j] > bound), "F": float(F), "p_value": pv,
+        return {"found": bool(pv < alpha and amp[j] > bound), "F": float(F), "p_value": pv,
                 "harmonic": int(j + 2), "rounding_bound_V": bound, "first_harmonic_V": float(np.hypot(*c1)),
                 "dither_V": dither,
                 "amplitude_V": float(amp[j]), "amplitude_se_V": se,
@@ -305,6 +333,10 @@ class SlipRingNoise(Effect):
         amplitudes (V), each with its standard error, and the peak bin's amplitude."""
         v = np.array([np.mean(g**2) for g in groups])
         se = np.array([np.sqrt(np.var(g**2, ddof=1) / g.size) for g in groups])
+        return self.refit_from(v, se)
+
+    def refit_from(self, v: np.ndarray, se: np.ndarray) -> dict:
+        """:meth:`refit` from each bin's mean square ``v`` (V^2) and its standard error ``se``."""
         v0 = float(np.median(v))
         # the median of n_bins estimates: sqrt(pi/2) x their typical SE / sqrt(n_bins)
         se0 = float(np.sqrt(np.pi / 2) * np.median(se) / np.sqrt(self.n_bins))
