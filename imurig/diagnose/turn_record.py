@@ -119,6 +119,7 @@ class StreamedTurn:
         self.sample_rate_hz, self.dt = f.sample_rate_hz, f.dt
         self._raw = None
         self._adc = None
+        self._tp = np.zeros(0)
 
     @property
     def n_segments(self) -> int:
@@ -201,7 +202,9 @@ class StreamedTurn:
         rows = np.array([(i, i + 1) for i in idx], dtype=np.int64).reshape(-1)
         t = np.array([self.f.read_time(int(i), int(i) + 1)[0] for i in rows])
         x = np.array([self.f.read("pulse", int(i), int(i) + 1)[0] for i in rows])
-        return edge_times(t, x, thr, levels=(lo, hi))
+        out = edge_times(t, x, thr, levels=(lo, hi))
+        self._tp = np.asarray(out["time_s"], float)
+        return out
 
     def _percentiles(self, ch: str, percents) -> tuple[float, ...]:
         """np.percentile(channel, percents) (linear), from exact order statistics."""
@@ -230,7 +233,12 @@ class StreamedTurn:
         return tuple(float(v) for v in out)
 
     def gyro(self, ch: str, sign: float) -> "StreamedGyro":
-        return StreamedGyro(self.f, ch, sign, self.piece)
+        """The gyro's reads, the rows of the segments' ends and of the last edges found in one pass (the
+        windows :func:`imurig.diagnose.pulse_angle.chain_from` asks for)."""
+        g = StreamedGyro(self.f, ch, sign, self.piece)
+        seg = self.segments
+        g.rows(np.concatenate([seg.get("start_s", np.zeros(0)), seg.get("stop_s", np.zeros(0)), self._tp]))
+        return g
 
     def _stats(self) -> StreamedRaw:
         if self._raw is None:
