@@ -23,6 +23,7 @@ from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm
 from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
+from imurig.reports.figure_process import FigureProcess
 from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
@@ -124,6 +125,16 @@ def _fig_arm(out, arm: dict):
     fig.savefig(out.file("fig_arm_accelerometer.png"), dpi=110)
     plt.close(fig)
     return "fig_arm_accelerometer.png"
+
+
+#: the arm study's results its figure reads (:func:`_fig_arm`)
+ARM_FIGURE_KEYS = ("f_ref_m_s2", "residual_linear_m_s2", "residual_quadratic_m_s2", "sigma_res_linear",
+                   "sigma_res_quadratic", "radius_m")
+
+
+def _fig_simona(out, real, virt):
+    plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
+    return "fig_4_19_simona.png"
 
 
 def _param_table(params) -> str:
@@ -253,33 +264,38 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             for c in (res["main"], res["seed_final"]):
                 c.windows_ = res["windows"]
             sim.rec = None
-            pending = pool.submit(_studies, camp) if studies else None
-            figs = {}
-            # the campaign's own figures and .rrd first: then its record is let go before the studies simulate theirs
+            # the figures in a forked process (forked before the studies' thread starts: it draws beside the .rrd
+            # writer and the studies, matplotlib and they would take turns on the interpreter lock in threads)
             stage("figures")
-            figs["residuals"] = _fig_residuals(out, res)
-            figs["slip_rings"] = _fig_slip_ring(out, sim.fig)
-            figs["truth_z"] = _fig_z(out, res["parameters"])
-            out.write_json("calibration.json", res["main"].to_dict())
-            files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
-            if save_recording:
-                files["recording"] = "recording.h5"
-            from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
+            figures = FigureProcess(out, [("residuals", _fig_residuals, (res,)), ("slip_rings", _fig_slip_ring, (sim.fig,)),
+                                          ("truth_z", _fig_z, (res["parameters"],))])
+            try:
+                pending = pool.submit(_studies, camp) if studies else None
+                out.write_json("calibration.json", res["main"].to_dict())
+                files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
+                if save_recording:
+                    files["recording"] = "recording.h5"
+                from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
-            def rrd_writer(path, rec_, res_):
-                write_rrd(path, rec_, res_, rows=sim.rows)
+                def rrd_writer(path, rec_, res_):
+                    write_rrd(path, rec_, res_, rows=sim.rows)
 
-            files.update(save_products(out, rec, res, rrd_writer, False, rrd, stage))
-            n_samples = sim.n
-            del sim
-            ts = arm = simona = None
-            if studies:
-                stage("studies")
-                ts, arm, simona, (real, virt) = pending.result()
-                plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
-                figs["simona"] = "fig_4_19_simona.png"
-                figs["timers"] = _fig_timers(out, ts)
-                figs["arm"] = _fig_arm(out, arm)
+                files.update(save_products(out, rec, res, rrd_writer, False, rrd, stage))
+                n_samples = sim.n
+                del sim
+                ts = arm = simona = None
+                if studies:
+                    stage("studies")
+                    ts, arm, simona, (real, virt) = pending.result()
+                    # what the study figures read, pickled to the figure process
+                    figures.draw("simona", _fig_simona, real, virt)
+                    figures.draw("timers", _fig_timers, {"timers": {k: {f: t[f] for f in ("rate_dps", "residual_dps")}
+                                                                    for k, t in ts["timers"].items()}})
+                    figures.draw("arm", _fig_arm, {k: arm[k] for k in ARM_FIGURE_KEYS})
+            except BaseException:
+                figures.cancel()
+                raise
+            figs = figures.wait()
             files.update({f"figure_{k}": v for k, v in figs.items()})
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
