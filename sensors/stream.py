@@ -366,8 +366,8 @@ def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
     last = adc.scan_list[-1]
     ext = state.last_in is not None
     if ext:  # one leading row: the previous piece's last scan (only slot 0's crosstalk reads it)
-        analog = {k: np.concatenate(([state.last_in[0]] if k == last else [0.0], v)) for k, v in analog.items()}
-        slope = {k: np.concatenate(([0.0], v)) for k, v in slope.items()}
+        analog = {k: _Lead(v, state.last_in[0] if k == last else 0.0) for k, v in analog.items()}
+        slope = {k: _Lead(v, 0.0) for k, v in slope.items()}
         common = np.concatenate(([state.last_in[1]], common))
     a, b = int(ext), int(ext) + m
     out, held = {}, None
@@ -379,5 +379,19 @@ def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
         out[name] = adc._convert_rows(j, name, a, b, analog, common, slope, held, held_next, rng, state.saturated,
                                       codes=True)
         held = held_next
-    state.last_in = (analog[last][-1], common[-1])
+    state.last_in = ((analog[last].v if ext else analog[last])[-1], common[-1])
     return out
+
+
+class _Lead:
+    """The array ``v`` with one leading value ``first`` before it, for slicing [a:b] (row 0: ``first``)
+    without copying ``v``: rows [a, b) with a >= 1 are the view v[a-1:b-1]."""
+
+    def __init__(self, v: np.ndarray, first: float):
+        self.v, self.first = v, first
+
+    def __getitem__(self, s: slice) -> np.ndarray:
+        a, b = s.start or 0, self.v.size + 1 if s.stop is None else s.stop
+        if a >= 1:
+            return self.v[a - 1:b - 1]
+        return np.concatenate(([self.first], self.v[:max(b - 1, 0)]))

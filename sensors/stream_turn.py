@@ -73,4 +73,7 @@ class SlipRows:
         """analog[line] += rms P(theta) n(t) for every line of ``rngs``, P computed once for the piece."""
         P = self.eff.profile(spin_angle) * self.eff.rms_V
         for line, rng in self.rngs.items():
-            analog[line] = analog[line] + P * rng.standard_normal(P.size)
+            n = rng.standard_normal(P.size)
+            n *= P                   # P n, then v + P n: the same operations as v + P * n, no temporaries
+            n += analog[line]
+            analog[line] = n
