@@ -24,7 +24,7 @@ from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.figure_process import FigureProcess
-from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
+from imurig.reports.common import md_figures_and_run, md_table, published_figures
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -127,9 +127,12 @@ def _fig_arm(out, arm: dict):
     return "fig_arm_accelerometer.png"
 
 
-#: the arm study's results its figure reads (:func:`_fig_arm`)
-ARM_FIGURE_KEYS = ("f_ref_m_s2", "residual_linear_m_s2", "residual_quadratic_m_s2", "sigma_res_linear",
-                   "sigma_res_quadratic", "radius_m")
+def _rrd(out, rec, res, rows):
+    """campaign.rrd (:func:`imurig.reports.turn_table_rrd.write_rrd`) from the record's rows ``rows``."""
+    from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
+
+    write_rrd(out.file("campaign.rrd"), rec, res, rows=rows)
+    return "campaign.rrd"
 
 
 def _fig_simona(out, real, virt):
@@ -264,38 +267,38 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             for c in (res["main"], res["seed_final"]):
                 c.windows_ = res["windows"]
             sim.rec = None
-            # the figures in a forked process (forked before the studies' thread starts: it draws beside the .rrd
-            # writer and the studies, matplotlib and they would take turns on the interpreter lock in threads)
+            # the campaign's figures and the .rrd in a forked process (forked before the studies' thread starts),
+            # beside the studies and their figures here: in threads, matplotlib, the .rrd writer and the studies
+            # would take turns on the interpreter lock
             stage("figures")
-            figures = FigureProcess(out, [("residuals", _fig_residuals, (res,)), ("slip_rings", _fig_slip_ring, (sim.fig,)),
-                                          ("truth_z", _fig_z, (res["parameters"],))])
+            jobs = [("residuals", _fig_residuals, (res,)), ("slip_rings", _fig_slip_ring, (sim.fig,)),
+                    ("truth_z", _fig_z, (res["parameters"],))] + ([("rrd", _rrd, (rec, res, sim.rows))] if rrd else [])
+            figures = FigureProcess(out, jobs)
             try:
                 pending = pool.submit(_studies, camp) if studies else None
                 out.write_json("calibration.json", res["main"].to_dict())
                 files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
                 if save_recording:
                     files["recording"] = "recording.h5"
-                from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
-
-                def rrd_writer(path, rec_, res_):
-                    write_rrd(path, rec_, res_, rows=sim.rows)
-
-                files.update(save_products(out, rec, res, rrd_writer, False, rrd, stage))
                 n_samples = sim.n
                 del sim
+                if rrd:
+                    stage("campaign.rrd")   # written by the figure process, beside the studies
                 ts = arm = simona = None
                 if studies:
                     stage("studies")
                     ts, arm, simona, (real, virt) = pending.result()
-                    # what the study figures read, pickled to the figure process
-                    figures.draw("simona", _fig_simona, real, virt)
-                    figures.draw("timers", _fig_timers, {"timers": {k: {f: t[f] for f in ("rate_dps", "residual_dps")}
-                                                                    for k, t in ts["timers"].items()}})
-                    figures.draw("arm", _fig_arm, {k: arm[k] for k in ARM_FIGURE_KEYS})
+                    # the study figures here, while the figure process writes the .rrd
+                    later = {"simona": _fig_simona(out, real, virt), "timers": _fig_timers(out, ts),
+                             "arm": _fig_arm(out, arm)}
             except BaseException:
                 figures.cancel()
                 raise
             figs = figures.wait()
+            if rrd:
+                files["rrd"] = figs.pop("rrd")
+            if studies:
+                figs.update(later)
             files.update({f"figure_{k}": v for k, v in figs.items()})
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),
