@@ -54,14 +54,20 @@ class FigureProcess:
         if self.child is None:
             return self.figs
         self._jobs.close()
-        try:
-            figs = self._answer.recv()
-        except EOFError:
-            figs = "the figure process ended without an answer"
-        self.child.join()
-        if not isinstance(figs, dict) or self.child.exitcode:
-            raise RuntimeError(f"drawing the figures failed: {figs}")
-        return figs
+        return answer(self.child, self._answer)
+
+
+def answer(child, conn) -> dict:
+    """The figures a figure process ``child`` sends on ``conn`` (name -> file), after it ends; a RuntimeError
+    with its message if it failed or ended without an answer."""
+    try:
+        figs = conn.recv()
+    except EOFError:
+        figs = "the figure process ended without an answer"
+    child.join()
+    if not isinstance(figs, dict) or child.exitcode:
+        raise RuntimeError(f"drawing the figures failed: {figs}")
+    return figs
 
 
 def _child(jobs, parent_end, send, out, first) -> None:
