@@ -43,7 +43,7 @@ from imurig.sensors.effects.base import ChainContext
 from imurig.sensors.effects.building_vibration import working_mask
 from imurig.sensors.gyro import AXES as GYRO_AXES
 from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
-from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts
+from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts, scaled_profile
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
 STREAM_CHUNK = 1 << 16
@@ -304,8 +304,11 @@ def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleN
             lines[name] = sensor.voltage(T, rngs[name])
     for line in run.meta.get("analog_lines", []):
         lines[line] = ts[line]
+    # the slip rings' profile over the piece (no draws): made here, ahead, for the back's noise
+    slip = scaled_profile(lab.slip_rings, ts["spin_angle"]) if lab.slip_rings.enabled and "spin_angle" in ts \
+        else None
     return SimpleNamespace(a=a, b=b, t=t, truth=ts, channels=run.channel_rows(a, b), f_dist=f_dist, T=T,
-                           lines=lines, slope_src=slope_src, noise=nz)
+                           lines=lines, slope_src=slope_src, noise=nz, slip_profile=slip)
 
 
 def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
@@ -332,7 +335,7 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
             if f"gyro_{x}" in analog:
                 analog[f"gyro_{x}"] = analog[f"gyro_{x}"] + nz[:, j]
     if noise.slip is not None:
-        noise.slip.add(analog, cur.truth["spin_angle"])
+        noise.slip.add(analog, cur.truth["spin_angle"], cur.slip_profile)
     if noise.cable is not None:
         analog[lab.cable.channel] = analog[lab.cable.channel] + noise.cable.rows(cur.t.size)
     return _convert(lab.adc, analog, slope, rng, state)
@@ -366,8 +369,8 @@ def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
     last = adc.scan_list[-1]
     ext = state.last_in is not None
     if ext:  # one leading row: the previous piece's last scan (only slot 0's crosstalk reads it)
-        analog = {k: np.concatenate(([state.last_in[0]] if k == last else [0.0], v)) for k, v in analog.items()}
-        slope = {k: np.concatenate(([0.0], v)) for k, v in slope.items()}
+        analog = {k: _Lead(v, state.last_in[0] if k == last else 0.0) for k, v in analog.items()}
+        slope = {k: _Lead(v, 0.0) for k, v in slope.items()}
         common = np.concatenate(([state.last_in[1]], common))
     a, b = int(ext), int(ext) + m
     out, held = {}, None
@@ -379,5 +382,19 @@ def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
         out[name] = adc._convert_rows(j, name, a, b, analog, common, slope, held, held_next, rng, state.saturated,
                                       codes=True)
         held = held_next
-    state.last_in = (analog[last][-1], common[-1])
+    state.last_in = ((analog[last].v if ext else analog[last])[-1], common[-1])
     return out
+
+
+class _Lead:
+    """The array ``v`` with one leading value ``first`` before it, for slicing [a:b] (row 0: ``first``)
+    without copying ``v``: rows [a, b) with a >= 1 are the view v[a-1:b-1]."""
+
+    def __init__(self, v: np.ndarray, first: float):
+        self.v, self.first = v, first
+
+    def __getitem__(self, s: slice) -> np.ndarray:
+        a, b = s.start or 0, self.v.size + 1 if s.stop is None else s.stop
+        if a >= 1:
+            return self.v[a - 1:b - 1]
+        return np.concatenate(([self.first], self.v[:max(b - 1, 0)]))

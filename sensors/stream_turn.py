@@ -62,6 +62,12 @@ def block_starts(t: np.ndarray, t_prev: float | None, fs: float) -> list[int]:
     return out + [int(i) + 1 for i in np.flatnonzero(np.diff(t) > 1.5 / fs)]
 
 
+def scaled_profile(eff, spin_angle: np.ndarray) -> np.ndarray:
+    """rms P(theta) of the slip rings ``eff`` over a piece's table angles (no draws: the streamed chain makes
+    it ahead, with the piece's rig rows)."""
+    return eff.profile(spin_angle) * eff.rms_V
+
+
 @dataclass
 class SlipRows:
     """The slip rings' contact noise on each IMU line, piece by piece (module doc)."""
@@ -69,8 +75,13 @@ class SlipRows:
     eff: object              # SlipRingNoise
     rngs: dict               # line -> its generator ("slip_<line>")
 
-    def add(self, analog: dict, spin_angle: np.ndarray) -> None:
-        """analog[line] += rms P(theta) n(t) for every line of ``rngs``, P computed once for the piece."""
-        P = self.eff.profile(spin_angle) * self.eff.rms_V
+    def add(self, analog: dict, spin_angle: np.ndarray, P: np.ndarray | None = None) -> None:
+        """analog[line] += rms P(theta) n(t) for every line of ``rngs``, P (:func:`scaled_profile`) computed
+        once for the piece (or given)."""
+        if P is None:
+            P = scaled_profile(self.eff, spin_angle)
         for line, rng in self.rngs.items():
-            analog[line] = analog[line] + P * rng.standard_normal(P.size)
+            n = rng.standard_normal(P.size)
+            n *= P                   # P n, then v + P n: the same operations as v + P * n, no temporaries
+            n += analog[line]
+            analog[line] = n

@@ -30,6 +30,7 @@ from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
+from imurig.reports.figure_process import answer
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""
@@ -323,14 +324,7 @@ class _FiguresBeside:
         """The figures drawn: name -> file (raises if the drawing failed)."""
         if self.child is None:
             return self.figs
-        try:
-            figs = self._figs.recv()
-        except EOFError:
-            figs = "the figure process ended without an answer"
-        self.child.join()
-        if not isinstance(figs, dict) or self.child.exitcode:
-            raise RuntimeError(f"drawing the figures failed: {figs}")
-        return figs
+        return answer(self.child, self._figs)
 
 
 def _draw(fits, give, send, out: OutputFolder, rec100: Recording) -> None:

@@ -23,7 +23,8 @@ from imurig.campaigns.turn_table import (TIMERS, Z_BOUND, TurnTableCampaign, arm
 from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
-from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
+from imurig.reports.figure_process import FigureProcess
+from imurig.reports.common import md_figures_and_run, md_table, published_figures
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -124,6 +125,19 @@ def _fig_arm(out, arm: dict):
     fig.savefig(out.file("fig_arm_accelerometer.png"), dpi=110)
     plt.close(fig)
     return "fig_arm_accelerometer.png"
+
+
+def _rrd(out, rec, res, rows):
+    """campaign.rrd (:func:`imurig.reports.turn_table_rrd.write_rrd`) from the record's rows ``rows``."""
+    from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
+
+    write_rrd(out.file("campaign.rrd"), rec, res, rows=rows)
+    return "campaign.rrd"
+
+
+def _fig_simona(out, real, virt):
+    plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
+    return "fig_4_19_simona.png"
 
 
 def _param_table(params) -> str:
@@ -253,33 +267,38 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             for c in (res["main"], res["seed_final"]):
                 c.windows_ = res["windows"]
             sim.rec = None
-            pending = pool.submit(_studies, camp) if studies else None
-            figs = {}
-            # the campaign's own figures and .rrd first: then its record is let go before the studies simulate theirs
+            # the campaign's figures and the .rrd in a forked process (forked before the studies' thread starts),
+            # beside the studies and their figures here: in threads, matplotlib, the .rrd writer and the studies
+            # would take turns on the interpreter lock
             stage("figures")
-            figs["residuals"] = _fig_residuals(out, res)
-            figs["slip_rings"] = _fig_slip_ring(out, sim.fig)
-            figs["truth_z"] = _fig_z(out, res["parameters"])
-            out.write_json("calibration.json", res["main"].to_dict())
-            files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
-            if save_recording:
-                files["recording"] = "recording.h5"
-            from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
-
-            def rrd_writer(path, rec_, res_):
-                write_rrd(path, rec_, res_, rows=sim.rows)
-
-            files.update(save_products(out, rec, res, rrd_writer, False, rrd, stage))
-            n_samples = sim.n
-            del sim
-            ts = arm = simona = None
+            jobs = [("residuals", _fig_residuals, (res,)), ("slip_rings", _fig_slip_ring, (sim.fig,)),
+                    ("truth_z", _fig_z, (res["parameters"],))] + ([("rrd", _rrd, (rec, res, sim.rows))] if rrd else [])
+            figures = FigureProcess(out, jobs)
+            try:
+                pending = pool.submit(_studies, camp) if studies else None
+                out.write_json("calibration.json", res["main"].to_dict())
+                files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
+                if save_recording:
+                    files["recording"] = "recording.h5"
+                n_samples = sim.n
+                del sim
+                if rrd:
+                    stage("campaign.rrd")   # written by the figure process, beside the studies
+                ts = arm = simona = None
+                if studies:
+                    stage("studies")
+                    ts, arm, simona, (real, virt) = pending.result()
+                    # the study figures here, while the figure process writes the .rrd
+                    later = {"simona": _fig_simona(out, real, virt), "timers": _fig_timers(out, ts),
+                             "arm": _fig_arm(out, arm)}
+            except BaseException:
+                figures.cancel()
+                raise
+            figs = figures.wait()
+            if rrd:
+                files["rrd"] = figs.pop("rrd")
             if studies:
-                stage("studies")
-                ts, arm, simona, (real, virt) = pending.result()
-                plot_fig_4_19(out.file("fig_4_19_simona.png"), real, virt)
-                figs["simona"] = "fig_4_19_simona.png"
-                figs["timers"] = _fig_timers(out, ts)
-                figs["arm"] = _fig_arm(out, arm)
+                figs.update(later)
             files.update({f"figure_{k}": v for k, v in figs.items()})
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),

@@ -1,0 +1,93 @@
+"""Figures drawn in a forked process (a second core) while this process writes the .rrd and runs studies.
+
+matplotlib holds the interpreter lock while it draws: in a thread it would take turns with the .rrd
+writer and the studies; in a forked child it runs beside them. The child starts with what the parent
+had at the fork (the fits, the records: nothing pickled) and draws jobs in the order they are given;
+later jobs (a study's results) are sent over a pipe. Where fork is not available, each job is drawn here
+when it is given.
+
+    figures = FigureProcess(out, [("residuals", _fig_residuals, (res,))])  # fork: the child has res
+    ...                                     # the .rrd, the studies
+    figures.draw("timers", _fig_timers, ts) # a study's results: pickled to the child
+    files = figures.wait()                  # name -> file; raises if a figure failed
+"""
+from __future__ import annotations
+
+import multiprocessing
+
+
+class FigureProcess:
+    """A forked child that draws figure jobs ``fn(out, *args) -> file name`` (module doc): ``first``, the
+    jobs (name, fn, args) it has from the fork, then those given to :meth:`draw`."""
+
+    def __init__(self, out, first=()):
+        self.out, self.child, self.figs = out, None, {}
+        if "fork" not in multiprocessing.get_all_start_methods():
+            for name, fn, args in first:
+                self.draw(name, fn, *args)
+            return
+        ctx = multiprocessing.get_context("fork")
+        jobs, self._jobs = ctx.Pipe(duplex=False)
+        self._answer, send = ctx.Pipe(duplex=False)
+        self.child = ctx.Process(target=_child, args=(jobs, self._jobs, send, out, list(first)),
+                                 daemon=True)
+        self.child.start()
+        send.close()
+        jobs.close()
+
+    def draw(self, name: str, fn, *args) -> None:
+        """Draw ``fn(out, *args)`` (a module-level function returning the file it wrote) as figure ``name``."""
+        if self.child is None:
+            self.figs[name] = fn(self.out, *args)
+        else:
+            self._jobs.send((name, fn, args))
+
+    def cancel(self) -> None:
+        """No more figures (an error in the parent): the child ends on the closed pipe."""
+        if self.child is not None:
+            self._jobs.close()
+            self.child.join()
+            self.child = None
+
+    def wait(self) -> dict:
+        """The figures drawn: name -> file (raises if drawing failed)."""
+        if self.child is None:
+            return self.figs
+        self._jobs.close()
+        return answer(self.child, self._answer)
+
+
+def answer(child, conn) -> dict:
+    """The figures a figure process ``child`` sends on ``conn`` (name -> file), after it ends; a RuntimeError
+    with its message if it failed or ended without an answer."""
+    try:
+        figs = conn.recv()
+    except EOFError:
+        figs = "the figure process ended without an answer"
+    child.join()
+    if not isinstance(figs, dict) or child.exitcode:
+        raise RuntimeError(f"drawing the figures failed: {figs}")
+    return figs
+
+
+def _child(jobs, parent_end, send, out, first) -> None:
+    parent_end.close()   # the parent's end, copied by the fork: closed here, so the parent closing it ends recv()
+    figs = {}
+    try:
+        import matplotlib  # loaded while the parent works
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot  # noqa: F401
+        for name, fn, args in first:
+            figs[name] = fn(out, *args)
+        while True:
+            try:
+                name, fn, args = jobs.recv()
+            except EOFError:   # the parent's last job given (or the parent stopped)
+                break
+            figs[name] = fn(out, *args)
+        send.send(figs)
+    except Exception as e:  # reported by the parent, which fails the run
+        send.send(f"{type(e).__name__}: {e}")
+    finally:
+        send.close()

@@ -1,0 +1,57 @@
+"""imurig.reports.figure_process: figure jobs drawn in a forked child, in order, with their errors reported."""
+from __future__ import annotations
+
+import multiprocessing
+
+import pytest
+
+from imurig.kernel.outputs import OutputFolder
+from imurig.reports.figure_process import FigureProcess
+
+
+def _write(out, name, text):
+    """A 'figure': a text file (the child writes it into the parent's folder)."""
+    out.file(name).write_text(text)
+    return name
+
+
+def _fail(out, *_):
+    raise ValueError("no data to draw")
+
+
+@pytest.mark.parametrize("fork", [True, False])
+def test_jobs_from_the_fork_and_the_pipe_are_drawn_in_order(tmp_path, monkeypatch, fork):
+    if not fork:   # where fork is missing, the jobs are drawn in this process as they are given
+        monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
+    elif "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    big = list(range(100_000))   # the child has it from the fork (a local: it could not be pickled by reference)
+    with OutputFolder(tmp_path / "out") as out:
+        figures = FigureProcess(out, [("a", _write, ("a.txt", str(len(big)))), ("b", _write, ("b.txt", "b"))])
+        assert (figures.child is not None) == fork
+        figures.draw("c", _write, "c.txt", "given later")
+        figs = figures.wait()
+    assert list(figs) == ["a", "b", "c"]
+    assert (tmp_path / "out" / "a.txt").read_text() == "100000"
+    assert (tmp_path / "out" / "c.txt").read_text() == "given later"
+
+
+def test_a_failing_figure_fails_the_wait(tmp_path):
+    if "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    out = OutputFolder(tmp_path / "out")
+    with pytest.raises(RuntimeError, match="ValueError: no data to draw"):
+        with out:
+            figures = FigureProcess(out, [("a", _write, ("a.txt", "a"))])
+            figures.draw("b", _fail)
+            figures.wait()
+
+
+def test_cancel_ends_the_child(tmp_path):
+    if "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    with OutputFolder(tmp_path / "out") as out:
+        figures = FigureProcess(out)
+        child = figures.child
+        figures.cancel()
+        assert not child.is_alive() and figures.wait() == {}
