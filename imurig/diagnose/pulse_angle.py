@@ -62,6 +62,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize
 
+from imurig.diagnose.gyro_samples import GyroSamples
 from imurig.diagnose.pulse_timer import N_SIM, SETTLE_S, _bracket, timer_finding
 
 #: the table's rate at a pulse: the gyro averaged this long around it (s)
@@ -91,34 +92,6 @@ def chain(t_s: np.ndarray, u_V: np.ndarray, t_pulse: np.ndarray, start_s, stop_s
     ``MAX_TURN_ERROR``). Returns {N, G1, G2, t, omega (turns/s), a0 (turns per V s), b0 (V), groups,
     sigma_u (V), segments [(start, stop)]}; ``groups``: per plateau the index of its settled pulses."""
     return chain_from(GyroSamples(t_s, u_V), t_pulse, start_s, stop_s, dial)
-
-
-class GyroSamples:
-    """What :func:`chain_from` reads of the gyro's samples u at times t (in memory; a streamed record's
-    reader, :class:`imurig.diagnose.turn_record.StreamedTurn`, gives the same values from a file):
-    ``dt`` = median(diff(t)); :meth:`window` u[i0:i1] with (i0, i1) = searchsorted(t, (a, b));
-    :meth:`integrals` G1, G2 (module doc, trapezoids) at times ``tp`` by np.interp; :meth:`sums`
-    cs[i + h] - cs[i - h], cs the running sum of u from 0, i = clip(searchsorted(t, tp), h, n - h)."""
-
-    def __init__(self, t_s: np.ndarray, u_V: np.ndarray):
-        self.t, self.u = np.asarray(t_s, float), np.asarray(u_V, float)
-        self.dt = float(np.median(np.diff(self.t)))
-
-    def window(self, a: float, b: float) -> np.ndarray:
-        i0, i1 = np.searchsorted(self.t, [a, b])
-        return self.u[i0:i1]
-
-    def integrals(self, tp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        t, u = self.t, self.u
-        dtv = np.diff(t)
-        G1 = np.concatenate([[0.0], np.cumsum(0.5 * (u[1:] + u[:-1]) * dtv)])
-        G2 = np.concatenate([[0.0], np.cumsum(0.5 * (u[1:] ** 2 + u[:-1] ** 2) * dtv)])
-        return np.interp(tp, t, G1), np.interp(tp, t, G2)
-
-    def sums(self, tp: np.ndarray, h: int) -> np.ndarray:
-        idx = np.clip(np.searchsorted(self.t, tp), h, self.t.size - h)
-        cs = np.concatenate([[0.0], np.cumsum(self.u)])
-        return cs[idx + h] - cs[idx - h]
 
 
 def chain_from(g, t_pulse: np.ndarray, start_s, stop_s, dial) -> dict | None:

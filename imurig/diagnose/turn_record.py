@@ -26,7 +26,7 @@ import numpy as np
 
 from imurig.calibration.gyro import round_windows, timer_pulses
 from imurig.calibration.stream_filter import PIECE_ROWS
-from imurig.diagnose.pulse_angle import GyroSamples
+from imurig.diagnose.gyro_samples import GyroSamples
 from imurig.diagnose.pulse_timer import edge_times
 from imurig.diagnose.raw_record import StreamedRaw
 from imurig.diagnose.samples import adc_step, raw_channel_tests
@@ -269,7 +269,7 @@ class StreamedTurn:
 
 
 class StreamedGyro:
-    """:class:`imurig.diagnose.pulse_angle.GyroSamples` of a file's channel ``ch`` times ``sign``, in row pieces."""
+    """:class:`imurig.diagnose.gyro_samples.GyroSamples` of a file's channel ``ch`` times ``sign``, in row pieces."""
 
     def __init__(self, f: FileRecord, ch: str, sign: float, piece: int):
         self.f, self.ch, self.sign, self.piece, self.dt = f, ch, float(sign), piece, f.dt
