@@ -16,6 +16,7 @@ from imurig.reports.turn_table import analyse
 from imurig.reports.turn_table_rrd import block_means, calibrated_block_means
 from imurig.rigs.turn_table import TurnTable, TurnTableProtocol
 from imurig.sensors.stream import STREAM_CHUNK
+from h5_layout import assert_same_header_and_layout
 
 # ~177k samples: three pieces, ramps (MuJoCo rows), holds (closed form) and two remount gaps
 SMALL = TurnTableProtocol(dial_rates_dps=(40, 100), min_window_s=2.0, settle_s=1.0)
@@ -59,15 +60,7 @@ def test_streamed_h5_is_what_save_h5_writes(streamed, tmp_path):
             assert np.array_equal(a[k], b[k]), (group, k)
     save_h5(rec, tmp_path / "ref.h5")
     with h5py.File(path) as a, h5py.File(tmp_path / "ref.h5") as b:
-        for k in ("format", "version", "meta", "truth"):
-            assert a.attrs[k] == b.attrs[k], k
-
-        def layout(f):
-            out = {}
-            f.visititems(lambda n, o: out.update({n: (o.dtype.str, sorted(o.attrs.items()))})
-                         if isinstance(o, h5py.Dataset) else None)
-            return out
-        assert layout(a) == layout(b)
+        assert_same_header_and_layout(a, b)
 
 
 @pytest.mark.parametrize("timer", ["hp6700", "adc"])
