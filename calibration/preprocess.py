@@ -269,9 +269,27 @@ def segment_statistic(rec: Recording, names, statistic: str = "median", source: 
     if not rec.n_segments:
         raise RecordingError("the recording has no segments (set-point windows); add a 'segment' column "
                              "or name the set-point columns in the '# setpoints:' metadata")
+    if not hasattr(rec, "channels"):            # a FileRecord (imurig.kernel.filerecord): one segment at a time
+        if source != "channels":
+            raise ValueError("a file record's segment statistics are of its channels (source='channels')")
+        return _segment_statistic_rows(rec, names, statistic)
     data = rec.channels if source == "channels" else rec.truth_signals
     return _memo(("statistic", statistic, source), rec, data, names,
                  lambda: _segment_statistic(rec, data, names, statistic))
+
+
+def _segment_statistic_rows(rec, names, statistic: str) -> np.ndarray:
+    """:func:`_segment_statistic` of a record read in row ranges (``rec.read(name, a, b)``): each
+    segment's window is read alone, so the memory is one window's, not the recording's."""
+    fn = _statistic_fn(statistic, {"std": np.std})
+    out = np.empty((rec.n_segments, len(names)))
+    for i, s in enumerate(rec.segment_slices()):
+        if s.stop - s.start < 1:
+            raise RecordingError(f"segment {i} ({rec.segments['start_s'][i]:.3f}-{rec.segments['stop_s'][i]:.3f} s)"
+                                 " holds no samples; check the segment times against time_s")
+        x = np.stack([rec.read(n, s.start, s.stop) for n in names], axis=1)
+        out[i] = fn(x[None], axis=1)[0] if statistic in STACKED else fn(x, axis=0)
+    return out
 
 
 def _segment_statistic(rec: Recording, data, names, statistic: str) -> np.ndarray:

@@ -55,7 +55,9 @@ def step_table(rec: Recording, source: str = "channels", channels=None) -> dict:
             raise RecordingError(f"thermal recordings need the segment column '{col}' (attitude per window)")
     work = rec if channels is None else rec.replace(channels={**rec.channels, **channels},
                                                      units={**rec.units, **{k: "V" for k in channels}})
-    names = [c for c in ACC + GYRO + TEMP_ACC + ("temp_box",) if c in work.channels]
+    # a Recording, or a FileRecord read one window at a time (the diagnosis streams the file)
+    have = work.channels if hasattr(work, "channels") else work.channel_names
+    names = [c for c in ACC + GYRO + TEMP_ACC + ("temp_box",) if c in have]
     med = segment_statistic(work, names, "median")
     col = {n: med[:, k] for k, n in enumerate(names)}
     steps = np.unique(seg["step"])

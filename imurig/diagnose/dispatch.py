@@ -25,7 +25,7 @@ TWIN_OPTIONS = {"tilt_table": {"twin_model", "dynamics", "skew_in_twin"}, "turn_
                 "thermal": set(), "rate_table_rows": set(), "magnetometer": {"twin_model"}}
 
 #: the kinds whose diagnosis reads a FileRecord in row ranges (the others load it whole)
-STREAMED = ("tilt_table", "turn_table")
+STREAMED = ("tilt_table", "turn_table", "thermal")
 
 
 def record_kind(rec: Recording) -> str:
@@ -73,9 +73,10 @@ def diagnose(rec: Recording, seed: int = 0, twin_model: str | None = None, earth
     ``twin_model``, default 'physical'; the slews too), turn-table recordings (twin with or without
     the Earth's rate), thermal-chamber recordings, turn-table row recordings (appendix B) and
     magnetometer recordings (twin 'nominal' or 'calibrated'). Options: :func:`twin_options`.
-    A tilt-table or turn-table ``rec`` may be a :class:`imurig.kernel.filerecord.FileRecord` (read in
-    row ranges, :mod:`imurig.diagnose.raw_record`, :mod:`imurig.diagnose.turn_record`); the other kinds
-    take a loaded Recording."""
+    A tilt-table, turn-table or thermal ``rec`` may be a :class:`imurig.kernel.filerecord.FileRecord`
+    (read in row ranges, :mod:`imurig.diagnose.raw_record`, :mod:`imurig.diagnose.turn_record`; a
+    thermal one a segment window at a time, :func:`imurig.calibration.preprocess.segment_statistic`);
+    the other kinds are loaded whole after a memory check."""
     kind = record_kind(rec)
     o = twin_options(rec, twin, twin_model=twin_model, earth_rate=earth_rate)
     if isinstance(rec, FileRecord) and kind not in STREAMED:
