@@ -100,3 +100,17 @@ def test_a_thermal_profile_with_too_few_steps_is_refused_before_simulating(tmp_p
     err = capsys.readouterr().err
     assert "5 temperature steps" in err and "--cycles" in err and "Traceback" not in err
     assert not (tmp_path / "t").exists()
+
+
+@pytest.mark.parametrize("command", ["diagnose", "info", "calibrate"])
+@pytest.mark.parametrize("what", ["missing.csv", "missing.h5", "folder.csv"])
+def test_a_missing_file_or_a_folder_is_named_not_a_traceback(command, what, tmp_path, capsys):
+    """A path that is not a readable file: one line that names it, exit 2, no report folder."""
+    path = tmp_path / what
+    if what.startswith("folder"):
+        path.mkdir()
+    argv = [command, str(path)] + ([] if command == "info" else ["--out", str(tmp_path / "o")])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and err.startswith("imurig: error:") and "Traceback" not in err
+    assert not (tmp_path / "o").exists()

@@ -89,6 +89,11 @@ def main(argv=None) -> int:
     except ImurigError as e:
         print(f"imurig: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a file the system refuses (missing, a folder, no permission, disk full): a message
+        where = f" {e.filename}" if e.filename else ""
+        print(f"imurig: error: cannot use{where}: {e.strerror or e}; check the path and its permissions",
+              file=sys.stderr)
+        return 2
     except MemoryError as e:  # an allocation refused (numpy's _ArrayMemoryError is one): a message, not a traceback
         print(f"imurig: error: out of memory ({e}); cut the recording (e.g. per run) or lower its sample rate",
               file=sys.stderr)

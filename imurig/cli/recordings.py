@@ -250,6 +250,8 @@ def _open_for_diagnosis(a):
 
 
 def _is_appendix_b(path) -> bool:
+    if not Path(path).is_file():          # missing or a folder: the loader below says so
+        return False
     with open(path, encoding="utf-8", errors="replace") as fh:
         for line in fh:
             if not line.startswith("#"):
