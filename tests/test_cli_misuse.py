@@ -114,3 +114,16 @@ def test_a_missing_file_or_a_folder_is_named_not_a_traceback(command, what, tmp_
     err = capsys.readouterr().err
     assert str(path) in err and err.startswith("imurig: error:") and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("sep, says", [(";", "separated by ';'"), ("\t", "separated by a tab")])
+@pytest.mark.parametrize("command", ["diagnose", "info"])
+def test_a_file_separated_by_other_than_commas_says_so(sep, says, command, tmp_path, capsys):
+    """European spreadsheets save ';'-separated 'CSV', loggers tab-separated: the message names the separator."""
+    path = tmp_path / "lab.csv"
+    path.write_text("# rig: tilt_table\n" + sep.join(["time_s", "acc_x_V", "theta_deg", "phi_deg"]) + "\n"
+                    + "".join(sep.join([f"{i * 1e-3:.3f}", "0,1", "0", "0"]) + "\n" for i in range(5)))
+    argv = [command, str(path)] + ([] if command == "info" else ["--out", str(tmp_path / "o")])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert says in err and "Traceback" not in err and not (tmp_path / "o").exists()

@@ -100,6 +100,11 @@ def read_csv(path, rig: str | None = None, site=None, pulse_channel: str | None 
         if m:
             raise RecordingError(f"{path}: data row {int(m[3]) + 1} has {m[2]} values, the rows before it "
                                  f"{m[1]}; every row needs one value per header name (a cut-off last line?)") from None
+        sep = next((name for ch, name in ((";", "';'"), ("\t", "a tab")) if ch in "".join(header) + str(exc)), None)
+        if sep:
+            raise RecordingError(f"{path}: the values are separated by {sep}; imurig reads comma-separated "
+                                 "values with '.' as decimal point: save the file as CSV with ',' between "
+                                 "values (and '.' in numbers)") from None
         raise RecordingError(f"{path}: a value is not a number ({exc}); use '.' as decimal point and "
                              "'nan' for missing values") from None
     if data.size == 0:
