@@ -98,9 +98,11 @@ class DAQ6036E:
         tau = (self.channel_settling_tau_s or {}).get(name, self.settling_tau_s)
         return AdcCrosstalk(settling_tau_s=tau, enabled=self.crosstalk_enabled)
 
-    def slow_tails(self, analog: dict, common: np.ndarray) -> dict:
+    def slow_tails(self, analog: dict, common: np.ndarray, idle_first: float | None = None) -> dict:
         """{channel: (its AdcSlowSettling, r (n,) V)} for the channels with a slow tail: r from the inputs of the
-        slots before it in the scan (grounded slots 0 V) and the previous scan's last slot as the idle input."""
+        slots before it in the scan (grounded slots 0 V) and the previous scan's last slot as the idle input.
+        Row 0's previous scan: ``idle_first`` (V, the last slot's input, common mode included; a piece of a
+        streamed record), else row 0's own (the record's first scan)."""
         out = {}
         for name, (alpha, tau_s) in (self.channel_slow_settling or {}).items():
             tail = AdcSlowSettling(alpha=float(alpha), tau_s=float(tau_s))
@@ -112,7 +114,7 @@ class DAQ6036E:
             if self.ground_between:
                 before.append(None)   # the grounded slot before the scan's first channel
             last = analog[self.scan_list[-1]] + common
-            idle = np.concatenate((last[:1], last[:-1]))
+            idle = np.concatenate((last[:1] if idle_first is None else [idle_first], last[:-1]))
             out[name] = (tail, tail.reservoir(before, idle, self.mux_frequency_hz))
         return out
 

@@ -23,8 +23,10 @@ chain takes some band by band or channel by channel over the whole record, other
 so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
-arm's terms, a thermal chamber, pump vibration in working hours, the lab's own effects, GRSE hum,
-averaged logging. A loose cable's spikes (analog stage, on its one line) stream, their
+arm's terms, a thermal chamber, pump vibration in working hours, the lab's analog-stage effects (a
+persistent cable fault), GRSE hum, averaged logging. The lab's own specific-force effects stream through
+:mod:`imurig.sensors.stream_force`; a converter line's slow settling tail row by row (its idle input at a
+piece's first row: the previous piece's last scan). A loose cable's spikes (analog stage, on its one line) stream, their
 rectangles carried across pieces (:class:`_Cable`).
 """
 from __future__ import annotations
@@ -43,6 +45,7 @@ from imurig.sensors.effects.base import ChainContext
 from imurig.sensors.effects.building_vibration import working_mask
 from imurig.sensors.gyro import AXES as GYRO_AXES
 from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
+from imurig.sensors.stream_force import LabForce, unsupported_effects
 from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts, scaled_profile
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
@@ -63,8 +66,9 @@ def unsupported(lab, run) -> str | None:
     :class:`imurig.rigs.turn_run.TurnRun`), or None."""
     adc = lab.adc
     scan = set(adc.scan_list)
-    if lab.effects:
-        return "the lab's own effects"
+    bad = unsupported_effects(lab.effects)
+    if bad:
+        return "the lab effect(s) " + ", ".join(bad)
     if lab.cable.enabled and lab.cable.channel not in scan:
         return "a loose cable on a line that is not scanned"
     if "T_air" in run.truth_units:
@@ -75,8 +79,6 @@ def unsupported(lab, run) -> str | None:
         return "averaged logging or a converter of more than 16 bits"
     if adc.grounding == "GRSE" and adc.ground_loop_V > 0:
         return "GRSE mains hum"
-    if adc.channel_slow_settling:
-        return "a converter line's slow settling tail"
     if any(line not in run.truth_units for line in run.meta.get("analog_lines", [])):
         return "an analog line the rig does not give"
     if lab.pump.enabled and _pump_on(lab.pump, run):
@@ -211,6 +213,8 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     acc = lab.accelerometers
     scan = adc.scan_list
     people = _People(lab.people, fs, child_rng(seed, lab.people.stream) if lab.people.enabled else None)
+    if lab.effects:     # the lab's own specific-force effects after the people transients (sensors/stream_force.py)
+        people = LabForce(people, lab.effects, run, seed, lambda t: _hours(start, t, t0), STREAM_CHUNK)
     noise = _Noise(sampled_bands(acc.current_noise(averaged=bool(run.meta.get("averaged_logging"))).bands, fs,
                                  bool(run.meta.get("averaged_logging"))) if acc.noise_enabled else [],
                    fs, child_rng(seed, "accelerometers"))
@@ -372,6 +376,12 @@ def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
         analog = {k: _Lead(v, state.last_in[0] if k == last else 0.0) for k, v in analog.items()}
         slope = {k: _Lead(v, 0.0) for k, v in slope.items()}
         common = np.concatenate(([state.last_in[1]], common))
+    # a slow settling tail (a line's memory of the slots before it; row 0's idle input: the last scan before)
+    tails = adc.slow_tails({k: (v.v if ext else v) for k, v in analog.items()},
+                           common[int(ext):], sum(state.last_in) if ext else None) \
+        if adc.channel_slow_settling else {}
+    if ext:
+        tails = {k: (e, _Lead(r, 0.0)) for k, (e, r) in tails.items()}
     a, b = int(ext), int(ext) + m
     out, held = {}, None
     for j, name in enumerate(adc.scan_list):
@@ -380,7 +390,7 @@ def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
             adc.channel_crosstalk(nxt).coefficient(adc.mux_frequency_hz) > 0
         held_next = np.empty(b) if keep else None
         out[name] = adc._convert_rows(j, name, a, b, analog, common, slope, held, held_next, rng, state.saturated,
-                                      codes=True)
+                                      tails.get(name), codes=True)
         held = held_next
     state.last_in = ((analog[last].v if ext else analog[last])[-1], common[-1])
     return out
