@@ -2,6 +2,7 @@
 imurig.sensors.stream): piece by piece, the whole-record values; the "Delft 2005" lab streams."""
 from __future__ import annotations
 
+from functools import partial
 from types import SimpleNamespace
 
 import numpy as np
@@ -15,7 +16,7 @@ from imurig.sensors.effects.transformer_hum import TransformerHum
 from imurig.sensors.effects.vibration_rectification import VibrationRectification, rectified_offset
 from imurig.sensors.effects.warm_up import WarmUp
 from imurig.sensors.noise import band_noise, child_rng
-from imurig.sensors.stream_force import LabForce, rectification_margin, unsupported_effects
+from imurig.sensors.stream_force import LabForce, ever_on, rectification_margin, unsupported_effects
 
 FS = 1000.0
 #: 07:58:20 local: the record crosses the working hours' start (08:00) 100 s in
@@ -27,46 +28,54 @@ def _run(n: int, fs: float = FS, t0: float = 12.5):
     return SimpleNamespace(n=n, meta={"sample_rate_hz": fs}, time_rows=lambda a, b: t[a:b], t=t)
 
 
-def _hours(t, t0=12.5):
-    return (START_H + (np.asarray(t) - t0) / 3600.0) % 24.0
+def _hours(t, t0=12.5, start_h=START_H):
+    return (start_h + (np.asarray(t) - t0) / 3600.0) % 24.0
 
 
 class _NoBase:
     rng = None
 
 
-def _streamed(effects, run, seed, piece):
-    force = LabForce(_NoBase(), effects, run, seed, _hours, piece)
-    out = [force.rows(_hours(run.t[a:a + piece])) for a in range(0, run.n, piece)]
+def _streamed(effects, run, seed, piece, start_h=START_H):
+    hours = partial(_hours, start_h=start_h)
+    force = LabForce(_NoBase(), effects, run, seed, hours, piece)
+    out = [force.rows(hours(run.t[a:a + piece])) for a in range(0, run.n, piece)]
     return np.concatenate(out)
 
 
-def _whole(effects, run, seed):
-    ctx = ChainContext(time_s=run.t, sample_rate_hz=FS, hour_of_day=_hours(run.t), truth_signals={}, adc=None,
-                       sensitivity_V_per_SI={})
+def _whole(effects, run, seed, start_h=START_H):
+    ctx = ChainContext(time_s=run.t, sample_rate_hz=FS, hour_of_day=_hours(run.t, start_h=start_h),
+                       truth_signals={}, adc=None, sensitivity_V_per_SI={})
     f = np.zeros((run.n, 3))
     for e in effects:
         f = e.inject(f, ctx, child_rng(seed, e.stream) if e.stream else None)
     return f
 
 
-@pytest.mark.parametrize("piece", [4096, 65536])
-def test_the_additive_lab_effects_stream_to_the_whole_record_bit_for_bit(piece):
-    """Air conditioning (its compressor cycling, working hours from 08:00), transformer hum, ship passages
-    (a high rate, so several cross a piece's edge) and the warm-up: the streamed rows, concatenated, are
-    ImuLab.measure's specific-force stage over the whole record, to the bit."""
+@pytest.mark.parametrize("piece, start_h", [(4096, START_H), (65536, START_H), (65536, 20.0)])
+def test_the_additive_lab_effects_stream_to_the_whole_record_bit_for_bit(piece, start_h):
+    """Air conditioning (its compressor cycling, working hours from 08:00; off all evening), transformer hum,
+    ship passages (a high rate, so several cross a piece's edge) and the warm-up: the streamed rows,
+    concatenated, are ImuLab.measure's specific-force stage over the whole record, to the bit."""
     run = _run(150_000)
     seed = np.random.SeedSequence(11)
     effects = [AirConditioningVibration(enabled=True, cycle_period_s=40.0),
                TransformerHum(enabled=True), ShipPassages(enabled=True, rate_per_hour=200.0, start_h=0.0,
                                                           stop_h=24.0),
                WarmUp.from_datasheet()]
-    got = _streamed(effects, run, seed, piece)
-    want = _whole(effects, run, seed)
+    got = _streamed(effects, run, seed, piece, start_h)
+    want = _whole(effects, run, seed, start_h)
     assert np.any(got[:90_000]) and np.any(got[110_000:])
     np.testing.assert_array_equal(got, want)
-    # each effect matters: without the hum the rows differ after 08:00
-    assert not np.array_equal(_streamed([e for e in effects if e.name != "transformer_hum"], run, seed, piece), want)
+    # the day's sources matter by day only: without the hum the rows differ after 08:00, not in the evening
+    no_hum = _streamed([e for e in effects if e.name != "transformer_hum"], run, seed, piece, start_h)
+    assert np.array_equal(no_hum, want) == (start_h >= 18.0)
+
+
+def test_ever_on_meets_the_working_hours_across_midnight():
+    assert ever_on(7.9, 0.2, 8.0, 18.0) and not ever_on(7.0, 0.9, 8.0, 18.0)
+    assert ever_on(23.0, 10.0, 8.0, 18.0) and not ever_on(18.5, 13.0, 8.0, 18.0)
+    assert ever_on(17.9, 0.05, 8.0, 18.0) and not ever_on(18.0, 0.05, 8.0, 18.0)
 
 
 def test_the_rectification_streams_within_its_band_pass_margin():
