@@ -296,6 +296,9 @@ class ImuLab:
                                     "bias_instability_rad_s": self.gyros.bias_instability_rad_s,
                                     "bias_instability_tau_s": self.gyros.bias_instability_tau_s,
                                     "source": "VG941-3AM datasheet (random walk, bias variation); tau assumed"}
+        for e in self.effects:   # a wandering scale factor (the Delft 2005 preset), so that a GLS fit weighs each step by it
+            if e.name == "gyro_scale_instability" and e.enabled and e.sigma > 0:
+                meta["gyro_noise_model"].update(scale_instability=e.sigma, scale_instability_tau_s=e.tau_s)
         if "pulse_true" in rig.events:
             meta["timers"] = {tm.name: tm.settings() for tm in self.timers}
         meta["temperature_sensor"] = {"uA_per_K": 1.0, "uA_at_298_15K": 298.2, "load_resistor_ohm": 10e3}

@@ -23,8 +23,8 @@ chain takes some band by band or channel by channel over the whole record, other
 so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
-arm's terms, a thermal chamber, pump vibration in working hours, the lab's analog-stage effects (a
-persistent cable fault), GRSE hum, averaged logging. The lab's own specific-force effects stream through
+arm's terms, a thermal chamber, pump vibration in working hours, a persistent cable fault, GRSE hum,
+averaged logging. The lab's own specific-force effects and the gyros' scale instability stream through
 :mod:`imurig.sensors.stream_force`; a converter line's slow settling tail row by row (its idle input at a
 piece's first row: the previous piece's last scan). A loose cable's spikes (analog stage, on its one line) stream, their
 rectangles carried across pieces (:class:`_Cable`).
@@ -45,7 +45,7 @@ from imurig.sensors.effects.base import ChainContext
 from imurig.sensors.effects.building_vibration import working_mask
 from imurig.sensors.gyro import AXES as GYRO_AXES
 from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
-from imurig.sensors.stream_force import LabForce, unsupported_effects
+from imurig.sensors.stream_force import LabForce, LabLines, unsupported_effects
 from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts, scaled_profile
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
@@ -213,7 +213,7 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     acc = lab.accelerometers
     scan = adc.scan_list
     people = _People(lab.people, fs, child_rng(seed, lab.people.stream) if lab.people.enabled else None)
-    if lab.effects:     # the lab's own specific-force effects after the people transients (sensors/stream_force.py)
+    if any(e.stage == "specific_force" for e in lab.effects):   # after the people transients (sensors/stream_force.py)
         people = LabForce(people, lab.effects, run, seed, lambda t: _hours(start, t, t0), STREAM_CHUNK)
     noise = _Noise(sampled_bands(acc.current_noise(averaged=bool(run.meta.get("averaged_logging"))).bands, fs,
                                  bool(run.meta.get("averaged_logging"))) if acc.noise_enabled else [],
@@ -228,6 +228,7 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     slip = SlipRows(lab.slip_rings, {k: child_rng(seed, lab.slip_rings.line_stream(k)) for k in imu}) \
         if lab.slip_rings.enabled and "spin_angle" in run.truth_units else None
     sens = dict(zip((f"acc_{a}" for a in AXES), acc.nominal_sensitivity_V_per_m_s2()))
+    lines = LabLines(lab.effects, scan, seed, fs) if any(e.stage == "analog" for e in lab.effects) else None
     state = SimpleNamespace(saturated={}, last_in=None, f_dist_nonzero=False)
     pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
     # the fronts run ahead in one worker thread (their streams drawn in piece order), the backs here
@@ -240,8 +241,8 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
                 fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, noise, rngs, start, t0, fs,
                                           sens))
             nxt = fronts.popleft().result() if fronts else None
-            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(acc=noise, gyro=gyro, slip=slip, cable=cable),
-                  rngs["adc"], state)
+            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(acc=noise, gyro=gyro, slip=slip, cable=cable,
+                                                              lines=lines), rngs["adc"], state)
             prev, cur = cur, nxt
     report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
     rig = SimpleNamespace(meta=run.meta, truth=run.truth, events=run.events, truth_signals=run.truth_units)
@@ -342,6 +343,8 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
         noise.slip.add(analog, cur.truth["spin_angle"], cur.slip_profile)
     if noise.cable is not None:
         analog[lab.cable.channel] = analog[lab.cable.channel] + noise.cable.rows(cur.t.size)
+    if noise.lines is not None:     # the lab's own analog-stage effects (sensors/stream_force.py)
+        noise.lines.add(analog)
     return _convert(lab.adc, analog, slope, rng, state)
 
 

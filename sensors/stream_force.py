@@ -44,8 +44,9 @@ from imurig.sensors.effects.building_vibration import working_mask
 from imurig.sensors.effects.ship_passages import SUPPORT_SIGMAS
 from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng
 
-#: the lab effects with a streamed form (stage "specific_force")
+#: the lab effects with a streamed form: stage "specific_force" (:class:`LabForce`) and "analog" (:class:`LabLines`)
 STREAMED_EFFECTS = ("air_conditioning_vibration", "transformer_hum", "ship_passages", "warm_up", "vibration_rectification")
+STREAMED_LINE_EFFECTS = ("gyro_scale_instability",)
 #: seconds of context on each side of a piece for the rectification's band-pass (module doc)
 RECTIFICATION_CONTEXT_S = 32.0
 #: pieces whose rectified offset one FFT makes (its margins' share of the work: 2 M / (pieces x piece))
@@ -54,7 +55,8 @@ RECT_PIECES = 4
 
 def unsupported_effects(effects) -> list[str]:
     """The names of the lab effects (``ImuLab.effects``) the streamed chain does not model."""
-    return [e.name for e in effects if e.name not in STREAMED_EFFECTS or e.stage != "specific_force"]
+    return [e.name for e in effects if not (e.stage == "specific_force" and e.name in STREAMED_EFFECTS
+                                            or e.stage == "analog" and e.name in STREAMED_LINE_EFFECTS)]
 
 
 def ever_on(hour0: float, hours: float, start_h: float, stop_h: float) -> bool:
@@ -259,3 +261,48 @@ class LabForce:
         while self.made and self.made[0][0] + self.made[0][1].shape[0] <= keep:
             self.made.popleft()
         return f
+
+
+class _ScaleWander:
+    """One line's scale wander s (:class:`imurig.sensors.effects.gyro_scale_instability.GyroScaleInstability`),
+    piece by piece: the stationary start s[0] ~ N(0, sigma^2) drawn first, then each piece's drive
+    sigma sqrt(1 - phi^2) w[k] through s[k+1] = phi s[k] + drive, the recursion's state carried. (The whole
+    record draws its n drives before s[0]: the same process, another order of the draws.)"""
+
+    def __init__(self, e, rng, fs: float):
+        self.e, self.rng = e, rng
+        self.phi = float(np.exp(-1.0 / (e.tau_s * fs)))
+        self.zi = None
+
+    def rows(self, m: int) -> np.ndarray:
+        e, phi = self.e, self.phi
+        drive = self.rng.standard_normal(m) * e.sigma * np.sqrt(1 - phi**2) if self.zi is not None else None
+        if drive is None:
+            s0 = self.rng.standard_normal() * e.sigma
+            drive = self.rng.standard_normal(m) * e.sigma * np.sqrt(1 - phi**2)
+            drive[0] = s0
+            self.zi = np.zeros(1)
+        s, self.zi = signal.lfilter([1.0], [1.0, -phi], drive, zi=self.zi)
+        return s
+
+
+class LabLines:
+    """The lab's own analog-stage effects (:data:`STREAMED_LINE_EFFECTS`) on the analog lines, piece by piece,
+    in the chain's order after the slip rings and a loose cable; one random stream per line
+    (``child_rng(seed, effect.line_stream(line))``), as the whole-record chain."""
+
+    def __init__(self, effects, names, seed: np.random.SeedSequence, fs: float):
+        self.parts = []
+        for e in effects:
+            if e.stage != "analog":
+                continue
+            if e.name != "gyro_scale_instability":
+                raise ValueError(f"the streamed chain does not model the lab effect '{e.name}'; use ImuLab.measure")
+            for line in e.lines(list(names)):
+                self.parts.append((line, _ScaleWander(e, child_rng(seed, e.line_stream(line)), fs)))
+
+    def add(self, analog: dict) -> None:
+        """V' = V (1 + s) on each line an effect acts on (``analog``: line -> (m,) V, replaced)."""
+        for line, w in self.parts:
+            v = analog[line]
+            analog[line] = v * (1.0 + w.rows(v.size))

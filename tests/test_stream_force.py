@@ -149,3 +149,40 @@ def test_the_delft_2005_lab_streams_and_names_what_does_not():
     assert {"air_conditioning_vibration", "transformer_hum", "ship_passages", "warm_up",
             "vibration_rectification"} <= eff
     assert unsupported_effects(Delft2005.fitted().effects(cable_fault=True)) == ["persistent_cable_fault"]
+
+
+def test_the_scale_wander_streams_as_one_gauss_markov_recursion():
+    """The gyros' scale wander piece by piece: s[0] ~ N(0, sigma^2) and then s[k+1] = phi s[k] + drive[k]
+    with the recursion's state carried, equal to one lfilter over the same draws to rounding (8 eps of
+    sigma: the carried state is the same recursion; plus eps / 2 where s is read back from the line's
+    V (1 + s) with V = 1); its sd and lag-1 correlation are the process's (sd of
+    the sample sd ~ sigma sqrt(tau fs / n) for a process correlated over tau fs samples)."""
+    from scipy import signal
+
+    from imurig.sensors.effects.gyro_scale_instability import GyroScaleInstability
+    from imurig.sensors.stream_force import LabLines
+
+    e = GyroScaleInstability(enabled=True, sigma=2e-4, tau_s=0.5)
+    seed = np.random.SeedSequence(4)
+    lines = LabLines([e], ["gyro_p", "acc_x", "gyro_r"], seed, FS)
+    assert [ln for ln, _ in lines.parts] == ["gyro_p", "gyro_r"]
+    n, piece = 400_000, 65536
+    v = {"gyro_p": np.ones(n), "acc_x": np.ones(n), "gyro_r": np.full(n, 2.0)}
+    out = {k: [] for k in v}
+    for a in range(0, n, piece):
+        cols = {k: x[a:a + piece].copy() for k, x in v.items()}
+        lines.add(cols)
+        for k in v:
+            out[k].append(cols[k])
+    s = np.concatenate(out["gyro_p"]) - 1.0
+    assert np.array_equal(np.concatenate(out["acc_x"]), v["acc_x"])
+    rng = child_rng(seed, e.line_stream("gyro_p"))
+    phi = np.exp(-1 / (e.tau_s * FS))
+    s0 = rng.standard_normal() * e.sigma
+    drive = np.concatenate([rng.standard_normal(min(piece, n - a)) for a in range(0, n, piece)]) \
+        * e.sigma * np.sqrt(1 - phi**2)
+    drive[0] = s0
+    eps = np.finfo(float).eps
+    assert np.max(np.abs(s - signal.lfilter([1.0], [1.0, -phi], drive))) <= 8 * eps * e.sigma + eps / 2
+    assert abs(s.std() / e.sigma - 1) < 4 * np.sqrt(e.tau_s * FS / n)
+    assert abs(np.corrcoef(s[:-1], s[1:])[0, 1] - phi) < 1e-3

@@ -11,8 +11,8 @@ step's window (and the one before it, where the ADC timer sees an edge), with th
 the timers' events and the full record's contiguous blocks (``meta["block_start_s"]``, which the gyro
 fit's noise model reads, :func:`imurig.calibration.gyro.segment_covariance`). Its per-window statistics
 are those of the whole record, bit for bit (the same rows, the same volts). A lab the streamed chain does
-not model (:func:`imurig.sensors.stream.unsupported`; the Delft 2005 preset's own effects) runs the
-whole-record chain instead, with the same outputs.
+not model (:func:`imurig.sensors.stream.unsupported`) runs the whole-record chain instead, with the same
+outputs; the Delft 2005 preset's scale instability streams (:mod:`imurig.sensors.stream_force`).
 """
 from __future__ import annotations
 

@@ -33,7 +33,6 @@ from imurig.rigs.turn_table import TurnTable, TurnTableErrors, TurnTableProtocol
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import TURN_TABLE_SCAN, ImuLab
 from imurig.sensors.disturbances import SlipRingNoise
-from imurig.sensors.effects.gyro_scale_instability import GyroScaleInstability
 from imurig.sensors.gyro import FOGTriad
 from imurig.sensors.voltmeter import AutoscaleVoltmeter
 from imurig.kernel.site import Site
@@ -127,19 +126,9 @@ class TurnTableCampaign:
     def _measured(self, lab: ImuLab, rig: Recording, ss: np.random.SeedSequence) -> Recording:
         """The whole-record sensor chain over the rig record ``rig``, with the campaign's metadata and seed."""
         rec = lab.measure(rig, ss)
-        note_scale_instability(rec, lab)
         rec.meta["campaign"] = {"name": "turn-table", **self.to_dict()}
         rec.truth["seed"] = self.seed
         return rec
-
-
-def note_scale_instability(rec: Recording, lab: ImuLab) -> None:
-    """A lab whose gyros' scale factor wanders (the Delft 2005 preset) says so in the record's noise model,
-    as it states the gyros' random walk, so the GLS fit weighs each step by it (``segment_covariance``)."""
-    for e in lab.effects:
-        if e.name == GyroScaleInstability.name and e.enabled and e.sigma > 0:
-            rec.meta.setdefault("gyro_noise_model", {}).update(scale_instability=e.sigma,
-                                                                scale_instability_tau_s=e.tau_s)
 
 
 # ------------------------------------------------------------------- gyro analysis
