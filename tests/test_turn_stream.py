@@ -17,6 +17,7 @@ from imurig.reports.turn_table_rrd import block_means, calibrated_block_means
 from imurig.rigs.turn_table import TurnTable, TurnTableProtocol
 from imurig.sensors.stream import STREAM_CHUNK
 from h5_layout import assert_same_header_and_layout
+from window_scatter import assert_same_window_scatter
 
 # ~177k samples: three pieces, ramps (MuJoCo rows), holds (closed form) and two remount gaps
 SMALL = TurnTableProtocol(dial_rates_dps=(40, 100), min_window_s=2.0, settle_s=1.0)
@@ -126,13 +127,7 @@ def test_streamed_noise_has_the_whole_chain_size(streamed):
               for r in (whole, s.recording))
     assert ma == mb and whole.truth == s.recording.truth
     assert set(s.recording.meta["adc"]["saturated_samples"]) == {"pulse"}
-    for k in ("gyro_p", "gyro_q", "gyro_r", "acc_x", "acc_z", "temp_box"):
-        sds = []
-        for rec in (s.recording, whole):
-            x = np.concatenate([rec.channels[k][sl] - rec.channels[k][sl].mean() for sl in rec.segment_slices()])
-            sds.append((x.std(), x.size))
-        (s1, n), (s2, _) = sds
-        assert abs(s1 / s2 - 1) < 4 * np.sqrt(2 / (2 * n)), (k, s1, s2)
+    assert_same_window_scatter(s.recording, whole, ("gyro_p", "gyro_q", "gyro_r", "acc_x", "acc_z", "temp_box"))
 
 
 def test_delft_lab_streams_its_scale_wander_and_says_so_to_the_fit():
@@ -146,10 +141,4 @@ def test_delft_lab_streams_its_scale_wander_and_says_so_to_the_fit():
     whole = camp.simulate(chain="whole")
     for rec in (s.recording, whole):
         assert rec.meta["gyro_noise_model"]["scale_instability"] == camp.build()[1].effects[0].sigma > 0
-    for k in ("gyro_p", "gyro_q", "gyro_r"):
-        sds = []
-        for rec in (s.recording, whole):
-            x = np.concatenate([rec.channels[k][sl] - rec.channels[k][sl].mean() for sl in rec.segment_slices()])
-            sds.append((x.std(), x.size))
-        (s1, n), (s2, _) = sds
-        assert abs(s1 / s2 - 1) < 4 * np.sqrt(2 / (2 * n)), (k, s1, s2)
+    assert_same_window_scatter(s.recording, whole, ("gyro_p", "gyro_q", "gyro_r"))
