@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imurig.kernel.errors import OutputExistsError
+from imurig.kernel.errors import ConfigError, OutputExistsError
 
 
 def _json_default(o):
@@ -107,6 +107,19 @@ def clean_stale(path: Path) -> list[Path]:
         os.replace(old, path)
         done.append(old)
     return done
+
+
+def check_disk(path, need_bytes: float, what: str, fix: str, free_bytes: int | None = None) -> None:
+    """Refuse (ConfigError) before anything is written when the file system that will hold ``path`` (its
+    nearest existing folder) has less free space than ``need_bytes``: ``what`` would need, ``fix`` says how
+    to need less. ``free_bytes``: the free space to check against (tests), else the file system's."""
+    folder = Path(path).resolve()
+    while not folder.is_dir() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free if free_bytes is None else int(free_bytes)
+    if need_bytes > free:
+        raise ConfigError(f"{what} would take about {need_bytes / 1e9:.3g} GB on disk, but only {free / 1e9:.3g} GB "
+                          f"are free there; {fix}")
 
 
 def atomic_write(path: Path, writer, overwrite: bool) -> Path:
