@@ -3,14 +3,13 @@
 project's closed forms and theirs compute the same quantity, the two agree to rounding."""
 from __future__ import annotations
 
+import allantools  # the test extra installs both
 import numpy as np
+import pymap3d
 import pytest
 
-allantools = pytest.importorskip("allantools", reason="the test extra installs AllanTools")
-pymap3d = pytest.importorskip("pymap3d", reason="the test extra installs pymap3d")
-
-from imurig.calibration.allan import allan_deviation, fit_arw  # noqa: E402
-from imurig.flights.earth import (  # noqa: E402
+from imurig.calibration.allan import allan_deviation, fit_arw
+from imurig.flights.earth import (
     ecef_from_geodetic,
     geodetic_from_ecef,
     geodetic_from_ned,
