@@ -8,6 +8,10 @@ import pytest
 from imurig.kernel.outputs import OutputFolder
 from imurig.reports.figure_process import FigureProcess
 
+#: a platform guard: on Linux (CI) fork is there and every case runs
+FORK = "fork" in multiprocessing.get_all_start_methods()
+needs_fork = pytest.mark.skipif(not FORK, reason="no fork on this platform")
+
 
 def _write(out, name, text):
     """A 'figure': a text file (the child writes it into the parent's folder)."""
@@ -19,12 +23,10 @@ def _fail(out, *_):
     raise ValueError("no data to draw")
 
 
-@pytest.mark.parametrize("fork", [True, False])
+@pytest.mark.parametrize("fork", [pytest.param(True, marks=needs_fork), False])
 def test_jobs_from_the_fork_and_the_pipe_are_drawn_in_order(tmp_path, monkeypatch, fork):
     if not fork:   # where fork is missing, the jobs are drawn in this process as they are given
         monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])
-    elif "fork" not in multiprocessing.get_all_start_methods():
-        pytest.skip("no fork on this platform")
     big = list(range(100_000))   # the child has it from the fork (a local: it could not be pickled by reference)
     with OutputFolder(tmp_path / "out") as out:
         figures = FigureProcess(out, [("a", _write, ("a.txt", str(len(big)))), ("b", _write, ("b.txt", "b"))])
@@ -36,9 +38,8 @@ def test_jobs_from_the_fork_and_the_pipe_are_drawn_in_order(tmp_path, monkeypatc
     assert (tmp_path / "out" / "c.txt").read_text() == "given later"
 
 
+@needs_fork
 def test_a_failing_figure_fails_the_wait(tmp_path):
-    if "fork" not in multiprocessing.get_all_start_methods():
-        pytest.skip("no fork on this platform")
     out = OutputFolder(tmp_path / "out")
     with pytest.raises(RuntimeError, match="ValueError: no data to draw"):
         with out:
@@ -47,9 +48,8 @@ def test_a_failing_figure_fails_the_wait(tmp_path):
             figures.wait()
 
 
+@needs_fork
 def test_cancel_ends_the_child(tmp_path):
-    if "fork" not in multiprocessing.get_all_start_methods():
-        pytest.skip("no fork on this platform")
     with OutputFolder(tmp_path / "out") as out:
         figures = FigureProcess(out)
         child = figures.child
