@@ -86,6 +86,15 @@ def short_flight():
     return simulate_flight(plan, progress_bar=False)
 
 
+@pytest.fixture(scope="session")
+def default_magnetometer():
+    """The scorer's ``magnetometer`` bench campaign: :class:`MagnetometerCampaign` at its default seed,
+    whose recording (``.simulate()``, cached by the campaign) the magnetometer and scoring tests share."""
+    from imurig.scoring.campaigns import campaign
+
+    return campaign("magnetometer")
+
+
 def _is_plain_turn_null(case) -> bool:
     """The case's null record is the plain turn-table campaign ``_turn(seed)`` of the suite."""
     import inspect
