@@ -138,10 +138,26 @@ class ConcealedRecords:
 
         twin = case.null_twin if case.null_twin is not None else case.twin
         rec = self.null(case, seed)
-        key = (id(rec), repr(sorted(twin.items())), case.rig, seed)
+        key = (id(rec), repr(sorted(_twin_with_defaults(case.rig, twin).items())), case.rig, seed)
         if key not in self._diags:
             self._diags[key] = diagnose_case(case, rec, seed, null=True)
         return self._diags[key]
+
+
+def _twin_with_defaults(rig: str, twin: dict) -> dict:
+    """The twin's settings with the diagnosis' defaults filled in: {} and {'earth_rate': True} are one
+    turn-table twin (the null diagnoses of the g-sensitivity and Earth-rate cases are one diagnosis)."""
+    from imurig.diagnose.magnetometer import diagnose_magnetometer
+    from imurig.diagnose.thermal import diagnose_thermal
+    from imurig.diagnose.tilt_table import diagnose_tilt_table
+    from imurig.diagnose.turn_table import diagnose_turn_table
+
+    fn = {"tilt_table": diagnose_tilt_table, "turn_table": diagnose_turn_table, "thermal": diagnose_thermal,
+          "magnetometer": diagnose_magnetometer}.get(rig)
+    if fn is None:
+        return dict(twin)
+    defaults = {k: p.default for k, p in inspect.signature(fn).parameters.items() if p.default is not p.empty}
+    return {**defaults, **twin}
 
 
 @pytest.fixture(scope="session")
