@@ -70,6 +70,17 @@ class SmallRecords:
             self._recs[key] = small_campaign(seed=seed, **kw).simulate()
         return self._recs[key]
 
+    def diagnosis(self, seed: int, **kw) -> dict:
+        """``diagnose_tilt_table(get(seed, **kw), default_rng(seed))`` with the nominal twin, once per
+        session (tests read it and leave it as it was)."""
+        import numpy as np
+        from imurig.diagnose.tilt_table import diagnose_tilt_table
+
+        key = ("diagnosis", seed, repr(sorted(kw.items())))
+        if key not in self._recs:
+            self._recs[key] = diagnose_tilt_table(self.get(seed, **kw), np.random.default_rng(seed))
+        return self._recs[key]
+
 
 @pytest.fixture(scope="session")
 def small_records() -> SmallRecords:

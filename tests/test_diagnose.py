@@ -100,8 +100,7 @@ def _effects(d):
 
 @pytest.mark.parametrize("seed", [3, 5])
 def test_tilt_table_null_comes_back_clean(seed, small_records):
-    d = diagnose_tilt_table(small_records.get(seed), np.random.default_rng(seed))
-    assert _effects(d) == set()
+    assert _effects(small_records.diagnosis(seed)) == set()
 
 
 @pytest.mark.parametrize("seed", [3, 5])
@@ -115,8 +114,7 @@ def test_tilt_table_concealed_effects_named(seed, small_records):
         "cable": (dict(loose_cable=True), {("y", "cable_fault_spikes")}),
     }
     for name, (kw, expect) in cases.items():
-        rec = small_records.get(seed, **kw)
-        assert _effects(diagnose_tilt_table(rec, np.random.default_rng(seed))) == expect, name
+        assert _effects(small_records.diagnosis(seed, **kw)) == expect, name
 
 
 def test_crosstalk_coefficient_against_truth(small_records):
@@ -124,7 +122,7 @@ def test_crosstalk_coefficient_against_truth(small_records):
     V_y,meas = (1 - c) V_y + c V_prev and the inverse model f = V_y / (s_nom G), its coefficient
     on the neighbour's volts is -c / (s_nom G (1 - c)) (m/s^2 per volt)."""
     rec = small_records.get(3, mux_frequency_hz=200e3)
-    d = diagnose_tilt_table(rec, np.random.default_rng(0))
+    d = small_records.diagnosis(3, mux_frequency_hz=200e3)   # the fit does not use the generator (its null does)
     f = next(f for f in d["axes"]["y"]["findings"] if f["effect"] == "adc_crosstalk")
     est, se = f["parameters"][0]["estimate"], f["parameters"][0]["std_error"]
     assert abs(est - AdcCrosstalk().fitted(rec.truth, "acc_y")["c"]) < 4 * se  # map: tests/test_effects.py
