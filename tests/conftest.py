@@ -1,6 +1,7 @@
 """Shared, session-scoped simulated datasets (small protocols that keep the suite fast)."""
 from __future__ import annotations
 
+import inspect
 import os
 import sys
 
@@ -69,6 +70,17 @@ class SmallRecords:
             self._recs[key] = small_campaign(seed=seed, **kw).simulate()
         return self._recs[key]
 
+    def diagnosis(self, seed: int, **kw) -> dict:
+        """``diagnose_tilt_table(get(seed, **kw), default_rng(seed))`` with the nominal twin, once per
+        session (tests read it and leave it as it was)."""
+        import numpy as np
+        from imurig.diagnose.tilt_table import diagnose_tilt_table
+
+        key = ("diagnosis", seed, repr(sorted(kw.items())))
+        if key not in self._recs:
+            self._recs[key] = diagnose_tilt_table(self.get(seed, **kw), np.random.default_rng(seed))
+        return self._recs[key]
+
 
 @pytest.fixture(scope="session")
 def small_records() -> SmallRecords:
@@ -83,6 +95,15 @@ def short_flight():
                               AlphaDotSTurns(banks_first_deg=(30.0,), banks_second_deg=(30.0,), hold_s=5.0,
                                              after_s=2.0, level_s=2.0)))
     return simulate_flight(plan, progress_bar=False)
+
+
+@pytest.fixture(scope="session")
+def default_magnetometer():
+    """The scorer's ``magnetometer`` bench campaign: :class:`MagnetometerCampaign` at its default seed,
+    whose recording (``.simulate()``, cached by the campaign) the magnetometer and scoring tests share."""
+    from imurig.scoring.campaigns import campaign
+
+    return campaign("magnetometer")
 
 
 def _is_plain_turn_null(case) -> bool:
@@ -128,10 +149,26 @@ class ConcealedRecords:
 
         twin = case.null_twin if case.null_twin is not None else case.twin
         rec = self.null(case, seed)
-        key = (id(rec), repr(sorted(twin.items())), case.rig, seed)
+        key = (id(rec), repr(sorted(_twin_with_defaults(case.rig, twin).items())), case.rig, seed)
         if key not in self._diags:
             self._diags[key] = diagnose_case(case, rec, seed, null=True)
         return self._diags[key]
+
+
+def _twin_with_defaults(rig: str, twin: dict) -> dict:
+    """The twin's settings with the diagnosis' defaults filled in: {} and {'earth_rate': True} are one
+    turn-table twin (the null diagnoses of the g-sensitivity and Earth-rate cases are one diagnosis)."""
+    from imurig.diagnose.magnetometer import diagnose_magnetometer
+    from imurig.diagnose.thermal import diagnose_thermal
+    from imurig.diagnose.tilt_table import diagnose_tilt_table
+    from imurig.diagnose.turn_table import diagnose_turn_table
+
+    fn = {"tilt_table": diagnose_tilt_table, "turn_table": diagnose_turn_table, "thermal": diagnose_thermal,
+          "magnetometer": diagnose_magnetometer}.get(rig)
+    if fn is None:
+        return dict(twin)
+    defaults = {k: p.default for k, p in inspect.signature(fn).parameters.items() if p.default is not p.empty}
+    return {**defaults, **twin}
 
 
 @pytest.fixture(scope="session")
@@ -203,12 +240,68 @@ def every_saved_figure_names_every_line(monkeypatch, request):
     assert not problems, "figures whose legend does not name every line:\n" + "\n".join(problems[:20])
 
 
+def _shared_fixtures(item) -> list[str]:
+    """'file::name' of every module- or session-scoped fixture of this test directory that the test
+    uses, directly or through another fixture (the data such a fixture holds is built once per worker)."""
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    info = getattr(item, "_fixtureinfo", None)
+    out = []
+    for name in (info.names_closure if info is not None else ()):
+        defs = info.name2fixturedefs.get(name)
+        if not defs or defs[-1].scope == "function":
+            continue
+        src = Path(inspect.getsourcefile(defs[-1].func) or "").resolve()
+        if src.is_relative_to(here):
+            out.append(f"{src.relative_to(here)}::{name}")
+    return sorted(out)
+
+
+@pytest.hookimpl(wrapper=True)   # marks before xdist's own hook turns them into the nodeid's '@group'
 def pytest_collection_modifyitems(config, items):
-    """Under ``pytest -n 2`` (``--dist loadgroup``, pyproject's addopts) the tests that share
-    :class:`ConcealedRecords` (or :class:`SmallRecords`) run on one worker, so each record is simulated once per run and not
-    once per worker."""
+    """Under ``pytest -n 2`` (``--dist loadgroup``, pyproject's addopts) the tests that share a
+    module- or session-scoped fixture of this directory (simulated data: :class:`ConcealedRecords`,
+    :class:`SmallRecords`, a module's runs) run on one worker, so the data is simulated once per run
+    and not once per worker. Tests linked through fixtures they share, directly or by a chain, form
+    one group, named after its first fixture; a group a test names itself joins it and names it."""
+    parent: dict[str, str] = {}
+
+    def root(k: str) -> str:
+        while parent.setdefault(k, k) != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    keys = []
     for item in items:
-        for shared in ("concealed_records", "small_records"):
-            if shared in getattr(item, "fixturenames", ()):
-                item.add_marker(pytest.mark.xdist_group(shared))
-                break
+        ks = _shared_fixtures(item) + [f"group:{m.args[0] if m.args else m.kwargs.get('name', 'default')}"
+                                       for m in item.iter_markers("xdist_group")]
+        keys.append(ks)
+        for k in ks[1:]:
+            parent[root(k)] = root(ks[0])
+    names: dict[str, str] = {}
+    for k in sorted({k for ks in keys for k in ks}, key=lambda k: (not k.startswith("group:"), k)):
+        names.setdefault(root(k), k)          # a group a test names keeps its name
+    for item, ks in zip(items, keys):
+        if ks:
+            name = names[root(ks[0])]
+            item.add_marker(pytest.mark.xdist_group(name.removeprefix("group:").replace("@", "_")))
+    yield
+    if getattr(config.option, "loadgroup", False):   # a pytest-xdist worker under --dist loadgroup
+        _group_suffix_where_xdist_left_none(items)
+
+
+def _group_suffix_where_xdist_left_none(items) -> None:
+    """pytest-xdist 3.8 tells the scheduler an item's group by appending '@group' to ``item._nodeid``;
+    pytest 9.2 keeps the node id in ``item._id`` (a structured NodeId), so that suffix is lost and
+    every test is scheduled alone (pytest-dev/pytest-xdist#1386; #1388 sets the structured id, as
+    here). Where an item with a group has no suffix, set it the way xdist means to: its groups,
+    sorted and joined by '_'."""
+    from _pytest.nodeid import NodeId
+
+    for item in items:
+        groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                         for m in item.iter_markers("xdist_group")})
+        if groups and "@" not in item.nodeid.rpartition("]")[2] and isinstance(getattr(item, "_id", None), NodeId):
+            item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(groups)}")

@@ -15,7 +15,7 @@ import rerun as rr
 from imurig.cli.main import main
 from imurig.diagnose.summary import check_schema
 from imurig.reports.diagnosis import run
-from imurig.concealed.suite import CASES, found_effects, null_recording
+from imurig.concealed.suite import CASES, found_effects
 
 
 def _case(rig, effect):
@@ -183,14 +183,13 @@ def test_turn_report_round_means(tmp_path, concealed_records):
         assert abs(shift1) < 4 * se
 
 
-def test_null_tilt_positions_say_no_effect(tmp_path):
+def test_null_tilt_positions_say_no_effect(tmp_path, small_records):
     """A null tilt record (nothing left out of the physical twin): the same plots, 'no effect accepted'."""
     from imurig.reports.diagnosis_figures_tilt import figure_tilt_positions
     from imurig.diagnose.tilt_table import diagnose_tilt_table
     from imurig.kernel.outputs import OutputFolder
 
-    case = _case("tilt_table", "adc_crosstalk")
-    rec = null_recording(case, 2)
+    rec = small_records.get(2)     # the small tilt campaign: null_recording(case, 2) of a tilt case without its own null
     d = {"kind": "tilt_table", **diagnose_tilt_table(rec, np.random.default_rng(2), n_sim=200)}
     assert found_effects(d) == set()
     with OutputFolder(tmp_path / "f") as out:

@@ -248,12 +248,18 @@ CASES = [
 ]
 
 
+# the data sets of the cases are session fixtures, some of them (``small_recording``) shared with other
+# modules: this module's tests run on one worker (tests/conftest.py), so each is simulated once per run
+pytestmark = pytest.mark.xdist_group("estimator_contract")
+
+
 @pytest.fixture(params=CASES, ids=[c.id for c in CASES])
-def case(request):
+def case(request, small_recording):
+    """(case, data(seed), closed_form); a case's recording is built when its data are first asked for
+    (``small_recording`` is named here so that its tests, in other modules too, join this group)."""
     c = request.param
     if isinstance(c.data, str):
-        rec = request.getfixturevalue(c.data)
-        return c, (lambda seed: ((rec,), {})), False
+        return c, (lambda seed: ((request.getfixturevalue(c.data),), {})), False
     return c, c.data, True
 
 

@@ -108,7 +108,7 @@ def test_turn_bench_through_interface_scores_as_internally(turn):
     assert all(fm["rms"][a] <= 1.05 * fm["floor_rms"][a] for a in "pqr")
 
 
-def test_thermal_and_magnetometer_bench_scores_as_internally():
+def test_thermal_and_magnetometer_bench_scores_as_internally(default_magnetometer):
     from imurig.campaigns.magnetometer import analyse as mag_analyse
     from imurig.campaigns.thermal import analyse as th_analyse
 
@@ -119,7 +119,7 @@ def test_thermal_and_magnetometer_bench_scores_as_internally():
     for r in s.rows:
         assert (r["injected"], r["estimate"], r["z"]) == pytest.approx(
             (internal[r["name"]]["injected"], internal[r["name"]]["estimate"], internal[r["name"]]["z"]), rel=1e-12)
-    mg = campaign("magnetometer")
+    mg = default_magnetometer
     s = score_calibrator(MagnetometerCalibrator(), mg)
     internal = {p["name"]: p for p in mag_analyse(mg.simulate())["parameters"]}
     for r in s.rows:
