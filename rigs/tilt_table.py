@@ -250,9 +250,11 @@ class TiltTable:
         """
         return self.run(protocol, start_time, rng).recording()
 
-    def run(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator) -> "TiltRun":
+    def run(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator,
+            stepping=None) -> "TiltRun":
         """Run the protocol as :meth:`simulate` does, and keep its truth as pieces (:class:`TiltRun`):
-        any sample range of the record on demand, in memory of the moves' knots, not the record."""
+        any sample range of the record on demand, in memory of the moves' knots, not the record.
+        ``stepping()`` (if given) is called when MuJoCo starts stepping."""
         protocol.validate()
         dt = 1.0 / protocol.sample_rate_hz
         when = parse_time(start_time)
@@ -287,10 +289,12 @@ class TiltTable:
         sl = sensor_slices(base_model)
         earth_W = self.site.earth_rate_W()
         if self.dwell_truth == "mujoco":
+            if stepping is not None:
+                stepping()
             truth = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
             truth = stitched_pieces(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
-                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s))
+                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s), stepping)
         del ctrl
 
         gap = protocol.remount_s

@@ -105,9 +105,10 @@ def rest_attitude(mount: str, R_WB: np.ndarray, theta: float, phi: float) -> np.
 
 
 def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
-                    move_substeps: int = 1) -> "TruthPieces":
+                    move_substeps: int = 1, stepping=None) -> "TruthPieces":
     """The truth of :func:`stitched_truth` as :class:`TruthPieces` (constants in the windows, MuJoCo
-    rows or knots in the moves): any rows on demand, in memory of the knots, not the record."""
+    rows or knots in the moves): any rows on demand, in memory of the knots, not the record.
+    ``stepping()`` (if given) is called when MuJoCo starts (:func:`rollout_moves`)."""
     nb, nstep, _ = ctrl.shape
     out = TruthPieces(nb * nstep)
     up = np.array([0.0, 0.0, g])
@@ -131,7 +132,7 @@ def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
     def fill(start, sd, knots, length):
         _fill_interpolated(out, slice(start, start + length), sd, knots, sl, earth_W)
 
-    rollout_moves(moves, fill, int(move_substeps), desc="tilt table moves (MuJoCo)")
+    rollout_moves(moves, fill, int(move_substeps), desc="tilt table moves (MuJoCo)", stepping=stepping)
     return out.done()
 
 
@@ -264,14 +265,17 @@ def _slew_end(c: np.ndarray) -> int:
     return int(moving[-1]) + 1 if moving.size else 0
 
 
-def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves") -> None:
+def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves", stepping=None) -> None:
     """MuJoCo over the moves, batched by length (one ``mujoco.rollout`` call per batch, memory bounded by
     :data:`MAX_BATCH_BYTES`); after the first FINE_HEAD samples, every k-th sample stepped (module doc).
 
     ``moves``: (model, ctrl (L, nu) rad, qpos0 (nq,) rad, tag): the servo starts at rest at ``qpos0`` and
     follows ``ctrl``; sensor row i is evaluated at the move's sample i under ctrl[i] (as in
     :func:`imurig.rigs.mujoco_rig.rollout_servo`). Each move's rows go to ``sink(tag, sd (m, nsensordata),
-    knots (m,) sample offsets, L)`` (m = L for k = 1)."""
+    knots (m,) sample offsets, L)`` (m = L for k = 1). ``stepping()`` (if given) is called before the
+    first step (what follows runs mostly without the interpreter lock)."""
+    if stepping is not None:
+        stepping()
     if not moves:
         return
     nsd = moves[0][0].nsensordata

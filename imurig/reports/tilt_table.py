@@ -346,8 +346,9 @@ def _draw(fits, give, send, out: OutputFolder, rec100: Recording) -> None:
 
 
 def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
-        save_recording: bool = True) -> dict:
-    """Simulate, calibrate and report. Returns the summary dict."""
+        save_recording: bool = True, rig=None) -> dict:
+    """Simulate, calibrate and report. Returns the summary dict. ``rig``: the rig's run started ahead
+    (:class:`imurig.campaigns.tilt_rig.RigAhead`; used if made for ``camp``'s settings)."""
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + ["report"]
     with out:  # committed on success, removed on any error
@@ -355,7 +356,8 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             t0 = time.perf_counter()
             stage("simulate")
             # streamed: the 1 kHz record goes to recording.h5 piece by piece; the analysis gets the 100 Hz windows
-            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
+            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True,
+                                  rig=rig)
             rec100 = sim.rec100
             rec = SimpleNamespace(n=sim.n, n_segments=sim.n_segments, truth=sim.truth)
             t_sim = time.perf_counter() - t0
