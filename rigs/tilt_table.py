@@ -251,10 +251,12 @@ class TiltTable:
         return self.run(protocol, start_time, rng).recording()
 
     def run(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator,
-            stepping=None) -> "TiltRun":
+            defer=None) -> "TiltRun":
         """Run the protocol as :meth:`simulate` does, and keep its truth as pieces (:class:`TiltRun`):
         any sample range of the record on demand, in memory of the moves' knots, not the record.
-        ``stepping()`` (if given) is called when MuJoCo starts stepping."""
+        ``defer``: MuJoCo's moves later, ``defer(job)`` given the job that steps them (the closed-form
+        truth at rest only; :func:`imurig.rigs.tilt_truth.stitched_pieces`): the run is returned before
+        its moves are stepped, and its truth rows wait for them."""
         protocol.validate()
         dt = 1.0 / protocol.sample_rate_hz
         when = parse_time(start_time)
@@ -289,12 +291,10 @@ class TiltTable:
         sl = sensor_slices(base_model)
         earth_W = self.site.earth_rate_W()
         if self.dwell_truth == "mujoco":
-            if stepping is not None:
-                stepping()
             truth = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
             truth = stitched_pieces(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
-                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s), stepping)
+                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s), defer)
         del ctrl
 
         gap = protocol.remount_s

@@ -11,7 +11,8 @@ before it loads them:
     run = ahead.take(camp)   # the run, if made for this campaign's settings, else None
 
 MuJoCo's rollouts run without the interpreter lock, so the imports (which hold it) and the moves share
-the two cores. The run is what ``table.run(protocol, start_time, generator("campaign/tilt-table/rig",
+the two cores; the moves go on, in record order, while the stream starts (its truth rows wait for the
+moves they read). The run is what ``table.run(protocol, start_time, generator("campaign/tilt-table/rig",
 seed))`` gives in the campaign itself: the same streams, the same data bit for bit.
 """
 from __future__ import annotations
@@ -47,10 +48,10 @@ def build_table(seed: int, protocol: TiltTableProtocol, draw_table_errors: bool 
     return TiltTable(errors=errors, survey=survey, site=site if site is not None else Site())
 
 
-def run_table(table: TiltTable, protocol: TiltTableProtocol, start_time: str, seed: int, stepping=None):
+def run_table(table: TiltTable, protocol: TiltTableProtocol, start_time: str, seed: int, defer=None):
     """The table's run of the protocol (:meth:`TiltTable.run`) on the campaign's stream
-    ``campaign/tilt-table/rig``; ``stepping()`` is called when MuJoCo starts."""
-    return table.run(protocol, start_time, random_streams.generator("campaign/tilt-table/rig", seed), stepping)
+    ``campaign/tilt-table/rig``; ``defer``: MuJoCo's moves later (:meth:`TiltTable.run`)."""
+    return table.run(protocol, start_time, random_streams.generator("campaign/tilt-table/rig", seed), defer)
 
 
 class RigAhead:
@@ -60,37 +61,44 @@ class RigAhead:
     def __init__(self, settings: dict):
         self.settings = {k: settings.get(k) for k in RIG_FIELDS}
         self._result = self._error = None
-        self._stepping = threading.Event()
+        self._ready = threading.Event()
         self._thread = threading.Thread(target=self._work, name="tilt-rig-ahead", daemon=True)
 
     @classmethod
     def start(cls, wait_s: float = PYTHON_WAIT_S, **settings) -> "RigAhead":
         """Start the run of the campaign with these settings (:data:`RIG_FIELDS`; the defaults of
-        :class:`imurig.campaigns.tilt_table.TiltTableCampaign` for those not given). Returns when MuJoCo
-        starts stepping (or after ``wait_s``): the run's own Python work (the commands, ~0.4 CPU-s) is done
-        before the caller's imports, which would otherwise take turns with it for the interpreter lock."""
+        :class:`imurig.campaigns.tilt_table.TiltTableCampaign` for those not given). Returns when the run is
+        made and MuJoCo starts stepping its moves (or after ``wait_s``): the run's own Python work (the
+        commands, ~0.5 CPU-s) is done before the caller's imports, which would otherwise take turns with it
+        for the interpreter lock."""
         d = {"start_time": "2005-06-14T18:00:00+02:00", "draw_table_errors": True, "survey_accuracy_arcsec": 2.0,
              "site": Site(), "lab": "quiet", **settings}
         ahead = cls(d)
         ahead._thread.start()
-        ahead._stepping.wait(wait_s)
+        ahead._ready.wait(wait_s)
         return ahead
 
     def _work(self) -> None:
-        s = self.settings
+        s, jobs = self.settings, []
         try:
             table = build_table(s["seed"], s["protocol"], s["draw_table_errors"], s["survey_accuracy_arcsec"],
                                 s["site"], s["lab"])
-            self._result = (table, run_table(table, s["protocol"], s["start_time"], s["seed"], self._stepping.set))
+            self._result = (table, run_table(table, s["protocol"], s["start_time"], s["seed"], jobs.append))
         except BaseException as e:   # given to the caller of take()
             self._error = e
         finally:
-            self._stepping.set()
+            self._ready.set()
+        for job in jobs:   # the moves, in record order; a failure reaches the truth's reader (TruthPieces.rows)
+            try:
+                job()
+            except BaseException:
+                pass
 
     def take(self, camp) -> tuple | None:
         """(table, run) if this run was made for ``camp``'s settings, else None (the campaign runs its own);
-        raises what the run raised. Waits for the thread."""
-        self._thread.join()
+        raises what the run raised. Waits for the run, not for its moves: MuJoCo steps them on in this
+        thread, beside the stream, whose truth rows wait for the moves they read."""
+        self._ready.wait()
         if any(getattr(camp, k) != v for k, v in self.settings.items()):
             return None
         if self._error is not None:
