@@ -17,10 +17,12 @@ row piece:
       events:         timers tag the rig's pulses (small: at once)
 
 Every stage draws from its own stream (:func:`imurig.sensors.noise.child_rng`, the same names as the
-whole-record chain), piece by piece. The pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's
-definition: one seed gives the same data bit for bit. The draws come piece by piece (the whole-record
-chain takes some band by band or channel by channel over the whole record, others in 2^18-row pieces),
-so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
+whole-record chain), piece by piece; the normal draws of the sensors and the converter are made ahead
+in a thread of their own, the same calls in the same order (:mod:`imurig.sensors.stream_draws`). The
+pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's definition: one seed gives the same
+data bit for bit. The draws come piece by piece (the whole-record chain takes some band by band or
+channel by channel over the whole record, others in 2^18-row pieces), so the realisation of the noise
+differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
 arm's terms, a thermal chamber, pump vibration in working hours, the lab's own effects, GRSE hum,
@@ -242,7 +244,8 @@ def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
     """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
     codes = _back(lab, prev, cur, nxt, noise, rng, state)
     if rng.left():
-        raise RuntimeError(f"the converter took {rng.left()} fewer draws than were made ahead (sensors/stream_draws.py)")
+        raise RuntimeError(f"the converter took {rng.left()} fewer draws than were made ahead "
+                           "(sensors/stream_draws.py)")
     truth = dict(cur.truth)
     truth["T_imu"] = cur.T
     if cur.f_dist is not None or lab.people.enabled:
