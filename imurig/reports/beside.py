@@ -1,13 +1,14 @@
 """A report's output made in a forked process (a core of its own), started before the fits.
 
-The child first runs ``load()`` (heavy imports: matplotlib for the figures, rerun for the .rrd) while the
-parent fits, then waits for the fits the parent gives (:meth:`Beside.give`), makes its output with
-``work(out, rec100, fits)`` and sends back what that returns (e.g. name -> file). Two of them (the figures,
+The child first runs ``early = load(out, rec100)`` (heavy imports: matplotlib for the figures, rerun for
+the .rrd; the figures that need no fits) while the parent fits, then waits for the fits the parent gives
+(:meth:`Beside.give`), makes its output with ``work(out, rec100, fits, early)`` and sends back what that
+returns (e.g. name -> file). Two of them (the figures,
 the .rrd) and the parent's fits share the two cores. The child starts with what the parent had at the fork
-(the 100 Hz record: nothing pickled but the fits). Where fork is not available, ``work`` runs in
-:meth:`Beside.give`, here.
+(the 100 Hz record: nothing pickled but the fits). Where fork is not available, ``work(out, rec100,
+fits, None)`` runs in :meth:`Beside.give`, here.
 
-    figures = Beside(out, rec100, load_matplotlib, draw, "drawing the figures")
+    figures = Beside(out, rec100, draw_record, draw_fits, "drawing the figures")
     ...                                  # the fits
     figures.give({"main": cal, ...})     # pickled to the child
     files = figures.wait()               # what draw returned; raises if it failed
@@ -22,8 +23,8 @@ _PARENT_ENDS: list = []
 
 
 class Beside:
-    """``work(out, rec100, fits)`` in a forked child that ran ``load()`` first (module doc); ``what``
-    names the work in an error."""
+    """``work(out, rec100, fits, early)`` in a forked child that ran ``early = load(out, rec100)`` first
+    (module doc); ``what`` names the work in an error."""
 
     def __init__(self, out, rec100, load, work, what: str):
         self.out, self.rec100, self.work, self.what = out, rec100, work, what
@@ -46,7 +47,7 @@ class Beside:
     def give(self, fits) -> None:
         """Start the work on ``fits`` (pickled to the child)."""
         if self.child is None:
-            self.result = self.work(self.out, self.rec100, fits)
+            self.result = self.work(self.out, self.rec100, fits, None)
             return
         self._give.send(fits)
         self._close_give()
@@ -88,12 +89,12 @@ def _child(fits, send, out, rec100, load, work, own) -> None:
     for c in _PARENT_ENDS + list(own):   # copies of the parent's ends (this one's and earlier ones')
         c.close()
     try:
-        load()
+        early = load(out, rec100)
         try:
             got = fits.recv()
         except EOFError:   # the parent stopped before the fits (an error there): nothing to do
             return
-        send.send((work(out, rec100, got),))
+        send.send((work(out, rec100, got, early),))
     except Exception as e:  # reported by the parent, which fails the run
         send.send([None, f"{type(e).__name__}: {e}"])
     finally:

@@ -100,13 +100,23 @@ def _coef_table(cal: AccelerometerCalibration) -> str:
 
 
 def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
+    """The report's figures of the fits ``res`` (:func:`analyse`, its ``rec100``): name -> file."""
+    return fit_figures(out, res["rec100"], res, record_figures(out, res["rec100"]))
+
+
+def _pyplot():
     import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def record_figures(out: OutputFolder, rec100: Recording) -> dict:
+    """The figures of the 100 Hz record alone (no fits): Fig. 4.10 (raw channels) and 4.9 (the reference)."""
+    plt = _pyplot()
     figs = {}
-    rec100 = res["rec100"]
     seg = rec100.segments
     # Fig 4.10: raw channels at theta = 40 deg (or the tilt nearest to it), last run
     last = seg["run"] == seg["run"].max() if "run" in seg else np.ones(rec100.n_segments, bool)
@@ -126,6 +136,25 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
         fig.savefig(out.file("fig_4_10_raw_theta40.png"), dpi=110)
         plt.close(fig)
         figs["raw_theta40"] = "fig_4_10_raw_theta40.png"
+    # Reference data (Fig 4.9)
+    ref, _, _ = tilt_table_reference(rec100)
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for j, a in enumerate(AXES):
+        ax.plot(ref[:, j], ".-", ms=3, lw=0.6, label=f"f_{a}")
+    ax.set(xlabel="position", ylabel="m/s²", title="Reference specific force per position (cf. seed Fig. 4.9)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_9_reference.png"), dpi=110)
+    plt.close(fig)
+    figs["reference"] = "fig_4_9_reference.png"
+    return figs
+
+
+def fit_figures(out: OutputFolder, rec100: Recording, res: dict, figs: dict) -> dict:
+    """The figures of the fits ``res`` (Fig. 4.14, the z-scores) beside those of the record ``figs``
+    (:func:`record_figures`), in the report's order: name -> file."""
+    plt = _pyplot()
     # Fig 4.14: residuals of the final model per position, beside the seed's sigma
     pub = published_figures()
     cal = res["main"]
@@ -154,18 +183,6 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
     fig.savefig(out.file("fig_4_14_residuals.png"), dpi=110)
     plt.close(fig)
     figs["residuals"] = "fig_4_14_residuals.png"
-    # Reference data (Fig 4.9)
-    ref, _, _ = tilt_table_reference(rec100)
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    for j, a in enumerate(AXES):
-        ax.plot(ref[:, j], ".-", ms=3, lw=0.6, label=f"f_{a}")
-    ax.set(xlabel="position", ylabel="m/s²", title="Reference specific force per position (cf. seed Fig. 4.9)")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out.file("fig_4_9_reference.png"), dpi=110)
-    plt.close(fig)
-    figs["reference"] = "fig_4_9_reference.png"
     # z-scores of recovered parameters
     params = [p for p in res["parameters"] if p.get("z") is not None]
     if params:
@@ -182,7 +199,8 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
         fig.savefig(out.file("fig_truth_z.png"), dpi=110)
         plt.close(fig)
         figs["truth_z"] = "fig_truth_z.png"
-    return figs
+    order = ("raw_theta40", "residuals", "reference", "truth_z")
+    return {k: figs[k] for k in order if k in figs}
 
 
 def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str:
@@ -287,22 +305,18 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
 STAGE_SHARES = {"simulate": 70, "analyse": 14, "figures": 8, "campaign.rrd": 6, "report": 2}
 
 
-def _load_matplotlib() -> None:
-    import matplotlib  # heavy: loaded in the figures' process while the parent fits
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot  # noqa: F401
-
-
-def _figures(out: OutputFolder, rec100: Recording, fits: dict) -> dict:
-    return make_figures(out, rec100, {**fits, "rec100": rec100})
+def _figures(out: OutputFolder, rec100: Recording, fits: dict, early: dict | None) -> dict:
+    """The figures' process: those of the record drawn while the parent fits (``early``), then the fits'."""
+    if early is None:
+        early = record_figures(out, rec100)
+    return fit_figures(out, rec100, {**fits, "rec100": rec100}, early)
 
 
-def _load_rrd() -> None:
+def _load_rrd(out: OutputFolder, rec100: Recording) -> None:
     import imurig.reports.tilt_table_rrd  # noqa: F401  (rerun: heavy, loaded in the .rrd's process)
 
 
-def _rrd(out: OutputFolder, rec100: Recording, fits: dict) -> dict:
+def _rrd(out: OutputFolder, rec100: Recording, fits: dict, early=None) -> dict:
     from imurig.reports.tilt_table_rrd import write_rrd
 
     write_rrd(out.file("campaign.rrd"), None, {**fits, "rec100": rec100})
@@ -329,7 +343,7 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             stage("analyse")
             # the figures and the .rrd in forked processes (:mod:`imurig.reports.beside`): they load matplotlib
             # and rerun while the fits run here, then draw and write beside each other
-            figures = Beside(out, rec100, _load_matplotlib, _figures, "drawing the figures")
+            figures = Beside(out, rec100, record_figures, _figures, "drawing the figures")
             rrd_writer = Beside(out, rec100, _load_rrd, _rrd, "writing campaign.rrd") if rrd else None
             try:
                 res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
