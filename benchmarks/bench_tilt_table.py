@@ -51,6 +51,7 @@ def cpu_s() -> float:
 
 def imurig_once(quick: bool, with_outputs: bool) -> dict:
     """The campaign in this process (a fresh one): wall, CPU and peak memory per stage."""
+    from imurig.campaigns.tilt_rig import RigAhead
     from imurig.campaigns.tilt_stream import stream_campaign
     from imurig.campaigns.tilt_table import TiltTableCampaign
     from imurig.reports.tilt_table import analyse, run
@@ -61,7 +62,9 @@ def imurig_once(quick: bool, with_outputs: bool) -> dict:
     camp = TiltTableCampaign(protocol=proto)
     res = {"positions": proto.n_positions}
     c0, t0 = cpu_s(), time.perf_counter()
-    sim = stream_campaign(camp)   # the streamed chain, as the campaign runs it (no file: the outputs are below)
+    # the streamed chain, as the command runs it (the rig's run started ahead, its MuJoCo moves beside the
+    # stream; no file: the outputs are below)
+    sim = stream_campaign(camp, rig=RigAhead.start(seed=camp.seed, protocol=proto, start_time=camp.start_time))
     res["simulate_s"] = time.perf_counter() - t0
     res["samples_1kHz"] = sim.n
     res["channels"] = len(sim.rec100.channels)

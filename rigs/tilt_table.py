@@ -250,9 +250,13 @@ class TiltTable:
         """
         return self.run(protocol, start_time, rng).recording()
 
-    def run(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator) -> "TiltRun":
+    def run(self, protocol: TiltTableProtocol, start_time: str, rng: np.random.Generator,
+            defer=None) -> "TiltRun":
         """Run the protocol as :meth:`simulate` does, and keep its truth as pieces (:class:`TiltRun`):
-        any sample range of the record on demand, in memory of the moves' knots, not the record."""
+        any sample range of the record on demand, in memory of the moves' knots, not the record.
+        ``defer``: MuJoCo's moves later, ``defer(job)`` given the job that steps them (the closed-form
+        truth at rest only; :func:`imurig.rigs.tilt_truth.stitched_pieces`): the run is returned before
+        its moves are stepped, and its truth rows wait for them."""
         protocol.validate()
         dt = 1.0 / protocol.sample_rate_hz
         when = parse_time(start_time)
@@ -290,7 +294,7 @@ class TiltTable:
             truth = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
             truth = stitched_pieces(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
-                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s))
+                                    earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s), defer)
         del ctrl
 
         gap = protocol.remount_s

@@ -31,6 +31,9 @@ itself differs from a 0.25 ms one by 3e-3 m/s^2 in the same moves. MuJoCo steps 
 from __future__ import annotations
 
 import copy
+import threading
+from contextlib import nullcontext
+from types import SimpleNamespace
 
 import mujoco
 import numpy as np
@@ -105,9 +108,13 @@ def rest_attitude(mount: str, R_WB: np.ndarray, theta: float, phi: float) -> np.
 
 
 def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
-                    move_substeps: int = 1) -> "TruthPieces":
+                    move_substeps: int = 1, defer=None) -> "TruthPieces":
     """The truth of :func:`stitched_truth` as :class:`TruthPieces` (constants in the windows, MuJoCo
-    rows or knots in the moves): any rows on demand, in memory of the knots, not the record."""
+    rows or knots in the moves): any rows on demand, in memory of the knots, not the record.
+
+    ``defer``: MuJoCo later. The pieces are returned at once, their moves not yet stepped, and
+    ``defer(job)`` is given the job that steps them (in record order, :data:`EPOCH_MOVES` moves at a time;
+    :meth:`TruthPieces.rows` waits for the moves it reads). The same values either way."""
     nb, nstep, _ = ctrl.shape
     out = TruthPieces(nb * nstep)
     up = np.array([0.0, 0.0, g])
@@ -124,27 +131,53 @@ def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
             vals["theta_true"], vals["phi_true"] = theta, phi
             out.hold(b * nstep + a, b * nstep + e, vals)
             if a > prev_stop:  # the table rests at the previous command when the move starts
-                moves.append((models[b], ctrl[b, prev_stop:a], ctrl[b, prev_stop - 1] if prev_stop else ctrl[b, 0],
-                              b * nstep + prev_stop))
+                c, q0 = ctrl[b, prev_stop:a], ctrl[b, prev_stop - 1] if prev_stop else ctrl[b, 0]
+                if defer is not None:   # copies: the whole command array need not outlive the caller
+                    c, q0 = c.copy(), q0.copy()
+                moves.append((models[b], c, q0, b * nstep + prev_stop))
+                out.expect(b * nstep + prev_stop, b * nstep + a)
             prev_stop = e
+    out.done()
 
     def fill(start, sd, knots, length):
         _fill_interpolated(out, slice(start, start + length), sd, knots, sl, earth_W)
 
-    rollout_moves(moves, fill, int(move_substeps), desc="tilt table moves (MuJoCo)")
-    return out.done()
+    def job():
+        try:
+            rollout_moves(moves, fill, int(move_substeps), desc="tilt table moves (MuJoCo)",
+                          epoch=EPOCH_MOVES if defer is not None else None,
+                          reached=lambda tag: out.filled(out.n if tag is None else tag))
+        except BaseException as e:
+            out.fail(e)
+            raise
+
+    if defer is None:
+        job()
+    else:
+        defer(job)
+    return out
+
+
+#: moves stepped together when MuJoCo runs beside the stream (``defer``): in record order, so the first
+#: pieces of the record are ready after the first few batches
+EPOCH_MOVES = 24
 
 
 class TruthPieces:
     """The tilt table's truth signals (:data:`SIGNALS`) over ``n`` samples as pieces: constants in the
     windows, MuJoCo rows (every sample stepped) or knots (linear between them, module doc) in the
-    moves. :meth:`rows` gives any sample range, the same values as the whole arrays would hold."""
+    moves. :meth:`rows` gives any sample range, the same values as the whole arrays would hold.
+
+    The moves may be filled after :meth:`done` (in another thread, in record order): :meth:`rows` waits
+    until every sample it reads is filled (:meth:`filled`), or raises what the filling raised."""
 
     def __init__(self, n: int):
         self.n = n
         self._holds: list[tuple[int, int, dict]] = []
-        self._moves: list[tuple[int, int, np.ndarray | None, dict]] = []  # start, stop, knots (None: rows), values
+        self._slots: dict[int, list] = {}  # move start -> [start, stop, knots (None: rows), values]
         self._hold_at: dict[int, dict] = {}
+        self._cond = threading.Condition()
+        self._filled_to, self._error = 0, None
 
     def hold(self, a: int, b: int, values: dict) -> None:
         """Samples [a, b) hold the constants ``values`` (name -> float)."""
@@ -155,18 +188,41 @@ class TruthPieces:
         """The held value of ``name`` at sample ``i`` (a window's first sample)."""
         return self._hold_at[i][name]
 
+    def expect(self, a: int, b: int) -> None:
+        """Samples [a, b) are a move, filled later by :meth:`move`."""
+        self._slots[a] = [a, b, None, None]
+
     def move(self, a: int, b: int, knots: np.ndarray | None, values: dict) -> None:
         """Samples [a, b) of a move: ``values`` name -> rows (b - a,) (``knots`` None), or name -> values at
         the sample offsets ``knots`` plus the value at b (linear in between)."""
-        self._moves.append((a, b, knots, values))
+        slot = self._slots.setdefault(a, [a, b, None, None])
+        slot[2], slot[3] = knots, values
 
     def done(self) -> "TruthPieces":
-        self._pieces = sorted([(a, b, None, v) for a, b, v in self._holds] + self._moves, key=lambda p: p[0])
+        self._pieces = sorted([(a, b, None, v) for a, b, v in self._holds] + list(self._slots.values()),
+                              key=lambda p: p[0])
         self._starts = np.array([p[0] for p in self._pieces], dtype=np.int64)
         return self
 
+    def filled(self, upto: int) -> None:
+        """Every sample before ``upto`` is filled."""
+        with self._cond:
+            self._filled_to = max(self._filled_to, int(upto))
+            self._cond.notify_all()
+
+    def fail(self, error: BaseException) -> None:
+        """Filling the moves failed: :meth:`rows` raises it."""
+        with self._cond:
+            self._error = error
+            self._cond.notify_all()
+
     def rows(self, a: int, b: int) -> dict:
-        """Truth signals over samples [a, b): name -> (b - a,) float64."""
+        """Truth signals over samples [a, b): name -> (b - a,) float64 (waiting for their moves)."""
+        if self._filled_to < b:
+            with self._cond:
+                self._cond.wait_for(lambda: self._error is not None or self._filled_to >= b)
+        if self._error is not None:
+            raise RuntimeError(f"the tilt table's moves (MuJoCo) failed: {self._error}") from self._error
         out = {k: np.empty(b - a) for k in SIGNALS}
         first = max(int(np.searchsorted(self._starts, a, side="right")) - 1, 0)
         for lo, hi, knots, vals in self._pieces[first:]:
@@ -264,15 +320,21 @@ def _slew_end(c: np.ndarray) -> int:
     return int(moving[-1]) + 1 if moving.size else 0
 
 
-def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves") -> None:
+def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves", epoch: int | None = None,
+                  reached=None) -> None:
     """MuJoCo over the moves, batched by length (one ``mujoco.rollout`` call per batch, memory bounded by
     :data:`MAX_BATCH_BYTES`); after the first FINE_HEAD samples, every k-th sample stepped (module doc).
 
     ``moves``: (model, ctrl (L, nu) rad, qpos0 (nq,) rad, tag): the servo starts at rest at ``qpos0`` and
     follows ``ctrl``; sensor row i is evaluated at the move's sample i under ctrl[i] (as in
     :func:`imurig.rigs.mujoco_rig.rollout_servo`). Each move's rows go to ``sink(tag, sd (m, nsensordata),
-    knots (m,) sample offsets, L)`` (m = L for k = 1)."""
+    knots (m,) sample offsets, L)`` (m = L for k = 1). Each move is stepped on its own (its row of a batch),
+    so the batches do not change its rows. ``epoch``: the moves in order of their tags, that many at a
+    time (batched within them), ``reached(tag)`` called after each with the next one's first tag (None
+    after the last); else all batched together."""
     if not moves:
+        if reached is not None:
+            reached(None)
         return
     nsd = moves[0][0].nsensordata
     coarse = {}
@@ -280,16 +342,27 @@ def rollout_moves(moves, sink, k: int = 1, desc: str = "MuJoCo moves") -> None:
         if id(m) not in coarse:
             coarse[id(m)] = _coarse_models([m], k)[0]
     datas = [mujoco.MjData(moves[0][0]) for _ in range(2)]
-    by_len: dict[tuple, list] = {}
-    for mv in moves:  # batched by length and slew end (the same pieces)
-        c = mv[1]
-        by_len.setdefault((len(c), _slew_end(c) if k > 1 else 0), []).append(mv)
-    with progress(total=sum(len(m[1]) for m in moves), desc=desc, unit="step") as bar:
-        for (length, slew_end), group in by_len.items():
-            per = max(1, MAX_BATCH_BYTES // (length * nsd * 8))
-            for i in range(0, len(group), per):
-                batch = group[i:i + per]
-                sd, knots = _step_batch(batch, coarse, datas, length, slew_end, k)
-                for j, mv in enumerate(batch):
-                    sink(mv[3], sd[j], knots, length)
-                bar.update(length * len(batch))
+    if epoch is None:
+        epochs = [list(moves)]
+    else:
+        ordered = sorted(moves, key=lambda mv: mv[3])
+        epochs = [ordered[i:i + epoch] for i in range(0, len(ordered), epoch)]
+    # in epochs MuJoCo runs beside the stream, in the background: no bar of its own
+    bar_cm = progress(total=sum(len(m[1]) for m in moves), desc=desc, unit="step") if epoch is None else \
+        nullcontext(SimpleNamespace(update=lambda n: None))
+    with bar_cm as bar:
+        for e, group_moves in enumerate(epochs):
+            by_len: dict[tuple, list] = {}
+            for mv in group_moves:  # batched by length and slew end (the same pieces)
+                c = mv[1]
+                by_len.setdefault((len(c), _slew_end(c) if k > 1 else 0), []).append(mv)
+            for (length, slew_end), group in by_len.items():
+                per = max(1, MAX_BATCH_BYTES // (length * nsd * 8))
+                for i in range(0, len(group), per):
+                    batch = group[i:i + per]
+                    sd, knots = _step_batch(batch, coarse, datas, length, slew_end, k)
+                    for j, mv in enumerate(batch):
+                        sink(mv[3], sd[j], knots, length)
+                    bar.update(length * len(batch))
+            if reached is not None:
+                reached(epochs[e + 1][0][3] if e + 1 < len(epochs) else None)

@@ -17,10 +17,12 @@ row piece:
       events:         timers tag the rig's pulses (small: at once)
 
 Every stage draws from its own stream (:func:`imurig.sensors.noise.child_rng`, the same names as the
-whole-record chain), piece by piece. The pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's
-definition: one seed gives the same data bit for bit. The draws come piece by piece (the whole-record
-chain takes some band by band or channel by channel over the whole record, others in 2^18-row pieces),
-so the realisation of the noise differs from the whole-record chain's; the distributions are the same.
+whole-record chain), piece by piece; the normal draws of the sensors and the converter are made ahead
+in a thread of their own, the same calls in the same order (:mod:`imurig.sensors.stream_draws`). The
+pieces are a fixed STREAM_CHUNK = 2^16 rows, part of the data's definition: one seed gives the same
+data bit for bit. The draws come piece by piece (the whole-record chain takes some band by band or
+channel by channel over the whole record, others in 2^18-row pieces), so the realisation of the noise
+differs from the whole-record chain's; the distributions are the same.
 
 :func:`unsupported` names what the streamed chain does not do (the whole-record chain does): the lever
 arm's terms, a thermal chamber, pump vibration in working hours, a persistent cable fault, GRSE hum,
@@ -44,7 +46,8 @@ from imurig.sensors.accelerometer import AXES
 from imurig.sensors.effects.base import ChainContext
 from imurig.sensors.effects.building_vibration import working_mask
 from imurig.sensors.gyro import AXES as GYRO_AXES
-from imurig.sensors.noise import _shaping_filter, band_power_gain, child_rng, sampled_bands
+from imurig.sensors.noise import child_rng, sampled_bands
+from imurig.sensors.stream_draws import BandNoise as _Noise, Drawer
 from imurig.sensors.stream_force import LabForce, LabLines, unsupported_effects
 from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts, scaled_profile
 
@@ -99,34 +102,6 @@ def _pump_on(pump, run) -> bool:
         if working_mask(_hours(start, run.time_rows(a, b), t0), pump.work_start_h, pump.work_stop_h).any():
             return True
     return False
-
-
-@dataclass
-class _Noise:
-    """The accelerometers' current noise (n, 3) A, piece by piece: each sampled band's white draws
-    through its shaping filter, whose state is carried (:func:`imurig.sensors.noise.add_band_noise`)."""
-
-    bands: list
-    fs: float
-    rng: np.random.Generator
-    state: list = field(default_factory=list)
-
-    def __post_init__(self):
-        self.filters = []
-        for lo, hi, rms in self.bands:
-            sos = _shaping_filter(self.fs, (lo, hi))
-            scale = rms if sos is None else rms / np.sqrt(band_power_gain(self.fs, (lo, hi)))
-            self.filters.append((sos, scale))
-            self.state.append(None if sos is None else np.zeros((sos.shape[0], 2, 3)))
-
-    def rows(self, m: int) -> np.ndarray:
-        out = np.zeros((m, 3))
-        for i, (sos, scale) in enumerate(self.filters):
-            y = self.rng.standard_normal((m, 3))
-            if sos is not None:
-                y, self.state[i] = signal.sosfilt(sos, y, axis=0, zi=self.state[i])
-            out += y * scale
-        return out
 
 
 @dataclass
@@ -231,18 +206,33 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     lines = LabLines(lab.effects, scan, seed, fs) if any(e.stage == "analog" for e in lab.effects) else None
     state = SimpleNamespace(saturated={}, last_in=None, f_dist_nonzero=False)
     pieces = [(a, min(run.n, a + STREAM_CHUNK)) for a in range(0, run.n, STREAM_CHUNK)]
-    # the fronts run ahead in one worker thread (their streams drawn in piece order), the backs here
-    with ThreadPoolExecutor(1) as pool:
-        fronts = deque(pool.submit(_front, lab, run, p, people, noise, rngs, start, t0, fs, sens)
-                       for p in pieces[:AHEAD])
+    drawer = Drawer(lab, rngs, noise)
+    draws = [None] * len(pieces)
+
+    def draw_ahead(upto: int) -> None:   # the draws of pieces [0, upto], in piece order
+        nonlocal drawn
+        while drawn <= min(upto, len(pieces) - 1):
+            a, b = pieces[drawn]
+            draws[drawn] = dpool.submit(drawer.piece, b - a)
+            drawn += 1
+
+    # the noise draws run ahead in one worker thread, the fronts in another (each stream drawn in piece
+    # order), the backs here
+    drawn = 0
+    with ThreadPoolExecutor(1) as pool, ThreadPoolExecutor(1) as dpool:
+        draw_ahead(AHEAD + 1)
+        fronts = deque(pool.submit(_front, lab, run, p, people, draws[j], start, t0, fs, sens)
+                       for j, p in enumerate(pieces[:AHEAD]))
         prev, cur = None, fronts.popleft().result()
         for i, _ in enumerate(pieces):
+            draw_ahead(i + AHEAD + 1)
             if i + AHEAD < len(pieces):
-                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, noise, rngs, start, t0, fs,
-                                          sens))
+                fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, draws[i + AHEAD], start, t0,
+                                          fs, sens))
             nxt = fronts.popleft().result() if fronts else None
-            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(acc=noise, gyro=gyro, slip=slip, cable=cable,
-                                                              lines=lines), rngs["adc"], state)
+            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(gyro=gyro, slip=slip, cable=cable, lines=lines),
+                  draws[i].result()["adc"], state)
+            draws[i] = None
             prev, cur = cur, nxt
     report = {"lsb_V": adc.lsb_V, "saturated_samples": state.saturated}
     rig = SimpleNamespace(meta=run.meta, truth=run.truth, events=run.events, truth_signals=run.truth_units)
@@ -258,6 +248,9 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
 def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
     """The back of piece ``cur`` (its neighbours' fronts known) and its rows to every sink."""
     codes = _back(lab, prev, cur, nxt, noise, rng, state)
+    if rng.left():
+        raise RuntimeError(f"the converter took {rng.left()} fewer draws than were made ahead "
+                           "(sensors/stream_draws.py)")
     truth = dict(cur.truth)
     truth["T_imu"] = cur.T
     if cur.f_dist is not None or lab.people.enabled:
@@ -268,12 +261,13 @@ def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
         s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
 
 
-def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleNamespace:
+def _front(lab, run, piece, people, draws, start, t0, fs, sens) -> SimpleNamespace:
     """One piece's rig rows, disturbances, temperatures and the lines that need no neighbours: the
     accelerometers' noise-free volts and current noise (A), the fluxgate's and the temperature sensors'
     volts. The fronts are made one after the other in piece order (one worker), so each stream is drawn
-    in piece order."""
+    in piece order; ``draws``: the future of the piece's noise draws (:class:`Drawer`)."""
     a, b = piece
+    d = draws.result()
     t = run.time_rows(a, b)
     ts = run.truth_rows(a, b)
     hour = _hours(start, t, t0)
@@ -283,7 +277,7 @@ def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleN
     scan = set(lab.adc.scan_list)
     lines, slope_src, nz = {}, {}, None
     if any(f"acc_{x}" in scan for x in AXES):
-        nz = noise.rows(t.size) if noise.filters else None
+        nz = d["acc"]
         f = np.stack([ts[f"f_C_{x}"] for x in AXES], axis=1)
         if f_dist is not None:
             f += f_dist
@@ -293,7 +287,7 @@ def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleN
             slope_src[f"acc_{x}"] = v[:, j]
     if any(f"mag_{x}" in scan for x in AXES):
         B_C = np.stack([ts[f"B_C_{x}"] for x in AXES], axis=1)
-        v = lab.magnetometer.output_voltage(B_C, rngs["magnetometer"], T)
+        v = lab.magnetometer.output_voltage(B_C, d["magnetometer"], T)
         for j, x in enumerate(AXES):
             slope_src[f"mag_{x}"] = v[:, j]
     if any(f"gyro_{x}" in scan for x in GYRO_AXES):
@@ -306,7 +300,7 @@ def _front(lab, run, piece, people, noise, rngs, start, t0, fs, sens) -> SimpleN
             slope_src[f"gyro_{x}"] = v[:, j]
     for name, sensor in lab.temp_sensors.items():
         if name in scan:
-            lines[name] = sensor.voltage(T, rngs[name])
+            lines[name] = sensor.voltage(T, d[name])
     for line in run.meta.get("analog_lines", []):
         lines[line] = ts[line]
     # the slip rings' profile over the piece (no draws): made here, ahead, for the back's noise

@@ -21,7 +21,7 @@ import numpy as np
 from imurig.calibration.accelerometer import ACC
 from imurig.calibration.preprocess import filter_design, lowpass_downsample, window_log
 from imurig.calibration.window_filter import WindowTap
-from imurig.kernel import random_streams
+from imurig.campaigns.tilt_rig import run_table
 from imurig.kernel.h5write import H5RowWriter
 from imurig.kernel.outputs import atomic_write
 from imurig.kernel.recording import Recording, save_h5
@@ -69,16 +69,19 @@ class _Collect:
                          channel_quantum={n: q[n] for n in volts}, events=info.get("events", {}))
 
 
-def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False) -> SimpleNamespace:
+def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = False, rig=None) -> SimpleNamespace:
     """Simulate the campaign ``camp`` (:class:`imurig.campaigns.tilt_table.TiltTableCampaign`) in pieces.
 
     Returns rec100 (the 100 Hz record: the :data:`ANALYSED` channels and truth low-passed in the windows,
     everything decimated elsewhere), n (1 kHz samples),
     n_segments, truth, streamed (False: the whole-record chain ran, see ``why``) and ``recording`` (the
-    whole 1 kHz Recording with ``keep``, else None); writes the HDF5 recording to ``h5_path`` if given."""
+    whole 1 kHz Recording with ``keep``, else None); writes the HDF5 recording to ``h5_path`` if given.
+    ``rig``: the rig's run started ahead (:class:`imurig.campaigns.tilt_rig.RigAhead`), used if it was made
+    for this campaign's settings."""
     camp.check_identifiable()
     table, lab, ss = camp.build()
-    run = table.run(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", camp.seed))
+    ready = rig.take(camp) if rig is not None else None
+    run = ready[1] if ready else run_table(table, camp.protocol, camp.start_time, camp.seed)
     why = unsupported(lab, run)
     if why:
         return _whole(camp, lab, run, ss, h5_path, overwrite, why)
@@ -149,7 +152,7 @@ def record_campaign(camp) -> Recording:
     No 100 Hz windows, no file."""
     camp.check_identifiable()
     table, lab, ss = camp.build()
-    run = table.run(camp.protocol, camp.start_time, random_streams.generator("campaign/tilt-table/rig", camp.seed))
+    run = run_table(table, camp.protocol, camp.start_time, camp.seed)
     if unsupported(lab, run):
         return _whole_record(camp, lab, run, ss)
     sink, info = _Collect(run.n, {c: lab.adc.lsb_V for c in lab.adc.scan_list}), {}

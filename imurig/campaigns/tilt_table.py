@@ -24,19 +24,19 @@ from imurig.calibration.regression import check_identifiable, fit_ols
 from imurig.calibration.terms import TermLibrary
 from imurig.campaigns.delft_2005 import Delft2005, check_lab
 from imurig.campaigns.delft_2005_imu import ACCELEROMETER_UNITS, accelerometer_unit  # noqa: F401 (re-exported)
+from imurig.campaigns.tilt_rig import build_table
 from imurig.campaigns.tilt_stream import record_campaign
 # the reference and the fit are calibration maths (shared with the diagnosis); the campaign's API re-exports them
 from imurig.calibration.tilt_reference import calibrate, tilt_table_reference  # noqa: F401
 from imurig.kernel import random_streams
 from imurig.kernel.errors import ConfigError, UnidentifiableTermsError
 from imurig.kernel.recording import Recording
-from imurig.rigs.tilt_table import TableSurvey, TiltTable, TiltTableErrors, TiltTableProtocol, specific_force_C
+from imurig.rigs.tilt_table import TiltTable, TiltTableProtocol, specific_force_C
 from imurig.sensors.accelerometer import QFlexTriad
 from imurig.sensors.adc import DAQ6036E
 from imurig.sensors.chain import DEFAULT_SCAN, ImuLab
 from imurig.sensors.disturbances import LooseCable, PeopleTransients, PumpVibration
 from imurig.kernel.site import Site
-from imurig.kernel.units import ARCSEC
 
 #: per-position statistics of the calibration (huber: the default; median: the seed's)
 STATISTICS = ("huber", "median", "mean")
@@ -87,17 +87,9 @@ class TiltTableCampaign:
     def build(self) -> tuple[TiltTable, ImuLab, np.random.SeedSequence]:
         """Rig and sensor chain with their (seeded) errors, and the chain's stream
         (``campaign/tilt-table/sensor-chain``, :mod:`imurig.kernel.random_streams`)."""
-        table_rng = random_streams.generator("table", self.seed)
-        errors = (TiltTableErrors.draw(table_rng, self.protocol.runs) if self.draw_table_errors
-                  else TiltTableErrors(phi_zero_rad={r: 0.0 for r in self.protocol.runs}, theta_zero_rad=0.0,
-                                       level_x_rad=0.0))
-        survey = TableSurvey.measure(errors, random_streams.generator("survey", self.seed),
-                                     self.survey_accuracy_arcsec * ARCSEC)
-        check_lab(self.lab)
+        table = build_table(self.seed, self.protocol, self.draw_table_errors, self.survey_accuracy_arcsec,
+                            self.site, check_lab(self.lab))
         preset = Delft2005.fitted() if self.lab == "delft-2005" else None
-        if preset is not None:
-            errors = replace(errors, setting_resolution_rad=preset.setting_error_rad)
-        table = TiltTable(errors=errors, survey=survey, site=self.site)
         sensor_rng = random_streams.generator("sensor_errors", self.seed)
         base = ImuLab.draw(sensor_rng) if self.draw_sensor_errors else ImuLab()
         base = replace(base, accelerometers=accelerometer_unit(base.accelerometers, self.accelerometers))

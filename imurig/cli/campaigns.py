@@ -167,20 +167,24 @@ def _magnetometer_args(p):
 
 
 def _run_tilt_table(a):
-    # heavy (MuJoCo rigs, matplotlib): loaded when the command runs, not for --help
-    from imurig.campaigns.tilt_table import TiltTableCampaign
-    from imurig.reports.tilt_table import run
+    from imurig.campaigns.tilt_rig import RigAhead   # the rig alone (MuJoCo): light
     from imurig.rigs.tilt_table import TiltTableProtocol
 
     proto = TiltTableProtocol(theta_deg=a.theta, phi_deg=a.phi, runs=a.runs, dwell_s=a.dwell,
                               sample_rate_hz=a.rate)
+    # the table's moves (MuJoCo, without the interpreter lock) start now, beside the heavy imports below
+    # (a bad protocol fails there too, and is reported by the campaign's own checks, as before)
+    rig = RigAhead.start(seed=a.seed, protocol=proto, start_time=a.start_time, lab=a.lab)
+    from imurig.campaigns.tilt_table import TiltTableCampaign   # the sensor chain, the calibration (scipy)
+    from imurig.reports.tilt_table import run                   # matplotlib: in the figures' process
+
     camp = TiltTableCampaign(protocol=proto, seed=a.seed, start_time=a.start_time, model=a.model,
                              statistic=a.statistic,
                              mux_frequency_hz=a.mux_khz * 1e3, grounding=a.grounding, pump=not a.no_pump,
                              people=not a.no_people, loose_cable=a.loose_cable, crosstalk=not a.no_crosstalk,
                              draw_sensor_errors=not a.ideal_sensors, lab=a.lab)
     print(f"imurig: tilt-table campaign, {proto.n_positions} positions, seed {a.seed} -> {a.out}", file=sys.stderr)
-    s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording)
+    s = run(camp, a.out, overwrite=a.overwrite, rrd=not a.no_rrd, save_recording=not a.no_recording, rig=rig)
     print_summary(s, a.out)
 
 

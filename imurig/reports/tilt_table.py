@@ -6,12 +6,12 @@ estimated parameter as {name, unit, injected, estimate, std_error, z}), ``record
 
 :func:`run` streams the campaign (:mod:`imurig.campaigns.tilt_stream`): the 1 kHz record goes to
 ``recording.h5`` piece by piece while its windows are low-passed for the analysis, so no array of the
-record's length is held; the figures are drawn in a second process, started before the fits (it loads
-matplotlib while they run), beside the .rrd writer.
+record's length is held; the figures and the .rrd are made in two forked processes
+(:class:`imurig.reports.beside.Beside`), started before the fits: they load matplotlib and rerun while
+the fits run, then draw and write beside each other.
 """
 from __future__ import annotations
 
-import multiprocessing
 import resource
 import sys
 import time
@@ -29,8 +29,8 @@ from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.kernel.progress import StageBar
 from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
-from imurig.reports.common import md_figures_and_run, md_table, published_figures, save_products
-from imurig.reports.figure_process import answer
+from imurig.reports.beside import Beside
+from imurig.reports.common import md_figures_and_run, md_table, published_figures
 
 def peak_rss_bytes() -> int:
     """Peak resident memory of this process so far (bytes)."""
@@ -100,13 +100,23 @@ def _coef_table(cal: AccelerometerCalibration) -> str:
 
 
 def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
+    """The report's figures of the fits ``res`` (:func:`analyse`, its ``rec100``): name -> file."""
+    return fit_figures(out, res["rec100"], res, record_figures(out, res["rec100"]))
+
+
+def _pyplot():
     import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def record_figures(out: OutputFolder, rec100: Recording) -> dict:
+    """The figures of the 100 Hz record alone (no fits): Fig. 4.10 (raw channels) and 4.9 (the reference)."""
+    plt = _pyplot()
     figs = {}
-    rec100 = res["rec100"]
     seg = rec100.segments
     # Fig 4.10: raw channels at theta = 40 deg (or the tilt nearest to it), last run
     last = seg["run"] == seg["run"].max() if "run" in seg else np.ones(rec100.n_segments, bool)
@@ -126,6 +136,25 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
         fig.savefig(out.file("fig_4_10_raw_theta40.png"), dpi=110)
         plt.close(fig)
         figs["raw_theta40"] = "fig_4_10_raw_theta40.png"
+    # Reference data (Fig 4.9)
+    ref, _, _ = tilt_table_reference(rec100)
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for j, a in enumerate(AXES):
+        ax.plot(ref[:, j], ".-", ms=3, lw=0.6, label=f"f_{a}")
+    ax.set(xlabel="position", ylabel="m/s²", title="Reference specific force per position (cf. seed Fig. 4.9)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out.file("fig_4_9_reference.png"), dpi=110)
+    plt.close(fig)
+    figs["reference"] = "fig_4_9_reference.png"
+    return figs
+
+
+def fit_figures(out: OutputFolder, rec100: Recording, res: dict, figs: dict) -> dict:
+    """The figures of the fits ``res`` (Fig. 4.14, the z-scores) beside those of the record ``figs``
+    (:func:`record_figures`), in the report's order: name -> file."""
+    plt = _pyplot()
     # Fig 4.14: residuals of the final model per position, beside the seed's sigma
     pub = published_figures()
     cal = res["main"]
@@ -154,18 +183,6 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
     fig.savefig(out.file("fig_4_14_residuals.png"), dpi=110)
     plt.close(fig)
     figs["residuals"] = "fig_4_14_residuals.png"
-    # Reference data (Fig 4.9)
-    ref, _, _ = tilt_table_reference(rec100)
-    fig, ax = plt.subplots(figsize=(8, 3.5))
-    for j, a in enumerate(AXES):
-        ax.plot(ref[:, j], ".-", ms=3, lw=0.6, label=f"f_{a}")
-    ax.set(xlabel="position", ylabel="m/s²", title="Reference specific force per position (cf. seed Fig. 4.9)")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out.file("fig_4_9_reference.png"), dpi=110)
-    plt.close(fig)
-    figs["reference"] = "fig_4_9_reference.png"
     # z-scores of recovered parameters
     params = [p for p in res["parameters"] if p.get("z") is not None]
     if params:
@@ -182,7 +199,8 @@ def make_figures(out: OutputFolder, rec: Recording, res: dict) -> dict:
         fig.savefig(out.file("fig_truth_z.png"), dpi=110)
         plt.close(fig)
         figs["truth_z"] = "fig_truth_z.png"
-    return figs
+    order = ("raw_theta40", "residuals", "reference", "truth_z")
+    return {k: figs[k] for k in order if k in figs}
 
 
 def _report_md(camp, rec: Recording, res: dict, figs: dict, timing: dict) -> str:
@@ -287,67 +305,28 @@ def summary_dict(camp, rec: Recording, res: dict, timing: dict, files: dict) -> 
 STAGE_SHARES = {"simulate": 70, "analyse": 14, "figures": 8, "campaign.rrd": 6, "report": 2}
 
 
-class _FiguresBeside:
-    """:func:`make_figures` in a forked process (a second core), started before the fits: it loads
-    matplotlib while this process fits, gets the fits it draws (:meth:`draw`: the main calibration and
-    the parameters; the 100 Hz record it has from the fork) and draws beside the .rrd writer. Where fork
-    is not available, :meth:`draw` draws here."""
-
-    def __init__(self, out: OutputFolder, rec100: Recording):
-        self.out, self.rec100, self.child, self.figs = out, rec100, None, None
-        if "fork" not in multiprocessing.get_all_start_methods():
-            return
-        ctx = multiprocessing.get_context("fork")
-        self._fits, give = ctx.Pipe(duplex=False)
-        self._figs, send = ctx.Pipe(duplex=False)
-        self.child = ctx.Process(target=_draw, args=(self._fits, give, send, out, rec100), daemon=True)
-        self.child.start()
-        send.close()
-        self._fits.close()
-        self._fits = give
-
-    def draw(self, res: dict) -> None:
-        """Start drawing the figures of the fits ``res`` (:func:`analyse`)."""
-        if self.child is None:
-            self.figs = make_figures(self.out, self.rec100, res)
-            return
-        self._fits.send({"main": res["main"], "parameters": res["parameters"]})
-        self._fits.close()
-
-    def cancel(self) -> None:
-        """No figures (the fits failed): the child ends on the closed pipe."""
-        if self.child is not None:
-            self._fits.close()
-            self.child.join()
-
-    def wait(self) -> dict:
-        """The figures drawn: name -> file (raises if the drawing failed)."""
-        if self.child is None:
-            return self.figs
-        return answer(self.child, self._figs)
+def _figures(out: OutputFolder, rec100: Recording, fits: dict, early: dict | None) -> dict:
+    """The figures' process: those of the record drawn while the parent fits (``early``), then the fits'."""
+    if early is None:
+        early = record_figures(out, rec100)
+    return fit_figures(out, rec100, {**fits, "rec100": rec100}, early)
 
 
-def _draw(fits, give, send, out: OutputFolder, rec100: Recording) -> None:
-    give.close()   # the parent's end, copied by the fork: closed here, so the parent closing it ends recv()
-    try:
-        import matplotlib  # loaded while the parent fits
+def _load_rrd(out: OutputFolder, rec100: Recording) -> None:
+    import imurig.reports.tilt_table_rrd  # noqa: F401  (rerun: heavy, loaded in the .rrd's process)
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot  # noqa: F401
-        try:
-            res = fits.recv()
-        except EOFError:  # the parent stopped before the fits (an error there): nothing to draw
-            return
-        send.send(make_figures(out, rec100, {**res, "rec100": rec100}))
-    except Exception as e:  # reported by the parent, which fails the run
-        send.send(f"{type(e).__name__}: {e}")
-    finally:
-        send.close()
+
+def _rrd(out: OutputFolder, rec100: Recording, fits: dict, early=None) -> dict:
+    from imurig.reports.tilt_table_rrd import write_rrd
+
+    write_rrd(out.file("campaign.rrd"), None, {**fits, "rec100": rec100})
+    return {"rrd": "campaign.rrd"}
 
 
 def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True,
-        save_recording: bool = True) -> dict:
-    """Simulate, calibrate and report. Returns the summary dict."""
+        save_recording: bool = True, rig=None) -> dict:
+    """Simulate, calibrate and report. Returns the summary dict. ``rig``: the rig's run started ahead
+    (:class:`imurig.campaigns.tilt_rig.RigAhead`; used if made for ``camp``'s settings)."""
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + ["report"]
     with out:  # committed on success, removed on any error
@@ -355,27 +334,35 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             t0 = time.perf_counter()
             stage("simulate")
             # streamed: the 1 kHz record goes to recording.h5 piece by piece; the analysis gets the 100 Hz windows
-            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
+            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True,
+                                  rig=rig)
             rec100 = sim.rec100
             rec = SimpleNamespace(n=sim.n, n_segments=sim.n_segments, truth=sim.truth)
             t_sim = time.perf_counter() - t0
             t1 = time.perf_counter()
             stage("analyse")
-            figures = _FiguresBeside(out, rec100)   # loads matplotlib beside the fits, then draws beside the .rrd
+            # the figures and the .rrd in forked processes (:mod:`imurig.reports.beside`): they load matplotlib
+            # and rerun while the fits run here, then draw and write beside each other
+            figures = Beside(out, rec100, record_figures, _figures, "drawing the figures")
+            rrd_writer = Beside(out, rec100, _load_rrd, _rrd, "writing campaign.rrd") if rrd else None
             try:
                 res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
             except BaseException:
-                figures.cancel()
+                for b in (figures, rrd_writer):
+                    if b is not None:
+                        b.cancel()
                 raise
             t_cal = time.perf_counter() - t1
             t2 = time.perf_counter()
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
-            figures.draw(res)
-            from imurig.reports.tilt_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
-
-            products = save_products(out, rec100, res, write_rrd, False, rrd, stage)
+            fits = {"main": res["main"], "parameters": res["parameters"]}
+            figures.give(fits)
+            if rrd_writer is not None:
+                rrd_writer.give(fits)
+                stage("campaign.rrd")
+            products = rrd_writer.wait() if rrd_writer is not None else {}
             figs = figures.wait()
             files.update({f"figure_{k}": v for k, v in figs.items()})
             if save_recording:

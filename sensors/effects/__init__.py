@@ -5,6 +5,10 @@ a new effect is one new file here (docs/architecture.md, "Adding an effect"): th
 the bounds and the filter priors find it through ``LIBRARY``, ``by_name`` and ``for_view`` and
 nowhere else. Each class is also an attribute of this package (``from imurig.sensors.effects
 import AdcCrosstalk``).
+
+The modules are imported when the library is first asked for (``LIBRARY``, a class by name, ``by_name``,
+``for_view``), not when the package is: importing one effect's module (the tilt table's backlash, when
+the command line is built) does not load every effect and what they load (scipy.signal: ~1 CPU-s).
 """
 from __future__ import annotations
 
@@ -35,21 +39,41 @@ def _discover() -> tuple[type[Effect], ...]:
     return tuple(sorted(found.values(), key=lambda c: (c.order, c.name)))
 
 
-LIBRARY: tuple[type[Effect], ...] = _discover()
-globals().update({cls.__name__: cls for cls in LIBRARY})
+def _library() -> tuple[type[Effect], ...]:
+    """The library (module doc), discovered on the first call; afterwards also the package's ``LIBRARY``
+    and each class an attribute of the package."""
+    lib = globals().get("LIBRARY")
+    if lib is None:
+        lib = _discover()
+        globals().update({cls.__name__: cls for cls in lib})
+        globals()["LIBRARY"] = lib
+    return lib
+
+
+def __getattr__(name: str):
+    """``LIBRARY`` and the effect classes by name, discovered on first use (module doc)."""
+    if name.startswith("__") or name in {i.name for i in pkgutil.iter_modules(__path__)}:
+        raise AttributeError(name)   # a submodule: the import system loads it
+    lib = _library()
+    if name == "LIBRARY":
+        return lib
+    if name in globals():
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def by_name(name: str) -> type[Effect]:
     """The effect class called ``name``; raises KeyError naming the library's effects."""
-    for cls in LIBRARY:
+    lib = _library()
+    for cls in lib:
         if cls.name == name:
             return cls
-    raise KeyError(f"no effect '{name}' in the library; known: {', '.join(c.name for c in LIBRARY)}")
+    raise KeyError(f"no effect '{name}' in the library; known: {', '.join(c.name for c in lib)}")
 
 
 def for_view(kind: str) -> list[type[Effect]]:
     """The effect classes that offer diagnosis candidates for views of ``kind`` ("positions", ...)."""
-    return [cls for cls in LIBRARY if kind in cls.views]
+    return [cls for cls in _library() if kind in cls.views]
 
 
 def run_tests(kind: str, view) -> dict:
@@ -70,7 +94,7 @@ def registered(*classes: type[Effect]):
     """Add effect classes defined outside this package (a lab's own, an example) to ``LIBRARY`` for
     the duration of a ``with`` block: the diagnosis and every other consumer then find them too."""
     global LIBRARY
-    before = LIBRARY
+    before = _library()
     names = {c.name for c in before}
     for cls in classes:
         if not (isinstance(cls, type) and issubclass(cls, Effect) and cls.name):
