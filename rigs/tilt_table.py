@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 
 from imurig.kernel.errors import ConfigError, ScheduleError
+from imurig.kernel.import_lab import available_memory_bytes
 from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model, sensor_slices
 from imurig.kernel.site import Site, parse_time
@@ -79,6 +80,14 @@ class TiltTableProtocol:
         if self.dwell_s * self.sample_rate_hz < 10:
             raise ScheduleError(f"a dwell of {self.dwell_s} s at {self.sample_rate_hz} Hz gives fewer than 10 "
                                 "samples per position; lengthen the dwell or raise the rate")
+        # the rig's run and the stream keep the record's time axis and row index (16 bytes a sample)
+        n = self.n_positions * self.dwell_s * self.sample_rate_hz
+        have = available_memory_bytes()
+        if 16 * n > have:
+            raise ScheduleError(f"{self.n_positions} positions of {self.dwell_s:g} s at {self.sample_rate_hz:g} Hz "
+                                f"are {n:.3g} samples: about {16 * n / 1e9:.3g} GB of memory for the time axis alone "
+                                f"({have / 1e9:.3g} GB available) and {40 * n / 1e9:.3g} GB of recording on disk; "
+                                "shorten --dwell, lower --rate or take fewer --theta/--phi positions")
         return self
 
     def positions(self) -> list[tuple[str, float, float]]:

@@ -127,3 +127,25 @@ def test_a_file_separated_by_other_than_commas_says_so(sep, says, command, tmp_p
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert says in err and "Traceback" not in err and not (tmp_path / "o").exists()
+
+
+def test_a_schedule_too_long_for_the_machine_is_refused_before_it_runs(tmp_path, capsys):
+    """A dwell of 1e6 s (2.4e11 samples): one message with the sizes and what to shorten, at once, no folder
+    (it used to be killed by the system for memory after half a minute)."""
+    import time
+
+    t = time.perf_counter()
+    assert main(["campaign", "tilt-table", "--dwell", "1e6", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "2.4e+11 samples" in err and "shorten --dwell" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists() and time.perf_counter() - t < 20
+
+
+def test_a_recording_larger_than_the_free_disk_is_refused_before_writing(tmp_path):
+    from imurig.kernel.errors import ConfigError
+    from imurig.kernel.outputs import check_disk
+
+    check_disk(tmp_path / "new" / "r.h5", 1e6, "the recording", "shorten it", free_bytes=2e6)
+    with pytest.raises(ConfigError, match=r"about 0.003 GB on disk, but only 0.002 GB are free there; shorten it"):
+        check_disk(tmp_path / "new" / "r.h5", 3e6, "the recording", "shorten it", free_bytes=2e6)
+    assert not (tmp_path / "new").exists()

@@ -23,7 +23,7 @@ from imurig.calibration.preprocess import filter_design, lowpass_downsample, win
 from imurig.calibration.window_filter import WindowTap
 from imurig.campaigns.tilt_rig import run_table
 from imurig.kernel.h5write import H5RowWriter
-from imurig.kernel.outputs import atomic_write
+from imurig.kernel.outputs import atomic_write, check_disk
 from imurig.kernel.recording import Recording, save_h5
 from imurig.sensors.accelerometer import AXES
 from imurig.sensors.stream import measure_stream, unsupported
@@ -82,6 +82,10 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     table, lab, ss = camp.build()
     ready = rig.take(camp) if rig is not None else None
     run = ready[1] if ready else run_table(table, camp.protocol, camp.start_time, camp.seed)
+    if h5_path is not None:   # the codes (2 bytes each) and ~16 bytes of time, set-points and truth per row, deflated
+        check_disk(h5_path, run.n * (2 * len(lab.adc.scan_list) + 16),
+                   f"the recording of {run.n:.3g} samples ({camp.protocol.n_positions} positions)",
+                   "shorten the schedule (--dwell, --rate, fewer --theta/--phi) or pass --no-recording")
     why = unsupported(lab, run)
     if why:
         return _whole(camp, lab, run, ss, h5_path, overwrite, why)
