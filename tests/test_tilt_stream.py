@@ -17,6 +17,7 @@ from imurig.rigs.tilt_table import TiltTableProtocol
 from imurig.sensors.effects import LooseCable
 from imurig.sensors.stream import STREAM_CHUNK, _Cable
 from h5_layout import assert_same_header_and_layout
+from window_scatter import assert_same_window_scatter
 
 # ~80k samples: two pieces, fast slews (MuJoCo rows at every sample) and a remount gap
 SMALL = TiltTableProtocol(theta_deg=(0, 90), phi_deg=(0, 120, 240), dwell_s=1.0, settle_s=0.5, slew_rate_deg_s=30.0)
@@ -109,13 +110,7 @@ def test_streamed_noise_has_the_whole_chain_size(streamed):
     table, lab, ss = camp.build()
     whole = lab.measure(table.simulate(camp.protocol, camp.start_time,
                                        random_streams.generator("campaign/tilt-table/rig", camp.seed)), ss)
-    for k in camp.scan_list:
-        sds = []
-        for rec in (s.recording, whole):
-            x = np.concatenate([rec.channels[k][sl] - rec.channels[k][sl].mean() for sl in rec.segment_slices()])
-            sds.append((x.std(), x.size))
-        (s1, n), (s2, _) = sds
-        assert abs(s1 / s2 - 1) < 4 * np.sqrt(2 / (2 * n)), (k, s1, s2)
+    assert_same_window_scatter(s.recording, whole, camp.scan_list)
 
 
 def test_what_the_stream_does_not_model_runs_the_whole_chain():
