@@ -18,18 +18,24 @@ import multiprocessing
 
 class FigureProcess:
     """A forked child that draws figure jobs ``fn(out, *args) -> file name`` (module doc): ``first``, the
-    jobs (name, fn, args) it has from the fork, then those given to :meth:`draw`."""
+    jobs (name, fn, args) it has from the fork, then those given to :meth:`draw`. A job may return any
+    picklable value (a study's results beside its figures). ``pyplot``: load matplotlib's pyplot (Agg) in the
+    child before the first job (False for jobs that draw nothing, e.g. the .rrd)."""
 
-    def __init__(self, out, first=()):
+    def __init__(self, out, first=(), pyplot: bool = True):
         self.out, self.child, self.figs = out, None, {}
         if "fork" not in multiprocessing.get_all_start_methods():
+            if pyplot:
+                import matplotlib  # heavy: loaded when figures are drawn
+
+                matplotlib.use("Agg")
             for name, fn, args in first:
                 self.draw(name, fn, *args)
             return
         ctx = multiprocessing.get_context("fork")
         jobs, self._jobs = ctx.Pipe(duplex=False)
         self._answer, send = ctx.Pipe(duplex=False)
-        self.child = ctx.Process(target=_child, args=(jobs, self._jobs, send, out, list(first)),
+        self.child = ctx.Process(target=_child, args=(jobs, self._jobs, send, out, list(first), pyplot),
                                  daemon=True)
         self.child.start()
         send.close()
@@ -70,14 +76,15 @@ def answer(child, conn) -> dict:
     return figs
 
 
-def _child(jobs, parent_end, send, out, first) -> None:
+def _child(jobs, parent_end, send, out, first, pyplot: bool = True) -> None:
     parent_end.close()   # the parent's end, copied by the fork: closed here, so the parent closing it ends recv()
     figs = {}
     try:
-        import matplotlib  # loaded while the parent works
+        if pyplot:
+            import matplotlib  # loaded while the parent works
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot  # noqa: F401
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401
         for name, fn, args in first:
             figs[name] = fn(out, *args)
         while True:
