@@ -60,9 +60,34 @@ class TurnTap:
 
     def volts(self, name: str, a: int, b: int, q: float) -> np.ndarray:
         """Rows [a, b) of a kept channel in volts (code * q, float64: the collected record's values)."""
-        out = np.empty(b - a)
-        np.multiply(self.codes[name][a:b], q, out=out)
-        return out
+        return _volts(self.codes[name][a:b], q)
+
+
+def _volts(codes: np.ndarray, q: float) -> np.ndarray:
+    out = np.empty(codes.shape)
+    np.multiply(codes, q, out=out)
+    return out
+
+
+class TapRows:
+    """The .rrd's rows of a streamed record (:class:`imurig.reports.turn_table_rrd.Rows`-like): its contiguous
+    blocks, ``time(a, b)`` (from the run's t0, dt: its truth's states let go), ``channel(name, a, b)`` (a kept
+    channel's volts, code * q) and ``spin_at(rows)`` (the spin angle at the display's rows). Picklable (plain
+    arrays): it can be sent to the process that writes the .rrd."""
+
+    def __init__(self, run, codes: dict, q: float, pose_rows: np.ndarray, pose_spin: np.ndarray):
+        self.run, self.codes, self.q, self.pose_rows, self.pose_spin = run, codes, q, pose_rows, pose_spin
+        self.blocks = [slice(int(a), int(b)) for a, b in zip(run.off[:-1], run.off[1:])]
+        self.sample_rate_hz = float(run.meta["sample_rate_hz"])
+
+    def time(self, a: int, b: int) -> np.ndarray:
+        return self.run.time_rows(a, b)
+
+    def channel(self, name: str, a: int, b: int) -> np.ndarray:
+        return _volts(self.codes[name][a:b], self.q)
+
+    def spin_at(self, idx) -> np.ndarray:
+        return self.pose_spin[np.searchsorted(self.pose_rows, idx)]
 
 
 def _rows_of(run, times: np.ndarray) -> np.ndarray:
@@ -145,9 +170,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     run.source = None   # the truth's states (~0.25 GB): no longer needed, the times are made from t0, dt
     rec = window_record(run, tap, info, lo, hi, q)
     fig = _fig_record(run, tap, info, i_fig, q)
-    rows = SimpleNamespace(blocks=[slice(int(a), int(b)) for a, b in zip(run.off[:-1], run.off[1:])],
-                           time=run.time_rows, channel=lambda n, a, b: tap.volts(n, a, b, q),
-                           spin_at=lambda idx: tap.pose_spin[np.searchsorted(tap.pose_rows, idx)], sample_rate_hz=fs)
+    rows = TapRows(run, tap.codes, q, tap.pose_rows, tap.pose_spin)
     return SimpleNamespace(rec=rec, rows=rows, fig=fig, n=run.n, streamed=True, why=None,
                            recording=sinks[1].recording(info, info["drop"]) if keep else None)
 

@@ -126,6 +126,11 @@ def _fig_arm(out, arm: dict):
     return "fig_arm_accelerometer.png"
 
 
+def _load_rrd_writer(out) -> None:
+    """The .rrd process's first job: load rerun (~1 CPU-s) while the campaign runs."""
+    import imurig.reports.turn_table_rrd  # noqa: F401
+
+
 def _rrd(out, rec, res, rows):
     """campaign.rrd (:func:`imurig.reports.turn_table_rrd.write_rrd`) from the record's rows ``rows``."""
     from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
@@ -261,10 +266,11 @@ def _residual_data(res: dict) -> dict:
 
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
         studies: bool = True) -> dict:
-    """Simulate, analyse and report (module doc). Three processes share the work: the studies (their own
-    records) and their figures run in a forked process from the start, beside the campaign's simulation; after
-    the analysis that process also draws the campaign's figures, while a second forked process writes the
-    .rrd. Where fork is missing each job runs here, in order."""
+    """Simulate, analyse and report (module doc). Three processes share the work, both helpers forked at the
+    start (before this process starts a thread): the studies (their own records) and their figures run beside
+    the campaign's simulation, and that process then draws the campaign's figures; the second loads rerun,
+    then writes the .rrd from the rows this process sends it after the analysis. Where fork is missing each job
+    runs here, in order."""
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + \
         (["studies"] if studies else []) + ["report"]
@@ -274,7 +280,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             stage("simulate")
             # forked before any thread of this process starts; draws the campaign's figures later (draw())
             figures = FigureProcess(out, [("studies", _studies_and_figures, (camp,))] if studies else [])
-            writer = None
+            writer = FigureProcess(out, [("rerun", _load_rrd_writer, ())], pyplot=False) if rrd else None
             try:
                 # streamed: the HDF5 file written as the rows are made; rec holds the acquisition windows
                 sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
@@ -290,9 +296,13 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                     c.windows_ = res["windows"]
                 sim.rec = None
                 stage("figures")
-                # the .rrd in a second forked process (it has rec, res and the kept rows from the fork), the
-                # campaign's figures in the studies' process (their data sent: small)
-                writer = FigureProcess(out, [("rrd", _rrd, (rec, res, sim.rows))], pyplot=False) if rrd else None
+                # the .rrd in the second process (the kept rows sent: ~0.1 GB; the whole-record chain's rows are
+                # not sent, a process forked now has them), the campaign's figures in the studies' process
+                if rrd and sim.streamed:
+                    writer.draw("rrd", _rrd, rec, res, sim.rows)
+                elif rrd:
+                    writer.wait()
+                    writer = FigureProcess(out, [("rrd", _rrd, (rec, res, sim.rows))], pyplot=False)
                 figures.draw("residuals", _fig_residuals, _residual_data(res))
                 figures.draw("slip_rings", _fig_slip_ring, sim.fig)
                 figures.draw("truth_z", _fig_z, res["parameters"])
@@ -304,7 +314,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 del sim
                 if rrd:
                     stage("campaign.rrd")   # written by the second process
-                    files["rrd"] = writer.wait().pop("rrd")
+                    files["rrd"] = writer.wait()["rrd"]
                 if studies:
                     stage("studies")
                 figs = figures.wait()
