@@ -178,13 +178,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
 def window_record(run, tap: TurnTap, info: dict, lo: np.ndarray, hi: np.ndarray, q: float) -> Recording:
     """The acquisition windows' record (module doc): rows [lo_i - 1, hi_i) of each step i (merged where they
     meet), time, the kept channels in volts, the segments, events, metadata and truth of the record."""
-    keep = np.zeros(run.n + 1, np.int8)   # +1 at a range's start, -1 at its end: the rows kept
-    np.add.at(keep, np.maximum(lo - 1, 0), 1)
-    np.add.at(keep, hi, -1)
-    inside = np.cumsum(keep[:-1]) > 0
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], inside.view(np.int8), [0]))))
-    ranges = list(zip(edges[::2], edges[1::2]))
-    del keep, inside
+    ranges = _merged(zip(np.maximum(lo - 1, 0), hi))
     time = np.concatenate([run.time_rows(a, b) for a, b in ranges])
     channels = {c: np.concatenate([tap.volts(c, a, b, q) for a, b in ranges]) for c in tap.codes}
     meta = dict(info["meta"])
@@ -193,6 +187,18 @@ def window_record(run, tap: TurnTap, info: dict, lo: np.ndarray, hi: np.ndarray,
     return Recording(time_s=time, channels=channels, units={c: "V" for c in channels}, segments=dict(run.segments),
                      segment_units=dict(run.segment_units), meta=meta, truth=info["truth"],
                      channel_quantum={c: q for c in channels}, events=info["events"])
+
+
+def _merged(spans) -> list[tuple[int, int]]:
+    """The row ranges [a, b) covered by ``spans`` (pairs a, b; empty ones dropped), sorted, those that overlap
+    or meet merged into one."""
+    out: list[list[int]] = []
+    for a, b in sorted((int(a), int(b)) for a, b in spans if b > a):
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
 
 
 def _fig_record(run, tap: TurnTap, info: dict, i: int, q: float) -> Recording:
