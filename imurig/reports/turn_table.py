@@ -286,6 +286,7 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
                 rec = sim.rec
                 t_sim = time.perf_counter() - t0
+                figures.draw("slip_rings", _fig_slip_ring, sim.fig)   # needs no fit: drawn while this one fits
                 stage("analyse")
                 res = analyse(rec, camp.timer, camp.model)
                 # keep the windows' segments, let go of their rows
@@ -304,7 +305,6 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                     writer.wait()
                     writer = FigureProcess(out, [("rrd", _rrd, (rec, res, sim.rows))], pyplot=False)
                 figures.draw("residuals", _fig_residuals, _residual_data(res))
-                figures.draw("slip_rings", _fig_slip_ring, sim.fig)
                 figures.draw("truth_z", _fig_z, res["parameters"])
                 out.write_json("calibration.json", res["main"].to_dict())
                 files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
