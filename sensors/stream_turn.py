@@ -32,10 +32,10 @@ class GyroNoiseRows:
     def rows(self, m: int, block_starts) -> np.ndarray:
         """The next ``m`` rows; ``block_starts``: the rows (within the piece) where a contiguous block starts."""
         e = self.noise
-        out = np.zeros((m, 3))
         if not e.enabled:
-            return out
+            return np.zeros((m, 3))
         cuts = sorted({0, *block_starts, m})
+        out = None if len(cuts) == 2 else np.empty((m, 3))   # one block: its rows are the output (no copy)
         for a, b in zip(cuts[:-1], cuts[1:]):
             w = self.rng.standard_normal((b - a, 3))
             w *= e.arw_rad_s_per_sqrt_hz * np.sqrt(self.fs)
@@ -50,7 +50,10 @@ class GyroNoiseRows:
                 for j in range(3):
                     y, self.zi[j] = signal.lfilter([1.0], [1.0, -phi], drive[:, j], zi=self.zi[j])
                     w[:, j] += y
-            out[a:b] = w
+            if out is None:
+                out = w
+            else:
+                out[a:b] = w
         out *= self.scale_V_per_rad_s
         return out
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import multiprocessing
+import sys
 
 import pytest
 
@@ -55,3 +56,20 @@ def test_cancel_ends_the_child(tmp_path):
         child = figures.child
         figures.cancel()
         assert not child.is_alive() and figures.wait() == {}
+
+
+def _value(out, x):
+    """A job that draws nothing and returns a value (a study's results)."""
+    return {"x": x, "pyplot": "matplotlib.pyplot" in sys.modules}
+
+
+def test_a_job_returns_its_value_and_pyplot_loads_only_when_asked(tmp_path):
+    """Also: a child forked later does not hold an earlier child's job pipe open (waited first, it would hang)."""
+    if "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("no fork on this platform")
+    loaded = "matplotlib.pyplot" in sys.modules   # a child has what this process had at the fork
+    with OutputFolder(tmp_path / "out") as out:
+        bare = FigureProcess(out, [("v", _value, (3,))], pyplot=False)
+        drawing = FigureProcess(out, [("v", _value, ([4],))])
+        assert bare.wait() == {"v": {"x": 3, "pyplot": loaded}}
+        assert drawing.wait() == {"v": {"x": [4], "pyplot": True}}

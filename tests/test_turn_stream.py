@@ -4,11 +4,13 @@ windows' rows and the .rrd's 10 Hz means are the whole record's, bit for bit; on
 streamed noise has the whole-record chain's size."""
 from __future__ import annotations
 
+import pickle
+
 import h5py
 import numpy as np
 import pytest
 
-from imurig.campaigns.turn_stream import stream_campaign
+from imurig.campaigns.turn_stream import _merged, stream_campaign
 from imurig.campaigns.turn_table import TurnTableCampaign
 from imurig.kernel import random_streams
 from imurig.kernel.recording import load_h5, save_h5
@@ -79,20 +81,40 @@ def test_fit_on_the_windows_is_the_whole_records(streamed, timer):
 
 
 def test_rrd_rows_and_figure_window_are_the_whole_records(streamed):
+    """The .rrd's rows, also after a pickle round trip (the report sends them to the process that writes the
+    .rrd), are the whole record's."""
     _, _, s = streamed
     rec = s.recording
+    sent = pickle.loads(pickle.dumps(s.rows))
     t, raw = block_means(rec, ["gyro_p", "gyro_q", "gyro_r"], 100)
-    t2, raw2 = block_means(s.rows, ["gyro_p", "gyro_q", "gyro_r"], 100)
-    assert np.array_equal(t, t2) and all(np.array_equal(raw[k], raw2[k]) for k in raw)
     cal = analyse(rec)["main"]
-    c, c2 = calibrated_block_means(rec, cal, 100), calibrated_block_means(s.rows, cal, 100)
-    assert all(np.array_equal(c[k], c2[k]) for k in c)
+    c = calibrated_block_means(rec, cal, 100)
     idx = np.concatenate([np.arange(b.start, b.stop, 100) for b in rec.blocks()])
-    assert np.array_equal(s.rows.spin_at(idx), rec.truth_signals["spin_angle"][idx])
+    for rows in (s.rows, sent):
+        t2, raw2 = block_means(rows, ["gyro_p", "gyro_q", "gyro_r"], 100)
+        assert np.array_equal(t, t2) and all(np.array_equal(raw[k], raw2[k]) for k in raw)
+        c2 = calibrated_block_means(rows, cal, 100)
+        assert all(np.array_equal(c[k], c2[k]) for k in c)
+        assert np.array_equal(rows.spin_at(idx), rec.truth_signals["spin_angle"][idx])
     i = int(np.argmax(np.abs(rec.segments["rate_dial"])))
     sl = rec.segment_slices()[i]
     assert np.array_equal(s.fig.channels["temp_box"], rec.channels["temp_box"][sl])
     assert np.array_equal(s.fig.truth_signals["spin_angle"], rec.truth_signals["spin_angle"][sl])
+
+
+def test_window_ranges_are_the_rows_any_span_covers():
+    """The acquisition windows' row ranges (:func:`_merged`): exactly the rows some span [a, b) covers, as
+    maximal runs (spans that overlap or meet joined), against a row-by-row count."""
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        n = int(rng.integers(5, 300))
+        a = rng.integers(0, n, int(rng.integers(1, 9)))
+        b = np.minimum(a + rng.integers(0, 40, a.size), n)
+        covered = np.zeros(n + 2, bool)
+        for x, y in zip(a, b):
+            covered[x + 1:y + 1] = True
+        edges = np.flatnonzero(np.diff(covered.astype(np.int8)))
+        assert _merged(zip(a, b)) == [(int(x), int(y)) for x, y in zip(edges[::2], edges[1::2])]
 
 
 def test_one_seed_one_data_set(streamed):

@@ -60,9 +60,34 @@ class TurnTap:
 
     def volts(self, name: str, a: int, b: int, q: float) -> np.ndarray:
         """Rows [a, b) of a kept channel in volts (code * q, float64: the collected record's values)."""
-        out = np.empty(b - a)
-        np.multiply(self.codes[name][a:b], q, out=out)
-        return out
+        return _volts(self.codes[name][a:b], q)
+
+
+def _volts(codes: np.ndarray, q: float) -> np.ndarray:
+    out = np.empty(codes.shape)
+    np.multiply(codes, q, out=out)
+    return out
+
+
+class TapRows:
+    """The .rrd's rows of a streamed record (:class:`imurig.reports.turn_table_rrd.Rows`-like): its contiguous
+    blocks, ``time(a, b)`` (from the run's t0, dt: its truth's states let go), ``channel(name, a, b)`` (a kept
+    channel's volts, code * q) and ``spin_at(rows)`` (the spin angle at the display's rows). Picklable (plain
+    arrays): it can be sent to the process that writes the .rrd."""
+
+    def __init__(self, run, codes: dict, q: float, pose_rows: np.ndarray, pose_spin: np.ndarray):
+        self.run, self.codes, self.q, self.pose_rows, self.pose_spin = run, codes, q, pose_rows, pose_spin
+        self.blocks = [slice(int(a), int(b)) for a, b in zip(run.off[:-1], run.off[1:])]
+        self.sample_rate_hz = float(run.meta["sample_rate_hz"])
+
+    def time(self, a: int, b: int) -> np.ndarray:
+        return self.run.time_rows(a, b)
+
+    def channel(self, name: str, a: int, b: int) -> np.ndarray:
+        return _volts(self.codes[name][a:b], self.q)
+
+    def spin_at(self, idx) -> np.ndarray:
+        return self.pose_spin[np.searchsorted(self.pose_rows, idx)]
 
 
 def _rows_of(run, times: np.ndarray) -> np.ndarray:
@@ -145,9 +170,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     run.source = None   # the truth's states (~0.25 GB): no longer needed, the times are made from t0, dt
     rec = window_record(run, tap, info, lo, hi, q)
     fig = _fig_record(run, tap, info, i_fig, q)
-    rows = SimpleNamespace(blocks=[slice(int(a), int(b)) for a, b in zip(run.off[:-1], run.off[1:])],
-                           time=run.time_rows, channel=lambda n, a, b: tap.volts(n, a, b, q),
-                           spin_at=lambda idx: tap.pose_spin[np.searchsorted(tap.pose_rows, idx)], sample_rate_hz=fs)
+    rows = TapRows(run, tap.codes, q, tap.pose_rows, tap.pose_spin)
     return SimpleNamespace(rec=rec, rows=rows, fig=fig, n=run.n, streamed=True, why=None,
                            recording=sinks[1].recording(info, info["drop"]) if keep else None)
 
@@ -155,13 +178,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
 def window_record(run, tap: TurnTap, info: dict, lo: np.ndarray, hi: np.ndarray, q: float) -> Recording:
     """The acquisition windows' record (module doc): rows [lo_i - 1, hi_i) of each step i (merged where they
     meet), time, the kept channels in volts, the segments, events, metadata and truth of the record."""
-    keep = np.zeros(run.n + 1, np.int8)   # +1 at a range's start, -1 at its end: the rows kept
-    np.add.at(keep, np.maximum(lo - 1, 0), 1)
-    np.add.at(keep, hi, -1)
-    inside = np.cumsum(keep[:-1]) > 0
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], inside.view(np.int8), [0]))))
-    ranges = list(zip(edges[::2], edges[1::2]))
-    del keep, inside
+    ranges = _merged(zip(np.maximum(lo - 1, 0), hi))
     time = np.concatenate([run.time_rows(a, b) for a, b in ranges])
     channels = {c: np.concatenate([tap.volts(c, a, b, q) for a, b in ranges]) for c in tap.codes}
     meta = dict(info["meta"])
@@ -170,6 +187,18 @@ def window_record(run, tap: TurnTap, info: dict, lo: np.ndarray, hi: np.ndarray,
     return Recording(time_s=time, channels=channels, units={c: "V" for c in channels}, segments=dict(run.segments),
                      segment_units=dict(run.segment_units), meta=meta, truth=info["truth"],
                      channel_quantum={c: q for c in channels}, events=info["events"])
+
+
+def _merged(spans) -> list[tuple[int, int]]:
+    """The row ranges [a, b) covered by ``spans`` (pairs a, b; empty ones dropped), sorted, those that overlap
+    or meet merged into one."""
+    out: list[list[int]] = []
+    for a, b in sorted((int(a), int(b)) for a, b in spans if b > a):
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
 
 
 def _fig_record(run, tap: TurnTap, info: dict, i: int, q: float) -> Recording:

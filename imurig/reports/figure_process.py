@@ -1,10 +1,10 @@
-"""Figures drawn in a forked process (a second core) while this process writes the .rrd and runs studies.
+"""Figures (or any job) run in a forked process, on a second core, beside this process's work.
 
-matplotlib holds the interpreter lock while it draws: in a thread it would take turns with the .rrd
-writer and the studies; in a forked child it runs beside them. The child starts with what the parent
-had at the fork (the fits, the records: nothing pickled) and draws jobs in the order they are given;
-later jobs (a study's results) are sent over a pipe. Where fork is not available, each job is drawn here
-when it is given.
+matplotlib holds the interpreter lock while it draws: in a thread it would take turns with the
+simulation, the .rrd writer and the studies; in a forked child it runs beside them. The child starts with
+what the parent had at the fork (nothing pickled) and runs jobs in the order they are given; later jobs
+(a study's results, the rows of a record) are sent over a pipe. A job returns a file name or any picklable
+value. Where fork is not available, each job runs here when it is given.
 
     figures = FigureProcess(out, [("residuals", _fig_residuals, (res,))])  # fork: the child has res
     ...                                     # the .rrd, the studies
@@ -14,26 +14,39 @@ when it is given.
 from __future__ import annotations
 
 import multiprocessing
+import weakref
+
+#: the parent's ends of every live child's pipes: a child forked later closes its copies of them, so that no
+#: child holds another's job pipe open (that child would then never see the end of its jobs)
+_PARENT_ENDS: "weakref.WeakSet" = weakref.WeakSet()
 
 
 class FigureProcess:
     """A forked child that draws figure jobs ``fn(out, *args) -> file name`` (module doc): ``first``, the
-    jobs (name, fn, args) it has from the fork, then those given to :meth:`draw`."""
+    jobs (name, fn, args) it has from the fork, then those given to :meth:`draw`. A job may return any
+    picklable value (a study's results beside its figures). ``pyplot``: load matplotlib's pyplot (Agg) in the
+    child before the first job (False for jobs that draw nothing, e.g. the .rrd)."""
 
-    def __init__(self, out, first=()):
+    def __init__(self, out, first=(), pyplot: bool = True):
         self.out, self.child, self.figs = out, None, {}
         if "fork" not in multiprocessing.get_all_start_methods():
+            if pyplot:
+                import matplotlib  # heavy: loaded when figures are drawn
+
+                matplotlib.use("Agg")
             for name, fn, args in first:
                 self.draw(name, fn, *args)
             return
         ctx = multiprocessing.get_context("fork")
         jobs, self._jobs = ctx.Pipe(duplex=False)
         self._answer, send = ctx.Pipe(duplex=False)
-        self.child = ctx.Process(target=_child, args=(jobs, self._jobs, send, out, list(first)),
+        others = list(_PARENT_ENDS)
+        self.child = ctx.Process(target=_child, args=(jobs, [self._jobs, *others], send, out, list(first), pyplot),
                                  daemon=True)
         self.child.start()
         send.close()
         jobs.close()
+        _PARENT_ENDS.update((self._jobs, self._answer))
 
     def draw(self, name: str, fn, *args) -> None:
         """Draw ``fn(out, *args)`` (a module-level function returning the file it wrote) as figure ``name``."""
@@ -70,14 +83,16 @@ def answer(child, conn) -> dict:
     return figs
 
 
-def _child(jobs, parent_end, send, out, first) -> None:
-    parent_end.close()   # the parent's end, copied by the fork: closed here, so the parent closing it ends recv()
+def _child(jobs, parent_ends, send, out, first, pyplot: bool = True) -> None:
+    for end in parent_ends:   # the parent's ends (this child's and earlier children's), copied by the fork:
+        end.close()           # closed here, so the parent closing each ends its child's recv()
     figs = {}
     try:
-        import matplotlib  # loaded while the parent works
+        if pyplot:
+            import matplotlib  # loaded while the parent works
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot  # noqa: F401
+            matplotlib.use("Agg")
+            import matplotlib.pyplot  # noqa: F401
         for name, fn, args in first:
             figs[name] = fn(out, *args)
         while True:

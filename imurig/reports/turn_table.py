@@ -7,7 +7,6 @@ estimated parameter as {name, unit, injected, estimate, std_error, z}), ``calibr
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 from types import SimpleNamespace
 
 import numpy as np
@@ -127,6 +126,11 @@ def _fig_arm(out, arm: dict):
     return "fig_arm_accelerometer.png"
 
 
+def _load_rrd_writer(out) -> None:
+    """The .rrd process's first job: load rerun (~1 CPU-s) while the campaign runs."""
+    import imurig.reports.turn_table_rrd  # noqa: F401
+
+
 def _rrd(out, rec, res, rows):
     """campaign.rrd (:func:`imurig.reports.turn_table_rrd.write_rrd`) from the record's rows ``rows``."""
     from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
@@ -225,12 +229,11 @@ def _fig_z(out, params):
 
 
 #: each stage's share of the default campaign's time (2 cores): the progress bar's ETA
-STAGE_SHARES = {"simulate": 60, "analyse": 3, "figures": 8, "campaign.rrd": 12, "studies": 15, "report": 2}
+STAGE_SHARES = {"simulate": 66, "analyse": 4, "figures": 12, "campaign.rrd": 14, "studies": 2, "report": 2}
 
 
 def _studies(camp: TurnTableCampaign) -> tuple:
-    """The timer study, the arm study and SIMONA (their own records and streams: run beside the campaign, in a
-    worker thread; no figures here, pyplot is drawn from one thread)."""
+    """The timer study, the arm study and SIMONA (their own records and streams, nothing of the campaign's)."""
     ts = timer_study(camp.seed, lab=camp.lab)
     arm = arm_study(camp.seed)
     real = read_simona()
@@ -241,41 +244,68 @@ def _studies(camp: TurnTableCampaign) -> tuple:
     return ts, arm, simona, (real, virt)
 
 
+def _studies_and_figures(out, camp: TurnTableCampaign) -> dict:
+    """The studies (:func:`_studies`) and their figures: the first job of the studies' process, which runs
+    beside the campaign from its start. Returns what the report reads (the studies' records left out)."""
+    ts, arm, simona, (real, virt) = _studies(camp)
+    figs = {"simona": _fig_simona(out, real, virt), "timers": _fig_timers(out, ts), "arm": _fig_arm(out, arm)}
+    return {"ts": _without_recording(ts), "arm": _without_recording(arm), "simona": simona, "figs": figs}
+
+
+def _without_recording(d: dict) -> dict:
+    return {k: v for k, v in d.items() if k != "recording"}
+
+
+def _residual_data(res: dict) -> dict:
+    """What :func:`_fig_residuals` reads of the analysis (small: sent to the figure process)."""
+    cal = res["main"]
+    main = SimpleNamespace(model=cal.model, results_={a: SimpleNamespace(residuals_=cal.results_[a].residuals_)
+                                                      for a in AXES})
+    return {"main": main, "rate": res["rate"], "reference": res["reference"]}
+
+
 def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = True, save_recording: bool = True,
         studies: bool = True) -> dict:
-    import matplotlib  # heavy: loaded when figures are drawn, not when the CLI starts
-
-    matplotlib.use("Agg")
+    """Simulate, analyse and report (module doc). Three processes share the work, both helpers forked at the
+    start (before this process starts a thread): the studies (their own records) and their figures run beside
+    the campaign's simulation, and that process then draws the campaign's figures; the second loads rerun,
+    then writes the .rrd from the rows this process sends it after the analysis. Where fork is missing each job
+    runs here, in order."""
     out = OutputFolder(out_dir, overwrite=overwrite)
     stages = ["simulate", "analyse", "figures"] + (["campaign.rrd"] if rrd else []) + \
         (["studies"] if studies else []) + ["report"]
-    with out, ThreadPoolExecutor(1) as pool:  # the folder committed on success, removed on any error
+    with out:  # the folder committed on success, removed on any error
         with StageBar(STAGE_SHARES, stages, "turn-table campaign") as stage:
-
             t0 = time.perf_counter()
             stage("simulate")
-            # streamed: the HDF5 file written as the rows are made; rec holds the acquisition windows
-            sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
-            rec = sim.rec
-            t_sim = time.perf_counter() - t0
-            stage("analyse")
-            res = analyse(rec, camp.timer, camp.model)
-            # keep the windows' segments, let go of their rows; then the studies simulate their own records beside
-            # the campaign's figures and .rrd (in a worker thread: the memory of one study at a time)
-            rec = SimpleNamespace(n=rec.n, n_segments=rec.n_segments, meta=rec.meta, truth=rec.truth, events=rec.events)
-            res["windows"] = SimpleNamespace(segments=res["windows"].segments)
-            for c in (res["main"], res["seed_final"]):
-                c.windows_ = res["windows"]
-            sim.rec = None
-            # the campaign's figures and the .rrd in a forked process (forked before the studies' thread starts),
-            # beside the studies and their figures here: in threads, matplotlib, the .rrd writer and the studies
-            # would take turns on the interpreter lock
-            stage("figures")
-            jobs = [("residuals", _fig_residuals, (res,)), ("slip_rings", _fig_slip_ring, (sim.fig,)),
-                    ("truth_z", _fig_z, (res["parameters"],))] + ([("rrd", _rrd, (rec, res, sim.rows))] if rrd else [])
-            figures = FigureProcess(out, jobs)
+            # forked before any thread of this process starts; draws the campaign's figures later (draw())
+            figures = FigureProcess(out, [("studies", _studies_and_figures, (camp,))] if studies else [])
+            writer = FigureProcess(out, [("rerun", _load_rrd_writer, ())], pyplot=False) if rrd else None
             try:
-                pending = pool.submit(_studies, camp) if studies else None
+                # streamed: the HDF5 file written as the rows are made; rec holds the acquisition windows
+                sim = stream_campaign(camp, out.file("recording.h5") if save_recording else None, overwrite=True)
+                rec = sim.rec
+                t_sim = time.perf_counter() - t0
+                figures.draw("slip_rings", _fig_slip_ring, sim.fig)   # needs no fit: drawn while this one fits
+                stage("analyse")
+                res = analyse(rec, camp.timer, camp.model)
+                # keep the windows' segments, let go of their rows
+                rec = SimpleNamespace(n=rec.n, n_segments=rec.n_segments, meta=rec.meta, truth=rec.truth,
+                                      events=rec.events)
+                res["windows"] = SimpleNamespace(segments=res["windows"].segments)
+                for c in (res["main"], res["seed_final"]):
+                    c.windows_ = res["windows"]
+                sim.rec = None
+                stage("figures")
+                # the .rrd in the second process (the kept rows sent: ~0.1 GB; the whole-record chain's rows are
+                # not sent, a process forked now has them), the campaign's figures in the studies' process
+                if rrd and sim.streamed:
+                    writer.draw("rrd", _rrd, rec, res, sim.rows)
+                elif rrd:
+                    writer.wait()
+                    writer = FigureProcess(out, [("rrd", _rrd, (rec, res, sim.rows))], pyplot=False)
+                figures.draw("residuals", _fig_residuals, _residual_data(res))
+                figures.draw("truth_z", _fig_z, res["parameters"])
                 out.write_json("calibration.json", res["main"].to_dict())
                 files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
                 if save_recording:
@@ -283,22 +313,21 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 n_samples = sim.n
                 del sim
                 if rrd:
-                    stage("campaign.rrd")   # written by the figure process, beside the studies
-                ts = arm = simona = None
+                    stage("campaign.rrd")   # written by the second process
+                    files["rrd"] = writer.wait()["rrd"]
                 if studies:
                     stage("studies")
-                    ts, arm, simona, (real, virt) = pending.result()
-                    # the study figures here, while the figure process writes the .rrd
-                    later = {"simona": _fig_simona(out, real, virt), "timers": _fig_timers(out, ts),
-                             "arm": _fig_arm(out, arm)}
+                figs = figures.wait()
             except BaseException:
-                figures.cancel()
+                for p in (figures, writer):
+                    if p is not None:
+                        p.cancel()
                 raise
-            figs = figures.wait()
-            if rrd:
-                files["rrd"] = figs.pop("rrd")
+            ts = arm = simona = None
             if studies:
-                figs.update(later)
+                done = figs.pop("studies")
+                ts, arm, simona = done["ts"], done["arm"], done["simona"]
+                figs.update(done["figs"])
             files.update({f"figure_{k}": v for k, v in figs.items()})
             stage("report")
             timing = {"simulate_s": round(t_sim, 2), "total_s": round(time.perf_counter() - t0, 2),

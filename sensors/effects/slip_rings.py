@@ -113,9 +113,24 @@ class SlipRingNoise(Effect):
         if cache is not None and cache[0] is angle_rad and cache[1] == key:
             return cache[2]
         P = np.empty(angle_rad.shape)
-        for i in range(0, P.shape[0], 1 << 18):  # in row pieces: no (n, spots) temporaries
-            a = angle_rad[i:i + (1 << 18), None] - np.asarray(self.spots_rad)[None, :]
-            P[i:i + (1 << 18)] = 1 + self.depth * np.exp(self.kappa * (np.cos(a) - 1)).sum(axis=1)
+        tmp = np.empty(min(P.shape[0], 1 << 18))
+        for i in range(0, P.shape[0], 1 << 18):  # in row pieces, spot by spot, in place: no (n, spots) temporaries
+            p = P[i:i + (1 << 18)]
+            t = tmp[:p.shape[0]]
+            for j, s in enumerate(self.spots_rad):   # exp(kappa (cos(theta - s) - 1)), summed over the spots in order
+                np.subtract(angle_rad[i:i + p.shape[0]], s, out=t)
+                np.cos(t, out=t)
+                t -= 1
+                t *= self.kappa
+                np.exp(t, out=t)
+                if j:
+                    p += t
+                else:
+                    p[...] = t
+            p *= self.depth
+            p += 1
+        if not len(self.spots_rad):
+            P[...] = 1.0
         # kept with a reference to the angle array itself: the chain asks once per line of one record
         self._profile_cache = (angle_rad, key, P)
         return P
