@@ -63,10 +63,9 @@ def _value(out, x):
     return {"x": x, "pyplot": "matplotlib.pyplot" in sys.modules}
 
 
+@needs_fork
 def test_a_job_returns_its_value_and_pyplot_loads_only_when_asked(tmp_path):
     """Also: a child forked later does not hold an earlier child's job pipe open (waited first, it would hang)."""
-    if "fork" not in multiprocessing.get_all_start_methods():
-        pytest.skip("no fork on this platform")
     loaded = "matplotlib.pyplot" in sys.modules   # a child has what this process had at the fork
     with OutputFolder(tmp_path / "out") as out:
         bare = FigureProcess(out, [("v", _value, (3,))], pyplot=False)
