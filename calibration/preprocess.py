@@ -6,7 +6,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 import numpy as np
-from scipy import signal, stats
+from scipy import signal, special
 
 from imurig.calibration.window_filter import lowpass_windows
 from imurig.kernel.errors import RecordingError
@@ -188,8 +188,9 @@ def huber_efficiency(k: float = HUBER_K) -> float:
     """Asymptotic efficiency of :func:`huber_location` against the mean at the Gaussian (known scale):
 
         eff = (2 Phi(k) - 1)^2 / E[psi_k^2],  E[psi_k^2] = 2 Phi(k) - 1 - 2 k phi(k) + 2 k^2 (1 - Phi(k))."""
-    p = 2 * stats.norm.cdf(k) - 1
-    e_psi2 = p - 2 * k * stats.norm.pdf(k) + 2 * k**2 * stats.norm.sf(k)
+    p = 2 * special.ndtr(k) - 1
+    phi = np.exp(-0.5 * k * k) / np.sqrt(2 * np.pi)
+    e_psi2 = p - 2 * k * phi + 2 * k**2 * special.ndtr(-k)
     return float(p**2 / e_psi2)
 
 

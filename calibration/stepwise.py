@@ -22,7 +22,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.stats
+import scipy.special
 
 from imurig.kernel.errors import UnidentifiableTermsError
 
@@ -199,7 +199,7 @@ def forward_selection(
             accept = True
         elif criterion == "f_test":
             F = (res.ss_res - cand.ss_res) / cand.ms_res if cand.ms_res > 0 else np.inf
-            pval = float(scipy.stats.f.sf(F, 1, cand.dof))
+            pval = float(scipy.special.fdtrc(1, cand.dof, F))
             accept = pval < alpha
         else:
             accept = _score(cand, criterion) < _score(res, criterion)
@@ -297,7 +297,7 @@ def backward_elimination(
         F = pval = None
         if criterion == "f_test":
             F = (cand.ss_res - res.ss_res) / res.ms_res if res.ms_res > 0 else np.inf
-            pval = float(scipy.stats.f.sf(F, 1, res.dof))
+            pval = float(scipy.special.fdtrc(1, res.dof, F))
             accept = pval > alpha
         else:
             accept = _score(cand, criterion) < _score(res, criterion)
