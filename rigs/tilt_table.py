@@ -136,25 +136,32 @@ def _command_profile(protocol: TiltTableProtocol, set_theta, set_phi, dt: float)
     ``slew_rate_deg_s``, then settles, then acquires for ``dwell_s``.
     Returns cmd (nstep, 2) rad, list of (start_idx, stop_idx), total steps.
     """
-    pieces, windows = [], []
+    windows, slews = [], []   # slews: (start, n_slew, prev, target)
     n_settle = int(round(protocol.settle_s / dt))
     n_dwell = int(round(protocol.dwell_s / dt))
     rate = protocol.slew_rate_deg_s * DEG
-    prev = np.array([set_theta[0], set_phi[0]])
-    n = 0
-    for k, target in enumerate(np.stack([set_theta, set_phi], 1)):
+    targets = np.stack([set_theta, set_phi], 1)
+    prev = targets[0]
+    n, holds = 0, []
+    for k, target in enumerate(targets):
         delta = float(np.max(np.abs(target - prev)))
         if k > 0 and delta > 0:
             n_slew = max(int(round(0.5 / dt)), int(math.ceil(delta / rate * math.pi / 2 / dt)))
-            s = (1 - np.cos(np.pi * np.arange(1, n_slew + 1) / n_slew)) / 2
-            pieces.append(prev + s[:, None] * (target - prev))
+            slews.append((n, n_slew, prev, target))
             n += n_slew
         hold = n_settle + n_dwell + (n_settle if k == 0 else 0)
-        pieces.append(np.repeat(target[None], hold, 0))
+        holds.append((n, hold, target))
         windows.append((n + hold - n_dwell, n + hold))
         n += hold
         prev = target
-    return np.concatenate(pieces), windows
+    cmd = np.empty((n, 2))   # filled in place, piece by piece (no list of pieces to concatenate)
+    for a, n_slew, p0, p1 in slews:
+        s = (1 - np.cos(np.pi * np.arange(1, n_slew + 1) / n_slew)) / 2
+        np.multiply(s[:, None], p1 - p0, out=cmd[a:a + n_slew])
+        cmd[a:a + n_slew] += p0
+    for a, hold, target in holds:
+        cmd[a:a + hold] = target
+    return cmd, windows
 
 
 #: the coarse MuJoCo step in the moves and the fastest slew it is validated for ("auto")
@@ -212,7 +219,7 @@ class TiltTable:
         bid_base = base_model.body("base").id
         bid_mount = base_model.body("imu_mount").id
         nstep = cmd_nom.shape[0]
-        pos_idx = _position_index(nstep, windows)
+        counts = _position_counts(nstep, windows)   # a position's values over its steps: np.repeat
         models, qpos0, setting_err = [], [], {}
         ctrl = np.empty((len(runs), nstep, 2))   # filled in place: no list of copies
         res = self.errors.setting_resolution_rad
@@ -226,9 +233,9 @@ class TiltTable:
             off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
             c = ctrl[i]
             np.add(cmd_nom, off, out=c)
-            c += err[pos_idx]
+            c += np.repeat(err, counts, axis=0)
             if backlash is not None:
-                c += backlash[r][pos_idx]
+                c += np.repeat(backlash[r], counts, axis=0)
             qpos0.append(c[0].copy())
         return models, ctrl, qpos0, setting_err
 
@@ -396,9 +403,19 @@ class TiltRun:
 def _position_index(nstep: int, windows, steps: np.ndarray | None = None) -> np.ndarray:
     """Index of the position each step (of ``steps``; default all ``nstep``) belongs to (a slew belongs to
     the position it goes to)."""
+    if steps is None:   # all steps, in order: each position's index repeated over its steps (no search)
+        return np.repeat(np.arange(len(windows)), _position_counts(nstep, windows))
     ends = np.array([b for _, b in windows])
-    steps = np.arange(nstep) if steps is None else steps
     return np.minimum(np.searchsorted(ends, steps, side="right"), len(windows) - 1)
+
+
+def _position_counts(nstep: int, windows) -> np.ndarray:
+    """Steps per position over all ``nstep`` steps (:func:`_position_index`: a position's steps run to its
+    window's end; the last position also takes any steps after it)."""
+    ends = np.minimum(np.array([b for _, b in windows]), nstep)
+    counts = np.diff(ends, prepend=0)
+    counts[-1] += nstep - ends[-1]
+    return counts
 
 
 def _copy_model(m):
