@@ -298,12 +298,9 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     saved = {bid: model.body_quat[bid].copy() for bid in overrides}
     # rows equal to the one before (a rig at rest) take its poses: one comparison over the whole record
     same = np.concatenate([[False], np.all([(x[1:] == x[:-1]).all(axis=1) for x in (qpos, *overrides.values())],
-                                           axis=0)])
+                                           axis=0)])[:T]
     try:
-        for k in range(T):
-            if same[k]:
-                xpos[k], xquat[k] = xpos[k - 1], xquat[k - 1]
-                continue
+        for k in np.flatnonzero(~same).tolist():
             for bid, q in overrides.items():
                 model.body_quat[bid] = q[k]
             data.qpos[:] = qpos[k]
@@ -312,6 +309,9 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     finally:
         for bid, q in saved.items():
             model.body_quat[bid] = q
+    # the rows at rest take the poses of the last row computed before them (one gather, no Python per row)
+    last = np.maximum.accumulate(np.where(same, 0, np.arange(T)))
+    xpos, xquat = xpos[last], xquat[last]
     parent = np.asarray(model.body_parentid)
     qp_inv = q_conj(xquat[:, parent])
     rel_pos = _rotate(qp_inv, xpos - xpos[:, parent])
