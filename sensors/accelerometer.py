@@ -50,6 +50,21 @@ def _vec(x) -> np.ndarray:
     return np.broadcast_to(np.asarray(x, float), (3,)).copy()
 
 
+def _times(c, x, out):
+    """c * x, into ``out`` where the product has its shape (and ``out`` is given), else a new array."""
+    if out is not None and np.broadcast_shapes(np.shape(c), np.shape(x)) == out.shape:
+        return np.multiply(c, x, out=out)
+    return c * x
+
+
+def _plus(g, t):
+    """g + t, in place where g (an array of this computation's own) already has the sum's shape."""
+    if np.broadcast_shapes(g.shape, np.shape(t)) == g.shape:
+        g += t
+        return g
+    return g + t
+
+
 @dataclass
 class QFlexTriad:
     """Three QA700 accelerometers with their load resistors (parameters in SI)."""
@@ -149,11 +164,26 @@ class QFlexTriad:
             dT = (T.reshape(-1, 1) if T.ndim == 1 else T) - self.reference_temperature_K
         h = np.asarray(hysteresis, float)
         h = h.reshape(-1, 1) if h.ndim == 1 else h
-        a = (a_S + self.bias_m_s2 + self.k2_per_m_s2 * a_S**2 + self.bias_tempco_m_s2_per_K * dT
-             + self.bias_tempco2_m_s2_per_K2 * dT**2 + self.bias_tempco3_m_s2_per_K3 * dT**3
-             + self.bias_hysteresis_m_s2 * h)
-        current = self.k1_A_per_m_s2 * (1 + self.scale_tempco_per_K * dT + self.scale_hysteresis * h) * a
-        return current * self.load_resistor_ohm
+        shape = np.broadcast_shapes(a_S.shape, np.shape(dT), h.shape)
+        if shape != a_S.shape:   # e.g. one f_C for many temperatures: every row of its own
+            a_S = np.broadcast_to(a_S, shape).copy()
+        # a = a_S + b + k2 a_S^2 + c1 dT + c2 dT^2 + c3 dT^3 + b_h h, i = k1 (1 + s_T dT + s_h h) a, v = i R_L:
+        # the same operations in the same order as that expression, in place (two (n, 3) buffers, not ten)
+        a = a_S + self.bias_m_s2
+        buf = a_S
+        np.square(a_S, out=buf)
+        buf *= self.k2_per_m_s2
+        a += buf
+        for c, x in ((self.bias_tempco_m_s2_per_K, dT), (self.bias_tempco2_m_s2_per_K2, dT**2),
+                     (self.bias_tempco3_m_s2_per_K3, dT**3), (self.bias_hysteresis_m_s2, h)):
+            a += _times(c, x, buf)
+        g = _times(self.scale_tempco_per_K, dT, buf)   # buf (a_S) where the product is (n, 3)
+        g = np.add(1, g, out=g) if g is buf else 1 + g
+        g = _plus(g, self.scale_hysteresis * h)
+        g = _times(self.k1_A_per_m_s2, g, g if g.shape == a.shape else None)
+        a *= g                                          # k1 (...) a: the same product, commuted
+        a *= self.load_resistor_ohm
+        return a
 
     def current_noise(self, averaged: bool = False) -> CurrentNoise:
         """The triad's output current noise as an effect (:mod:`imurig.sensors.effects.current_noise`)."""
