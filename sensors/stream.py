@@ -221,16 +221,17 @@ def measure_stream(lab, run, seed: np.random.SeedSequence, sinks) -> dict:
     drawn = 0
     with ThreadPoolExecutor(1) as pool, ThreadPoolExecutor(1) as dpool:
         draw_ahead(AHEAD + 1)
-        fronts = deque(pool.submit(_front, lab, run, p, people, draws[j], start, t0, fs, sens)
+        ahead = SimpleNamespace(gyro=gyro, slip=slip)   # drawn in the fronts' worker, in piece order
+        fronts = deque(pool.submit(_front, lab, run, p, people, draws[j], start, t0, fs, sens, ahead)
                        for j, p in enumerate(pieces[:AHEAD]))
         prev, cur = None, fronts.popleft().result()
         for i, _ in enumerate(pieces):
             draw_ahead(i + AHEAD + 1)
             if i + AHEAD < len(pieces):
                 fronts.append(pool.submit(_front, lab, run, pieces[i + AHEAD], people, draws[i + AHEAD], start, t0,
-                                          fs, sens))
+                                          fs, sens, ahead))
             nxt = fronts.popleft().result() if fronts else None
-            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(gyro=gyro, slip=slip, cable=cable, lines=lines),
+            _emit(lab, sinks, prev, cur, nxt, SimpleNamespace(cable=cable, lines=lines),
                   draws[i].result()["adc"], state)
             draws[i] = None
             prev, cur = cur, nxt
@@ -261,11 +262,12 @@ def _emit(lab, sinks, prev, cur, nxt, noise, rng, state) -> None:
         s.rows(cur.a, cur.b, cur.t, cur.channels, codes, truth)
 
 
-def _front(lab, run, piece, people, draws, start, t0, fs, sens) -> SimpleNamespace:
+def _front(lab, run, piece, people, draws, start, t0, fs, sens, ahead) -> SimpleNamespace:
     """One piece's rig rows, disturbances, temperatures and the lines that need no neighbours: the
     accelerometers' noise-free volts and current noise (A), the fluxgate's and the temperature sensors'
-    volts. The fronts are made one after the other in piece order (one worker), so each stream is drawn
-    in piece order; ``draws``: the future of the piece's noise draws (:class:`Drawer`)."""
+    volts, the gyros' rate noise and the slip rings' noise (``ahead``: their :class:`GyroNoiseRows` and
+    :class:`SlipRows`, or None). The fronts are made one after the other in piece order (one worker), so
+    each stream is drawn in piece order; ``draws``: the future of the piece's noise draws (:class:`Drawer`)."""
     a, b = piece
     d = draws.result()
     t = run.time_rows(a, b)
@@ -304,10 +306,13 @@ def _front(lab, run, piece, people, draws, start, t0, fs, sens) -> SimpleNamespa
     for line in run.meta.get("analog_lines", []):
         lines[line] = ts[line]
     # the slip rings' profile over the piece (no draws): made here, ahead, for the back's noise
-    slip = scaled_profile(lab.slip_rings, ts["spin_angle"]) if lab.slip_rings.enabled and "spin_angle" in ts \
-        else None
+    slip = ahead.slip.draw(scaled_profile(lab.slip_rings, ts["spin_angle"])) if ahead.slip is not None else None
+    gyro = None
+    if ahead.gyro is not None:   # the gyros' noise: blocks start after a gap (the previous piece's last time)
+        t_prev = float(run.time_rows(a - 1, a)[0]) if a > 0 else None
+        gyro = ahead.gyro.rows(t.size, block_starts(t, t_prev, ahead.gyro.fs))
     return SimpleNamespace(a=a, b=b, t=t, truth=ts, channels=run.channel_rows(a, b), f_dist=f_dist, T=T,
-                           lines=lines, slope_src=slope_src, noise=nz, slip_profile=slip)
+                           lines=lines, slope_src=slope_src, noise=nz, slip_noise=slip, gyro_noise=gyro)
 
 
 def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
@@ -328,13 +333,13 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
         for j, x in enumerate(AXES):
             if f"acc_{x}" in analog and nz is not None:
                 analog[f"acc_{x}"] = analog[f"acc_{x}"] + nz[:, j] * R[j]
-    if noise.gyro is not None:
-        nz = noise.gyro.rows(cur.t.size, block_starts(cur.t, prev.t[-1] if lo else None, noise.gyro.fs))
+    if cur.gyro_noise is not None:
+        nz = cur.gyro_noise
         for j, x in enumerate(GYRO_AXES):
             if f"gyro_{x}" in analog:
                 analog[f"gyro_{x}"] = analog[f"gyro_{x}"] + nz[:, j]
-    if noise.slip is not None:
-        noise.slip.add(analog, cur.truth["spin_angle"], cur.slip_profile)
+    if cur.slip_noise is not None:
+        SlipRows.add(analog, cur.slip_noise)
     if noise.cable is not None:
         analog[lab.cable.channel] = analog[lab.cable.channel] + noise.cable.rows(cur.t.size)
     if noise.lines is not None:     # the lab's own analog-stage effects (sensors/stream_force.py)

@@ -78,13 +78,19 @@ class SlipRows:
     eff: object              # SlipRingNoise
     rngs: dict               # line -> its generator ("slip_<line>")
 
-    def add(self, analog: dict, spin_angle: np.ndarray, P: np.ndarray | None = None) -> None:
-        """analog[line] += rms P(theta) n(t) for every line of ``rngs``, P (:func:`scaled_profile`) computed
-        once for the piece (or given)."""
-        if P is None:
-            P = scaled_profile(self.eff, spin_angle)
+    def draw(self, P: np.ndarray) -> dict:
+        """The piece's noise rms P(theta) n(t) per line of ``rngs`` (P: :func:`scaled_profile` of the piece),
+        drawn ahead of :meth:`add` (in the fronts' worker, each line's stream in piece order)."""
+        out = {}
         for line, rng in self.rngs.items():
             n = rng.standard_normal(P.size)
-            n *= P                   # P n, then v + P n: the same operations as v + P * n, no temporaries
+            n *= P
+            out[line] = n
+        return out
+
+    @staticmethod
+    def add(analog: dict, drawn: dict) -> None:
+        """analog[line] += the drawn P n of :meth:`draw`: v + P n, the same operations as v + P * n."""
+        for line, n in drawn.items():
             n += analog[line]
             analog[line] = n
