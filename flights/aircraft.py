@@ -137,7 +137,6 @@ class CitationSim(VehicleSim):
     """The Citation: aerodynamics + thrust + gear, actuator and engine lags."""
 
     body_name = "aircraft"
-    visual_geoms = ("fuselage", "wing", "htail", "vtail")   # 15 % of a step's cost in the air, no physics
 
     def __init__(self, aero: CitationAero | None = None, rate_hz: float = 100.0, substeps: int = 1,
                  h0_m: float = 0.0):

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from importlib import resources
 
 import mujoco
 import numpy as np
 
 from imurig.flights.truth import BodyKinematics
 from imurig.kernel.errors import ConfigError
+from imurig.rigs.mujoco_rig import load_model
 
 ROW = 26   # a recorded sample: t, qpos[0:7], qvel[0:6], dv/dt[0:6], controls de, da, dr, thr, steer, brake
 
@@ -106,20 +106,6 @@ class Wheel:
     braked: bool = True
 
 
-def physics_model(asset: str, visual_geoms: tuple = ()) -> mujoco.MjModel:
-    """Compile ``imurig/assets/<asset>`` without the geoms named in ``visual_geoms``: shapes for the eye
-    only (no mass, no contacts, on bodies whose inertia is given explicitly), which the physics never
-    reads but every step would place (``mj_kinematics``); dropping them leaves the masses, inertias,
-    joints, sites and contact pairs, hence the steps, unchanged (tested to the bit)."""
-    spec = mujoco.MjSpec.from_string(resources.files("imurig.assets").joinpath(asset).read_text())
-    for name in visual_geoms:
-        g = spec.geom(name)
-        if g is None or g.contype or g.conaffinity or g.mass:
-            raise ConfigError(f"{asset}: {name!r} is not a mass-less, contact-less visual geom")
-        spec.delete(g)
-    return spec.compile()
-
-
 def quat_to_C(w, x, y, z):
     """Row-major 3x3 rotation matrix (body to world) of the unit quaternion (w, x, y, z), as 9 floats."""
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
@@ -136,13 +122,12 @@ class VehicleSim:
     samples obey v_{k+1} = v_k + Δt a_k to rounding."""
 
     body_name = "vehicle"
-    visual_geoms: tuple = ()   # geoms for the eye only, left out of the simulated model (:func:`physics_model`)
 
     def __init__(self, asset: str, wheels: list[Wheel], rate_hz: float = 100.0, substeps: int = 1,
                  h0_m: float = 0.0):
         if rate_hz <= 0 or substeps < 1:
             raise ConfigError(f"rate_hz must be > 0 and substeps >= 1 (got {rate_hz}, {substeps})")
-        self.model = physics_model(asset, self.visual_geoms)
+        self.model = load_model(asset)
         self.model.opt.timestep = 1.0 / (rate_hz * substeps)
         self.data = mujoco.MjData(self.model)
         self.rate_hz, self.substeps, self.h0_m = float(rate_hz), int(substeps), float(h0_m)

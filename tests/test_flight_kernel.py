@@ -147,35 +147,3 @@ def test_compiled_truth_equals_the_numpy_truth_to_rounding(monkeypatch):
     reference = static_tests_truth(dwell_s=2.0, transition_s=2.0, rate_hz=50.0)
     for f in TRUTH:
         _equal_to_rounding(getattr(reference, f), getattr(compiled, f), f"static {f}")
-
-
-class _FullModelCitation(CitationSim):
-    visual_geoms = ()   # the asset as drawn: the visual geoms kept in the simulated model
-
-
-def test_dropping_the_visual_geoms_changes_no_step():
-    """The fuselage, wing and tails are shapes for the eye (no mass, no contacts): the simulated model
-    leaves them out, and the masses, inertias and the samples are the same to the bit, in the air
-    (contacts off) and on the ground (wheel contacts, tyres, brakes)."""
-    from imurig.flights.vehicle import physics_model
-    from imurig.kernel.errors import ConfigError
-
-    lean, full = CitationSim(rate_hz=1000.0), _FullModelCitation(rate_hz=1000.0)
-    assert full.model.ngeom - lean.model.ngeom == 4 and lean.model.nbody == full.model.nbody
-    for f in ("body_mass", "body_inertia", "body_ipos", "body_iquat", "site_pos", "dof_damping", "jnt_stiffness"):
-        np.testing.assert_array_equal(getattr(lean.model, f), getattr(full.model, f), err_msg=f)
-    for s in (lean, full):
-        s.set_airborne(120.0, 1500.0)
-        s.run(Cmd(de=s.act.de + 0.01, da=0.05, dr=-0.02, thr=0.6), 300)
-    _same_samples(lean, full)
-    ground = []
-    for cls in (CitationSim, _FullModelCitation):
-        s = cls(rate_hz=500.0)
-        s.data.qpos[3:7] = earth.q_from_euler(0.0, 0.0, 1.0)
-        s.settle(1.0)
-        s.run(Cmd(thr=0.3, steer=0.4, brake=0.2), 200)
-        ground.append(s)
-    assert ground[0].data.ncon > 0                         # the wheels were on the ground
-    _same_samples(*ground)
-    with pytest.raises(ConfigError, match="nose_wheel"):
-        physics_model("citation.xml", ("nose_wheel",))     # it carries mass and contacts: not visual
