@@ -94,7 +94,12 @@ def beside_peer(repeat: int = 1) -> dict:
         runs.append({"imurig": im, "peer": peer, "ratio_samples_per_s": im["samples_per_s"] / peer["samples_per_s"]})
         print(json.dumps(runs[-1]), flush=True)
     ratios = sorted(r["ratio_samples_per_s"] for r in runs)
+    med = lambda xs: sorted(xs)[len(xs) // 2]  # noqa: E731
     out = {"repeats": repeat, "ratio_samples_per_s_median": ratios[len(ratios) // 2],
+           # each side's median over the runs, then their ratio: not tied to the load of each pair's moment
+           "ratio_of_medians": med([r["imurig"]["samples_per_s"] for r in runs])
+           / med([r["peer"]["samples_per_s"] for r in runs]),
+           "imurig_cpu_s_median": med([r["imurig"]["cpu_s"] for r in runs]),
            "ratio_first_run": runs[0]["ratio_samples_per_s"],
            "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()],
            "mj_step_us": mj_step_us(), "peak_rss_mb": peak_rss_mb()}
