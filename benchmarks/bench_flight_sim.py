@@ -15,7 +15,8 @@ its imports) and the ratio imurig / peer, with the load average before and after
 the process also pays numba's one-time set-up at its first call (~0.25 CPU-s: its typing and target
 registries) and loads the compiled flight steps and truth pass from numba's disk cache (~0.01 CPU-s;
 after an install or an edit, it compiles them: seconds); ``ratio_first_run`` shows it, the median is
-over all runs.
+over all runs. Each run also gives imurig's CPU-s by stage (``cpu_s_stages``: flight + truth, GPS, IMU
+chain), and the summary MuJoCo's own cost per step for the Citation in the air (``mj_step_us``, CPU).
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import resource  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -36,6 +38,26 @@ from pathlib import Path  # noqa: E402
 def peak_rss_mb() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return (r if sys.platform == "darwin" else r * 1024) / 2**20
+
+
+def mj_step_us(steps: int = 10_000, repeat: int = 5) -> float:
+    """MuJoCo's own step for the Citation in the air as the flight takes it (contacts and constraint
+    solver off, 1 kHz): CPU microseconds per ``mj_step``, the best of ``repeat`` loops of ``steps`` steps
+    run inside MuJoCo (``nstep``: no Python call per step), no forces applied."""
+    import mujoco
+    from imurig.flights.aircraft import _NO_CONTACT, CitationSim
+
+    sim = CitationSim(rate_hz=1000.0)
+    sim.set_airborne(120.0, 1500.0)
+    m, d = sim.model, sim.data
+    m.opt.disableflags |= _NO_CONTACT
+    q0, v0, best = d.qpos.copy(), d.qvel.copy(), math.inf
+    for _ in range(repeat):
+        d.qpos[:], d.qvel[:] = q0, v0
+        c0 = time.process_time()
+        mujoco.mj_step(m, d, nstep=steps)
+        best = min(best, time.process_time() - c0)
+    return round(best / steps * 1e6, 3)
 
 
 def beside_peer(repeat: int = 1) -> dict:
@@ -59,20 +81,28 @@ def beside_peer(repeat: int = 1) -> dict:
         peer = peer_once(1000.0)
         t0, c0 = time.perf_counter(), time.process_time()
         truth = simulate_flight(plan, progress_bar=False)
-        t_truth = time.perf_counter() - t0
+        t_truth, c_truth = time.perf_counter() - t0, time.process_time() - c0
         GpsReceiver.euro4("rtk", rate_hz=10.0).measure(truth, random_streams.generator("flight/gps", 2005))
+        c_gps = time.process_time() - c0
         lab = ImuLab.draw(random_streams.generator("sensor_errors", 2005))
         measure_flight(truth, lab, random_streams.seed_sequence("flight/sensor-chain", 2005))
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         im = {"samples": truth.n, "sim_s": truth.n / plan.rate_hz, "wall_s": wall, "cpu_s": cpu,
-              "mujoco_and_truth_s": t_truth, "samples_per_s": truth.n / wall}
+              "mujoco_and_truth_s": t_truth, "samples_per_s": truth.n / wall,
+              "cpu_s_stages": {"fly_and_truth": round(c_truth, 4), "gps": round(c_gps - c_truth, 4),
+                               "imu_chain": round(cpu - c_gps, 4)}}
         runs.append({"imurig": im, "peer": peer, "ratio_samples_per_s": im["samples_per_s"] / peer["samples_per_s"]})
         print(json.dumps(runs[-1]), flush=True)
     ratios = sorted(r["ratio_samples_per_s"] for r in runs)
+    med = lambda xs: sorted(xs)[len(xs) // 2]  # noqa: E731
     out = {"repeats": repeat, "ratio_samples_per_s_median": ratios[len(ratios) // 2],
+           # each side's median over the runs, then their ratio: not tied to the load of each pair's moment
+           "ratio_of_medians": med([r["imurig"]["samples_per_s"] for r in runs])
+           / med([r["peer"]["samples_per_s"] for r in runs]),
+           "imurig_cpu_s_median": med([r["imurig"]["cpu_s"] for r in runs]),
            "ratio_first_run": runs[0]["ratio_samples_per_s"],
            "load_before": [round(x, 2) for x in load0], "load_after": [round(x, 2) for x in os.getloadavg()],
-           "peak_rss_mb": peak_rss_mb()}
+           "mj_step_us": mj_step_us(), "peak_rss_mb": peak_rss_mb()}
     print(json.dumps(out))
     return out
 
