@@ -33,6 +33,7 @@ import rerun.blueprint as rrb
 from imurig.flights.earth import q_conj, q_mult
 from imurig.kernel.errors import OutputExistsError
 from imurig.reports.rrd_layout import _VIEW_OF, MARKER, WIDTH, legend, role_color, uncovered, views_of
+from imurig.rigs.batch_kinematics import forward_kinematics
 
 TIMELINE = "time"
 _SOLID = rr.components.FillMode.Solid
@@ -276,9 +277,8 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
         body (its fixed orientation in the parent frame, e.g. a per-run IMU mounting) row by
         row. ``model`` is restored afterwards.
 
-    Forward kinematics runs ``mujoco.mj_kinematics`` once per row in a Python loop (a row equal to
-    the one before takes its poses); that is meant for display rates (10-25 Hz, T up to some 1e4),
-    not for raw sensor rates.
+    Forward kinematics for all rows at once (:mod:`imurig.rigs.batch_kinematics`; free or ball joints:
+    ``mj_kinematics`` row by row, meant for display rates).
     The relative pose is parent <- child: t = R_p^T (x_b - x_p), q = q_p^* q_b.
     """
     time_s = np.asarray(time_s, dtype=float)
@@ -292,8 +292,26 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
             raise ValueError(f"body_quat_overrides: no body named {name!r} in the model")
         q = np.broadcast_to(np.asarray(q, dtype=float), (len(time_s), 4))
         overrides[bid] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    nb = model.nbody
+    fk = forward_kinematics(model, qpos, overrides)   # hinge and slide trees: all rows at once
+    xpos, xquat = fk if fk is not None else _kinematics_by_row(model, qpos, overrides)
+    parent = np.asarray(model.body_parentid)
+    qp_inv = q_conj(xquat[:, parent])
+    rel_pos = _rotate(qp_inv, xpos - xpos[:, parent])
+    rel_quat = q_mult(qp_inv, xquat)
+    times = _time_column(time_s)
+    for b in range(1, nb):
+        w.note(body_path(model, b, root), "Transform3D")
+        w.stream.send_columns(body_path(model, b, root), indexes=[times],
+                              columns=rr.Transform3D.columns(translation=rel_pos[:, b],
+                                                             quaternion=_xyzw(rel_quat[:, b])))
+
+
+def _kinematics_by_row(model: mujoco.MjModel, qpos: np.ndarray, overrides: dict):
+    """(xpos, xquat) of every body for each row of ``qpos``, ``mj_kinematics`` row by row (free or ball
+    joints, mocap bodies); a row equal to the one before takes its poses."""
     data = mujoco.MjData(model)
-    T, nb = len(time_s), model.nbody
+    T, nb = len(qpos), model.nbody
     xpos, xquat = np.empty((T, nb, 3)), np.empty((T, nb, 4))
     saved = {bid: model.body_quat[bid].copy() for bid in overrides}
     # rows equal to the one before (a rig at rest) take its poses: one comparison over the whole record
@@ -312,17 +330,7 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     # the rows at rest take the poses of the last row computed before them (one gather, no Python per row)
     last = np.maximum.accumulate(np.where(same, 0, np.arange(T)))
     xpos, xquat = xpos[last], xquat[last]
-    parent = np.asarray(model.body_parentid)
-    qp_inv = q_conj(xquat[:, parent])
-    rel_pos = _rotate(qp_inv, xpos - xpos[:, parent])
-    rel_quat = q_mult(qp_inv, xquat)
-    times = _time_column(time_s)
-    for b in range(1, nb):
-        w.note(body_path(model, b, root), "Transform3D")
-        w.stream.send_columns(body_path(model, b, root), indexes=[times],
-                              columns=rr.Transform3D.columns(translation=rel_pos[:, b],
-                                                             quaternion=_xyzw(rel_quat[:, b])))
-
+    return xpos, xquat
 
 def log_frame_axes(w: RrdWriter, entity: str, length: float = 0.15) -> None:
     """Static x (red), y (green), z (blue) arrows of ``length`` m at ``entity``'s origin."""

@@ -1,0 +1,66 @@
+"""Forward kinematics of a MuJoCo model's hinge-and-slide trees for many joint states at once.
+
+For each body i (parent p), as ``mj_kinematics`` computes it, row by row over T states::
+
+    x_i = x_p + R_p r_i,   q_i = q_p (x) q0_i                    (body_pos r_i, body_quat q0_i)
+    for each joint j of body i, in order (axis a_j, anchor s_j in the body frame, angle or shift
+    u = qpos[j] - qpos0[j]):
+        anchor  c = x_i + rot(q_i, s_j)
+        hinge:  q_i <- q_i (x) quat(a_j, u),  x_i <- c - rot(q_i, s_j)
+        slide:  x_i <- x_i + rot(q_i, a_j) u
+    q_i <- q_i / |q_i|
+
+vectorised over the T rows (a loop over the few bodies, none over the rows). It agrees with MuJoCo's
+``mj_kinematics`` to rounding (tests/test_batch_kinematics.py); models with free or ball joints or mocap
+bodies are not covered (:func:`forward_kinematics` returns None, the caller steps MuJoCo row by row).
+"""
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (..., 4) w, x, y, z quaternions."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def _rot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v (3,) or (..., 3) rotated by the unit quaternions q (..., 4): v + 2 w (u x v) + 2 u x (u x v)."""
+    w, u = q[..., :1], q[..., 1:]
+    t = 2 * np.cross(u, np.broadcast_to(v, u.shape))
+    return v + w * t + np.cross(u, t)
+
+
+def forward_kinematics(model: mujoco.MjModel, qpos: np.ndarray, body_quat: dict | None = None):
+    """(xpos (T, nbody, 3), xquat (T, nbody, 4)) for the joint states ``qpos`` (T, nq); ``body_quat``:
+    {body id: (T, 4) unit quaternions} in place of those bodies' ``body_quat``. None where the model has
+    a free or ball joint or a mocap body (module doc)."""
+    if np.any(np.isin(model.jnt_type, (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL))) or \
+            np.any(model.body_mocapid >= 0):
+        return None
+    qpos = np.asarray(qpos, float)
+    T, nb = qpos.shape[0], model.nbody
+    xpos, xquat = np.zeros((T, nb, 3)), np.zeros((T, nb, 4))
+    xquat[:, 0, 0] = 1.0
+    for i in range(1, nb):
+        p = model.body_parentid[i]
+        q0 = (body_quat or {}).get(i, model.body_quat[i])
+        x = xpos[:, p] + _rot(xquat[:, p], model.body_pos[i])
+        q = _qmul(xquat[:, p], np.broadcast_to(q0, (T, 4)))
+        for j in range(model.body_jntadr[i], model.body_jntadr[i] + model.body_jntnum[i]):
+            adr, axis, anchor = model.jnt_qposadr[j], model.jnt_axis[j], model.jnt_pos[j]
+            u = qpos[:, adr] - model.qpos0[adr]
+            if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE:
+                x = x + _rot(q, axis) * u[:, None]
+            else:   # hinge
+                c = x + _rot(q, anchor)
+                half = 0.5 * u[:, None]
+                q = _qmul(q, np.concatenate([np.cos(half), np.sin(half) * axis], axis=1))
+                x = c - _rot(q, anchor)
+        xpos[:, i] = x
+        xquat[:, i] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return xpos, xquat

@@ -1,0 +1,36 @@
+"""The batched forward kinematics against MuJoCo's own mj_kinematics, row by row, on the rigs' models."""
+import mujoco
+import numpy as np
+import pytest
+
+from imurig.rigs.batch_kinematics import forward_kinematics
+from imurig.rigs.mujoco_rig import load_model
+
+EPS = np.finfo(float).eps
+
+
+@pytest.mark.parametrize("name", ["tilt_table.xml", "turn_table.xml", "mag_rig.xml"])
+def test_agrees_with_mj_kinematics(name):
+    model, rng = load_model(name), np.random.default_rng(11)
+    data = mujoco.MjData(model)
+    T = 40
+    qpos = rng.uniform(-3.5, 3.5, (T, model.nq))
+    q = rng.normal(size=(T, 4))
+    over = {model.nbody - 1: q / np.linalg.norm(q, axis=1, keepdims=True)}   # a per-row mounting
+    xpos, xquat = forward_kinematics(model, qpos, over)
+    scale = 1 + np.max(np.abs(model.body_pos)) * model.nbody
+    for k in range(T):
+        model.body_quat[model.nbody - 1] = over[model.nbody - 1][k]
+        data.qpos[:] = qpos[k]
+        mujoco.mj_kinematics(model, data)
+        # rounding only: a few ulps of the positions' scale; quaternions up to their sign
+        assert np.max(np.abs(xpos[k] - data.xpos)) <= 16 * EPS * scale
+        sign = np.sign(np.sum(xquat[k] * data.xquat, axis=1))[:, None]
+        assert np.max(np.abs(sign * xquat[k] - data.xquat)) <= 16 * EPS
+    # a moved joint moves the bodies (the check above cannot pass on a constant answer)
+    assert np.ptp(xquat[:, -1], axis=0).max() > 0.1
+
+
+def test_free_joints_are_left_to_mujoco():
+    model = load_model("citation.xml")
+    assert forward_kinematics(model, np.zeros((3, model.nq))) is None
