@@ -56,7 +56,9 @@ class TurnRun:
         """time_s over samples [a, b)."""
         out = np.empty(b - a)
         for m, first, lo, hi in self._mounts(a, b):
-            out[lo - a:hi - a] = self.t0[m] + np.arange(lo - first, hi - first) * self.dt
+            seg = out[lo - a:hi - a]   # t0 + k dt, in place
+            np.multiply(np.arange(lo - first, hi - first), self.dt, out=seg)
+            seg += self.t0[m]
         return out
 
     def channel_rows(self, a: int, b: int) -> dict:

@@ -156,7 +156,7 @@ class QFlexTriad:
         """Noise-free output voltages (n, 3) for specific force ``f_C`` (n, 3) m/s^2, the
         accelerometers' temperature (K, scalar, (n,) or (n,3)) and hysteresis state h ((n,) or (n,3))."""
         f_C = np.asarray(f_C, float)
-        a_S = f_C + f_C @ self.misalignment_rad.T
+        a_S = f_C + f_C @ np.ascontiguousarray(self.misalignment_rad.T)   # C-ordered: BLAS, the same numbers
         if temperature_K is None:
             dT = 0.0
         else:

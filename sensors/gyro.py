@@ -90,16 +90,28 @@ class FOGTriad:
         """Noise-free output voltages (n, 3) for true rates ``w_C`` (n, 3) rad/s and the specific
         force ``f_C`` (n, 3) m/s^2 (needed only with a g-sensitivity)."""
         w_C = np.asarray(w_C, float)
-        w_S = w_C + w_C @ self.misalignment_rad.T
+        # M^T as a C-ordered copy: numpy's matmul then takes BLAS (~10x less CPU for (n, 3) rows than the
+        # transposed view, the same numbers)
+        w_S = w_C @ np.ascontiguousarray(self.misalignment_rad.T)
+        w_S += w_C                                   # w_C + M w_C
         dT = 0.0 if temperature_K is None else np.asarray(temperature_K, float).reshape(-1, 1) - \
             self.reference_temperature_K
-        w = w_S + self.bias_rad_s + self.k2_per_rad_s * w_S**2 + self.bias_tempco_rad_s_per_K * dT
+        # w = w_S + b + k2 w_S^2 + tc_b dT, added in that order; in place (two (n, 3) arrays, not six)
+        w = w_S + self.bias_rad_s
+        sq = np.multiply(w_S, w_S)
+        sq *= self.k2_per_rad_s
+        w += sq
+        w += self.bias_tempco_rad_s_per_K * dT
         if np.any(self.cross_coupling_per_rad_s):
             pairs = np.stack([w_S[:, 0] * w_S[:, 1], w_S[:, 0] * w_S[:, 2], w_S[:, 1] * w_S[:, 2]], axis=1)
             w = w + pairs @ self.cross_coupling_per_rad_s.T
         if f_C is not None and np.any(self.g_sensitivity_rad_s_per_m_s2):
             w = w + GSensitivity(self.g_sensitivity_rad_s_per_m_s2).rate_error(f_C)
-        return self.scale_V_per_rad_s * (1 + self.scale_tempco_per_K * dT) * w
+        k = self.scale_V_per_rad_s * (1 + self.scale_tempco_per_K * dT)
+        if np.broadcast_shapes(k.shape, w.shape) != w.shape:   # one rate (3,) at a temperature: (1, 3) out
+            return k * w
+        w *= k
+        return w
 
     def noise(self) -> GyroNoise:
         """The triad's rate noise as an effect (:mod:`imurig.sensors.effects.gyro_noise`)."""

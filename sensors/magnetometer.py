@@ -68,7 +68,7 @@ class FluxgateTriad:
         ``temperature_K`` (n,) K (None: no temperature term)."""
         mis, soft, hard, temp = self.effects()
         A = soft.matrix() @ mis.matrix()  # S (I + M), composed once
-        B_S = hard.inject(B_C @ A.T)
+        B_S = hard.inject(B_C @ np.ascontiguousarray(A.T))   # C-ordered: BLAS, the same numbers
         if temperature_K is not None and np.any(self.tempco_T_per_K):
             B_S = B_S + temp.offset_T(temperature_K)
         B_S = B_S + self.noise_T_rms * rng.standard_normal(B_S.shape)
