@@ -361,7 +361,12 @@ class _Gradient:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         out = np.empty_like(x)
-        out[1:-1] = self.a * x[:-2] + self.b * x[1:-1] + self.c * x[2:]
+        mid = out[1:-1]   # a x[:-2] + b x[1:-1] + c x[2:], summed in that order, in place
+        np.multiply(self.a, x[:-2], out=mid)
+        tmp = self.b * x[1:-1]
+        mid += tmp
+        np.multiply(self.c, x[2:], out=tmp)
+        mid += tmp
         out[0] = (x[1] - x[0]) / self.dx[0]
         out[-1] = (x[-1] - x[-2]) / self.dx[-1]
         return out
