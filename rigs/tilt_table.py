@@ -19,7 +19,6 @@ each position reached by turning a wheel back (seed 4.3.1, effect ``table_backla
 """
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 
 import mujoco
@@ -35,8 +34,11 @@ from imurig.sensors.effects.table_backlash import TableBacklash
 from imurig.rigs.tilt_kinematics import (MOUNTS, TableSurvey, reference_specific_force,  # noqa: F401 (re-exported)
                                          reference_with_jacobian, rot_x, rot_y, rot_z, rotate_to_body,
                                          setting_error_covariance, specific_force_C)
+from imurig.rigs.tilt_schedule import command_profile as _command_profile  # noqa: F401 (imported from here too)
+from imurig.rigs.tilt_schedule import position_counts as _position_counts, position_index as _position_index
 from imurig.rigs.tilt_truth import SIGNALS as SIGNAL_NAMES
 from imurig.rigs.tilt_truth import TruthPieces, full_truth, stitched_pieces
+
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
     import mujoco
@@ -127,41 +129,6 @@ class TiltTableErrors:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-def _command_profile(protocol: TiltTableProtocol, set_theta, set_phi, dt: float):
-    """Commanded (theta, phi) per sample and acquisition windows for one run.
-
-    Between positions the table slews on a cosine profile whose peak rate is
-    ``slew_rate_deg_s``, then settles, then acquires for ``dwell_s``.
-    Returns cmd (nstep, 2) rad, list of (start_idx, stop_idx), total steps.
-    """
-    windows, slews = [], []   # slews: (start, n_slew, prev, target)
-    n_settle = int(round(protocol.settle_s / dt))
-    n_dwell = int(round(protocol.dwell_s / dt))
-    rate = protocol.slew_rate_deg_s * DEG
-    targets = np.stack([set_theta, set_phi], 1)
-    prev = targets[0]
-    n, holds = 0, []
-    for k, target in enumerate(targets):
-        delta = float(np.max(np.abs(target - prev)))
-        if k > 0 and delta > 0:
-            n_slew = max(int(round(0.5 / dt)), int(math.ceil(delta / rate * math.pi / 2 / dt)))
-            slews.append((n, n_slew, prev, target))
-            n += n_slew
-        hold = n_settle + n_dwell + (n_settle if k == 0 else 0)
-        holds.append((n, hold, target))
-        windows.append((n + hold - n_dwell, n + hold))
-        n += hold
-        prev = target
-    cmd = np.empty((n, 2))   # filled in place, piece by piece (no list of pieces to concatenate)
-    for a, n_slew, p0, p1 in slews:
-        s = (1 - np.cos(np.pi * np.arange(1, n_slew + 1) / n_slew)) / 2
-        np.multiply(s[:, None], p1 - p0, out=cmd[a:a + n_slew])
-        cmd[a:a + n_slew] += p0
-    for a, hold, target in holds:
-        cmd[a:a + hold] = target
-    return cmd, windows
 
 
 #: the coarse MuJoCo step in the moves and the fastest slew it is validated for ("auto")
@@ -398,24 +365,6 @@ class TiltRun:
                          units=dict(self.units), segments=self.segments, segment_units=self.segment_units,
                          meta=self.meta, truth=self.truth, truth_signals=truth_signals,
                          truth_units={k: self.truth_units[k] for k in truth_signals})
-
-
-def _position_index(nstep: int, windows, steps: np.ndarray | None = None) -> np.ndarray:
-    """Index of the position each step (of ``steps``; default all ``nstep``) belongs to (a slew belongs to
-    the position it goes to)."""
-    if steps is None:   # all steps, in order: each position's index repeated over its steps (no search)
-        return np.repeat(np.arange(len(windows)), _position_counts(nstep, windows))
-    ends = np.array([b for _, b in windows])
-    return np.minimum(np.searchsorted(ends, steps, side="right"), len(windows) - 1)
-
-
-def _position_counts(nstep: int, windows) -> np.ndarray:
-    """Steps per position over all ``nstep`` steps (:func:`_position_index`: a position's steps run to its
-    window's end; the last position also takes any steps after it)."""
-    ends = np.minimum(np.array([b for _, b in windows]), nstep)
-    counts = np.diff(ends, prepend=0)
-    counts[-1] += nstep - ends[-1]
-    return counts
 
 
 def _copy_model(m):

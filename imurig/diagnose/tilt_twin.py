@@ -1,7 +1,7 @@
 """The tilt table's dynamic twin: the recording's set-points replayed through the table.
 
 The table's controller turns each step of the set-points (theta, phi) into a cosine slew
-(:func:`slew_commands`, the law of :func:`imurig.rigs.tilt_table._command_profile`); the twin
+(:func:`slew_commands`, the law of :func:`imurig.rigs.tilt_schedule.command_profile`); the twin
 (:func:`tilt_table_twin`) feeds those commands, offset by the surveyed table errors, to the rig's
 own MuJoCo model and servo at the site's gravity and returns the specific force f_C and the
 angular rate w_C at the 'imu' site, plus the linear response of f_C to a command offset per
@@ -47,7 +47,7 @@ def slew_commands(setpoints: np.ndarray, slew_rate_rad_s: float, dt: float, min_
     """The table controller's command (n, 2) rad for step set-points (n, 2) rad sampled every ``dt`` s.
 
     At every set-point change (sample i0, from p to q) the command follows the cosine slew of
-    :func:`imurig.rigs.tilt_table._command_profile`: over N = max(round(min_slew / dt),
+    :func:`imurig.rigs.tilt_schedule.command_profile`: over N = max(round(min_slew / dt),
     ceil(max|q - p| / rate * pi / 2 / dt)) samples, c(i0 + k - 1) = p + (1 - cos(pi k / N)) / 2 (q - p),
     k = 1..N (peak rate ``slew_rate_rad_s``); elsewhere the command is the set-point.
     """
