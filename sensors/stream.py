@@ -49,6 +49,7 @@ from imurig.sensors.gyro import AXES as GYRO_AXES
 from imurig.sensors.noise import child_rng, sampled_bands
 from imurig.sensors.stream_draws import BandNoise as _Noise, Drawer
 from imurig.sensors.stream_force import LabForce, LabLines, unsupported_effects
+from imurig.sensors.stream_slopes import Gradient
 from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts, scaled_profile
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
@@ -322,7 +323,7 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
     analog, slope = dict(cur.lines), {}
     lo = prev is not None
     t = np.concatenate(([prev.t[-1:]] if lo else []) + [cur.t] + ([nxt.t[:1]] if nxt else []))
-    grad = _Gradient(t)
+    grad = Gradient(t)
     for name, v in cur.slope_src.items():
         x = np.concatenate(([prev.slope_src[name][-1:]] if lo else []) + [v] + ([nxt.slope_src[name][:1]] if nxt else []))
         slope[name] = grad(x)[int(lo):int(lo) + v.size]
@@ -345,31 +346,6 @@ def _back(lab, prev, cur, nxt, noise, rng, state) -> dict:
     if noise.lines is not None:     # the lab's own analog-stage effects (sensors/stream_force.py)
         noise.lines.add(analog)
     return _convert(lab.adc, analog, slope, rng, state)
-
-
-class _Gradient:
-    """np.gradient(x, t) (second-order central differences inside, first-order at the ends), its
-    coefficients computed once for the sample times ``t`` and used for every line: the same values."""
-
-    def __init__(self, t: np.ndarray):
-        dx = np.diff(t)
-        self.dx = dx
-        d1, d2 = dx[:-1], dx[1:]
-        self.a = -d2 / (d1 * (d1 + d2))
-        self.b = (d2 - d1) / (d1 * d2)
-        self.c = d1 / (d2 * (d1 + d2))
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        out = np.empty_like(x)
-        mid = out[1:-1]   # a x[:-2] + b x[1:-1] + c x[2:], summed in that order, in place
-        np.multiply(self.a, x[:-2], out=mid)
-        tmp = self.b * x[1:-1]
-        mid += tmp
-        np.multiply(self.c, x[2:], out=tmp)
-        mid += tmp
-        out[0] = (x[1] - x[0]) / self.dx[0]
-        out[-1] = (x[-1] - x[-2]) / self.dx[-1]
-        return out
 
 
 def _convert(adc, analog: dict, slope: dict, rng, state) -> dict:
