@@ -12,7 +12,8 @@ For each body i (parent p), as ``mj_kinematics`` computes it, row by row over T 
 
 vectorised over the T rows (a loop over the few bodies, none over the rows). It agrees with MuJoCo's
 ``mj_kinematics`` to rounding (tests/test_batch_kinematics.py); models with free or ball joints or mocap
-bodies are not covered (:func:`forward_kinematics` returns None, the caller steps MuJoCo row by row).
+bodies are not covered (:func:`forward_kinematics` returns None): :func:`kinematics_by_row` steps MuJoCo's
+kinematics row by row for them.
 """
 from __future__ import annotations
 
@@ -63,4 +64,30 @@ def forward_kinematics(model: mujoco.MjModel, qpos: np.ndarray, body_quat: dict 
                 x = c - _rot(q, anchor)
         xpos[:, i] = x
         xquat[:, i] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return xpos, xquat
+
+
+def kinematics_by_row(model: mujoco.MjModel, qpos: np.ndarray, overrides: dict):
+    """(xpos, xquat) of every body for each row of ``qpos``, ``mj_kinematics`` row by row (free or ball
+    joints, mocap bodies); a row equal to the one before takes its poses."""
+    data = mujoco.MjData(model)
+    T, nb = len(qpos), model.nbody
+    xpos, xquat = np.empty((T, nb, 3)), np.empty((T, nb, 4))
+    saved = {bid: model.body_quat[bid].copy() for bid in overrides}
+    # rows equal to the one before (a rig at rest) take its poses: one comparison over the whole record
+    same = np.concatenate([[False], np.all([(x[1:] == x[:-1]).all(axis=1) for x in (qpos, *overrides.values())],
+                                           axis=0)])[:T]
+    try:
+        for k in np.flatnonzero(~same).tolist():
+            for bid, q in overrides.items():
+                model.body_quat[bid] = q[k]
+            data.qpos[:] = qpos[k]
+            mujoco.mj_kinematics(model, data)
+            xpos[k], xquat[k] = data.xpos, data.xquat
+    finally:
+        for bid, q in saved.items():
+            model.body_quat[bid] = q
+    # the rows at rest take the poses of the last row computed before them (one gather, no Python per row)
+    last = np.maximum.accumulate(np.where(same, 0, np.arange(T)))
+    xpos, xquat = xpos[last], xquat[last]
     return xpos, xquat

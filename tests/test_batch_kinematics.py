@@ -34,3 +34,18 @@ def test_agrees_with_mj_kinematics(name):
 def test_free_joints_are_left_to_mujoco():
     model = load_model("citation.xml")
     assert forward_kinematics(model, np.zeros((3, model.nq))) is None
+
+
+def test_row_by_row_fallback_agrees_and_restores_the_model():
+    from imurig.rigs.batch_kinematics import kinematics_by_row
+
+    model, rng = load_model("tilt_table.xml"), np.random.default_rng(5)
+    qpos = np.repeat(rng.uniform(-1, 1, (6, model.nq)), 3, axis=0)   # rows at rest take the last poses
+    b = model.nbody - 1
+    before = model.body_quat[b].copy()
+    q = np.tile([np.cos(0.3), np.sin(0.3), 0.0, 0.0], (qpos.shape[0], 1))
+    xp, xq = kinematics_by_row(model, qpos, {b: q})
+    fp, fq = forward_kinematics(model, qpos, {b: q})
+    assert np.max(np.abs(xp - fp)) <= 16 * EPS * (1 + np.max(np.abs(model.body_pos)) * model.nbody)
+    assert np.max(np.abs(np.abs(np.sum(xq * fq, axis=2)) - 1)) <= 16 * EPS
+    assert np.array_equal(model.body_quat[b], before)

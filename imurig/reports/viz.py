@@ -33,7 +33,7 @@ import rerun.blueprint as rrb
 from imurig.flights.earth import q_conj, q_mult
 from imurig.kernel.errors import OutputExistsError
 from imurig.reports.rrd_layout import _VIEW_OF, MARKER, WIDTH, legend, role_color, uncovered, views_of
-from imurig.rigs.batch_kinematics import forward_kinematics
+from imurig.rigs.batch_kinematics import forward_kinematics, kinematics_by_row
 
 TIMELINE = "time"
 _SOLID = rr.components.FillMode.Solid
@@ -294,7 +294,7 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
         overrides[bid] = q / np.linalg.norm(q, axis=1, keepdims=True)
     nb = model.nbody
     fk = forward_kinematics(model, qpos, overrides)   # hinge and slide trees: all rows at once
-    xpos, xquat = fk if fk is not None else _kinematics_by_row(model, qpos, overrides)
+    xpos, xquat = fk if fk is not None else kinematics_by_row(model, qpos, overrides)
     parent = np.asarray(model.body_parentid)
     qp_inv = q_conj(xquat[:, parent])
     rel_pos = _rotate(qp_inv, xpos - xpos[:, parent])
@@ -306,31 +306,6 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
                               columns=rr.Transform3D.columns(translation=rel_pos[:, b],
                                                              quaternion=_xyzw(rel_quat[:, b])))
 
-
-def _kinematics_by_row(model: mujoco.MjModel, qpos: np.ndarray, overrides: dict):
-    """(xpos, xquat) of every body for each row of ``qpos``, ``mj_kinematics`` row by row (free or ball
-    joints, mocap bodies); a row equal to the one before takes its poses."""
-    data = mujoco.MjData(model)
-    T, nb = len(qpos), model.nbody
-    xpos, xquat = np.empty((T, nb, 3)), np.empty((T, nb, 4))
-    saved = {bid: model.body_quat[bid].copy() for bid in overrides}
-    # rows equal to the one before (a rig at rest) take its poses: one comparison over the whole record
-    same = np.concatenate([[False], np.all([(x[1:] == x[:-1]).all(axis=1) for x in (qpos, *overrides.values())],
-                                           axis=0)])[:T]
-    try:
-        for k in np.flatnonzero(~same).tolist():
-            for bid, q in overrides.items():
-                model.body_quat[bid] = q[k]
-            data.qpos[:] = qpos[k]
-            mujoco.mj_kinematics(model, data)
-            xpos[k], xquat[k] = data.xpos, data.xquat
-    finally:
-        for bid, q in saved.items():
-            model.body_quat[bid] = q
-    # the rows at rest take the poses of the last row computed before them (one gather, no Python per row)
-    last = np.maximum.accumulate(np.where(same, 0, np.arange(T)))
-    xpos, xquat = xpos[last], xquat[last]
-    return xpos, xquat
 
 def log_frame_axes(w: RrdWriter, entity: str, length: float = 0.15) -> None:
     """Static x (red), y (green), z (blue) arrows of ``length`` m at ``entity``'s origin."""
