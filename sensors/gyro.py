@@ -90,7 +90,7 @@ class FOGTriad:
         """Noise-free output voltages (n, 3) for true rates ``w_C`` (n, 3) rad/s and the specific
         force ``f_C`` (n, 3) m/s^2 (needed only with a g-sensitivity)."""
         w_C = np.asarray(w_C, float)
-        # M^T as a C-ordered copy: numpy's matmul then takes BLAS (~10x less CPU for (n, 3) rows than the
+        # M^T as a C-ordered copy: numpy's matmul then takes BLAS (~2x less CPU for (n, 3) rows than the
         # transposed view, the same numbers)
         w_S = w_C @ np.ascontiguousarray(self.misalignment_rad.T)
         w_S += w_C                                   # w_C + M w_C

@@ -50,7 +50,7 @@ from imurig.sensors.noise import child_rng, sampled_bands
 from imurig.sensors.stream_draws import BandNoise as _Noise, Drawer
 from imurig.sensors.stream_force import LabForce, LabLines, unsupported_effects
 from imurig.sensors.stream_slopes import Gradient
-from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts, scaled_profile
+from imurig.sensors.stream_turn import GyroNoiseRows, SlipRows, block_starts
 
 #: rows per piece (part of the data's definition: the streams are drawn piece by piece)
 STREAM_CHUNK = 1 << 16
@@ -307,7 +307,7 @@ def _front(lab, run, piece, people, draws, start, t0, fs, sens, ahead) -> Simple
     for line in run.meta.get("analog_lines", []):
         lines[line] = ts[line]
     # the slip rings' profile over the piece (no draws): made here, ahead, for the back's noise
-    slip = ahead.slip.draw(scaled_profile(lab.slip_rings, ts["spin_angle"])) if ahead.slip is not None else None
+    slip = ahead.slip.draw(ts["spin_angle"]) if ahead.slip is not None else None
     gyro = None
     if ahead.gyro is not None:   # the gyros' noise: blocks start after a gap (the previous piece's last time)
         t_prev = float(run.time_rows(a - 1, a)[0]) if a > 0 else None

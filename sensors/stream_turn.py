@@ -78,9 +78,11 @@ class SlipRows:
     eff: object              # SlipRingNoise
     rngs: dict               # line -> its generator ("slip_<line>")
 
-    def draw(self, P: np.ndarray) -> dict:
-        """The piece's noise rms P(theta) n(t) per line of ``rngs`` (P: :func:`scaled_profile` of the piece),
-        drawn ahead of :meth:`add` (in the fronts' worker, each line's stream in piece order)."""
+    def draw(self, spin_angle: np.ndarray) -> dict:
+        """The piece's noise rms P(theta) n(t) per line of ``rngs`` (P: :func:`scaled_profile` of the piece's
+        table angles, once for all lines), drawn ahead of :meth:`add` (in the fronts' worker, each line's
+        stream in piece order)."""
+        P = scaled_profile(self.eff, spin_angle)
         out = {}
         for line, rng in self.rngs.items():
             n = rng.standard_normal(P.size)
