@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
+import mujoco
 import numpy as np
 
 from imurig.kernel.errors import ScheduleError
@@ -107,6 +108,9 @@ class MagRig:
         model.opt.timestep = dt
         model.opt.gravity[:] = (0.0, 0.0, -self.site.gravity_m_s2)
         model.opt.magnetic[:] = self.site.magnetic_field_W(when)
+        # the gimbal's hinges have no range and no geom collides (contype 0): no contact and no constraint
+        # is ever active, so skipping those stages changes no number (~20 % less per step)
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT) | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         sl = sensor_slices(model)
         parts, seg = [], {"start_s": [], "stop_s": [], "manoeuvre": [], "heading_set": []}
         t0 = 0.0
