@@ -345,3 +345,22 @@ def test_figure_process_ends_without_drawing_when_the_fits_fail():
     r.cancel()
     for b in (f, r):
         assert b.child is None or (not b.child.is_alive() and b.child.exitcode == 0)
+
+
+def _open_rrd_early(out, rec100):
+    from imurig.reports.viz import RrdWriter
+
+    return RrdWriter(out / "campaign.rrd", blueprint=None)
+
+
+def test_rrd_opened_before_the_fits_leaves_no_file_when_they_fail(tmp_path):
+    """The .rrd's process opens its writer and logs the record while the parent fits; cancelled (the fits
+    failed), it aborts the writer: neither the .rrd nor its temporary file is left."""
+    from imurig.reports.beside import Beside
+
+    r = Beside(tmp_path, None, _open_rrd_early, _never, "writing campaign.rrd")
+    if r.child is None:
+        pytest.skip("no fork here: the .rrd is written after the fits, in this process")
+    r.cancel()
+    assert r.child.exitcode == 0
+    assert list(tmp_path.iterdir()) == []

@@ -1,7 +1,7 @@
 """A report's output made in a forked process (a core of its own), started before the fits.
 
 The child first runs ``early = load(out, rec100)`` (heavy imports: matplotlib for the figures, rerun for
-the .rrd; the figures that need no fits) while the parent fits, then waits for the fits the parent gives
+the .rrd; the figures, or the .rrd's entities, that need no fits) while the parent fits, then waits for the fits the parent gives
 (:meth:`Beside.give`), makes its output with ``work(out, rec100, fits, early)`` and sends back what that
 returns (e.g. name -> file). Two of them (the figures,
 the .rrd) and the parent's fits share the two cores. The child starts with what the parent had at the fork
@@ -93,6 +93,8 @@ def _child(fits, send, out, rec100, load, work, own) -> None:
         try:
             got = fits.recv()
         except EOFError:   # the parent stopped before the fits (an error there): nothing to do
+            if hasattr(early, "abort"):   # e.g. an .rrd writer opened early: its temporary file removed
+                early.abort()
             return
         send.send((work(out, rec100, got, early),))
     except Exception as e:  # reported by the parent, which fails the run

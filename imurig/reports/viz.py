@@ -135,6 +135,13 @@ class RrdWriter:
         self.note(entity, *(type(a).__name__ for a in archetypes))
         self.stream.log(entity, *archetypes, static=static)
 
+    def send_default_blueprint(self, blueprint) -> None:
+        """Send ``blueprint`` as the recording's default layout now, for a writer opened with none (when
+        the layout depends on data known only after the first entities are logged): the file then holds
+        what ``blueprint=`` at opening would have put there, and :meth:`close` checks it the same way."""
+        self.blueprint = blueprint
+        self.stream.send_blueprint(blueprint, make_active=False, make_default=True)
+
     def note(self, entity: str, *archetype_names: str) -> None:
         """Record that ``entity`` holds the named archetypes (for the coverage check)."""
         need = self.entities.setdefault("/" + entity.strip("/"), set())
