@@ -132,7 +132,8 @@ def record_figures(out: OutputFolder, rec100: Recording) -> dict:
                title=f"Raw accelerometer outputs at θ = {np.degrees(th_near):.0f}° (cf. seed Fig. 4.10)")
         ax.legend()
         ax.grid(alpha=0.3)
-        fig.tight_layout()
+        # fixed margins (tight_layout's for this figure): its search measures every tick label again
+        fig.subplots_adjust(left=0.1, right=0.98, bottom=0.145, top=0.905)
         fig.savefig(out.file("fig_4_10_raw_theta40.png"), dpi=110)
         plt.close(fig)
         figs["raw_theta40"] = "fig_4_10_raw_theta40.png"
@@ -144,7 +145,8 @@ def record_figures(out: OutputFolder, rec100: Recording) -> dict:
     ax.set(xlabel="position", ylabel="m/s²", title="Reference specific force per position (cf. seed Fig. 4.9)")
     ax.legend()
     ax.grid(alpha=0.3)
-    fig.tight_layout()
+    # fixed margins (tight_layout's for this figure): its search measures every tick label again
+    fig.subplots_adjust(left=0.11, right=0.97, bottom=0.165, top=0.895)
     fig.savefig(out.file("fig_4_9_reference.png"), dpi=110)
     plt.close(fig)
     figs["reference"] = "fig_4_9_reference.png"

@@ -55,7 +55,8 @@ def _fig_timers(out, ts: dict):
         ax.legend(fontsize=7, loc="upper left")
         ax.grid(alpha=0.3)
     axs[-1].set_xlabel("step (rates 1 … 500 °/s on the dial)")
-    fig.tight_layout()
+    # fixed margins (tight_layout's for this figure, with some room): its search measures every tick label again
+    fig.subplots_adjust(left=0.115, right=0.98, bottom=0.065, top=0.96, hspace=0.23)
     fig.savefig(out.file("fig_4_20_timers.png"), dpi=110)
     plt.close(fig)
     return "fig_4_20_timers.png"
@@ -77,7 +78,8 @@ def _fig_residuals(out, res: dict):
         axs[j].legend(fontsize=7)
     axs[-1].set_xlabel("|table rate|, °/s")
     axs[0].set_title(f"Residuals of the final gyro calibration, model {cal.model} (cf. seed Fig. 4.21)")
-    fig.tight_layout()
+    # fixed margins (tight_layout's for this figure, with some room): its search measures every tick label again
+    fig.subplots_adjust(left=0.14, right=0.98, bottom=0.085, top=0.945, hspace=0.11)
     fig.savefig(out.file("fig_4_21_gyro_residuals.png"), dpi=110)
     plt.close(fig)
     return "fig_4_21_gyro_residuals.png"
@@ -102,7 +104,8 @@ def _fig_slip_ring(out, rec: Recording):
         axs[0, 1].plot(ang, v - np.median(v), ",", alpha=0.5, label="temp_box − median")
         axs[0, 1].legend(fontsize=7)
         axs[0, 1].set(xlabel="table angle, °", ylabel="V − median", title="noise against table angle (slip rings)")
-    fig.tight_layout()
+    # fixed margins (tight_layout's for this figure, with some room): its search measures every tick label again
+    fig.subplots_adjust(left=0.095, right=0.985, bottom=0.17, top=0.89, wspace=0.34)
     fig.savefig(out.file("fig_4_16_slip_rings.png"), dpi=110)
     plt.close(fig)
     return "fig_4_16_slip_rings.png"
@@ -120,7 +123,8 @@ def _fig_arm(out, arm: dict):
            title=f"Accelerometer x on the {arm['radius_m']} m arm, beyond 1 g")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
+    # fixed margins (tight_layout's for this figure, with some room): its search measures every tick label again
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.17, top=0.89)
     fig.savefig(out.file("fig_arm_accelerometer.png"), dpi=110)
     plt.close(fig)
     return "fig_arm_accelerometer.png"
