@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from imurig.kernel.quaternion import q_conj, q_mult  # noqa: F401  (this module's names too)
+
 # --- WGS-84 defining and derived constants (NIMA TR8350.2, 3rd ed.) ---------------------------
 A_M = 6378137.0                       # semi-major axis, m
 F = 1.0 / 298.257223563               # flattening
@@ -171,24 +173,6 @@ def skew(v):
     return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
                      np.stack([v[..., 2], z, -v[..., 0]], -1),
                      np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
-def q_mult(p, q):
-    """Hamilton product p ⊗ q of quaternions (..., 4) wxyz (composes rotations: C(p⊗q) = C(p)C(q))."""
-    p = np.asarray(p, dtype=float)
-    q = np.asarray(q, dtype=float)
-    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw], axis=-1)
-
-
-def q_conj(q):
-    """Conjugate (inverse of a unit quaternion), (..., 4) wxyz."""
-    q = np.asarray(q, dtype=float)
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def q_normalize(q):

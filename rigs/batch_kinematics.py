@@ -20,20 +20,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (..., 4) w, x, y, z quaternions."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=-1)
-
-
-def _rot(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """v (3,) or (..., 3) rotated by the unit quaternions q (..., 4): v + 2 w (u x v) + 2 u x (u x v)."""
-    w, u = q[..., :1], q[..., 1:]
-    t = 2 * np.cross(u, np.broadcast_to(v, u.shape))
-    return v + w * t + np.cross(u, t)
+from imurig.kernel.quaternion import q_mult, q_rotate
 
 
 def forward_kinematics(model: mujoco.MjModel, qpos: np.ndarray, body_quat: dict | None = None):
@@ -50,18 +37,18 @@ def forward_kinematics(model: mujoco.MjModel, qpos: np.ndarray, body_quat: dict 
     for i in range(1, nb):
         p = model.body_parentid[i]
         q0 = (body_quat or {}).get(i, model.body_quat[i])
-        x = xpos[:, p] + _rot(xquat[:, p], model.body_pos[i])
-        q = _qmul(xquat[:, p], np.broadcast_to(q0, (T, 4)))
+        x = xpos[:, p] + q_rotate(xquat[:, p], model.body_pos[i])
+        q = q_mult(xquat[:, p], np.broadcast_to(q0, (T, 4)))
         for j in range(model.body_jntadr[i], model.body_jntadr[i] + model.body_jntnum[i]):
             adr, axis, anchor = model.jnt_qposadr[j], model.jnt_axis[j], model.jnt_pos[j]
             u = qpos[:, adr] - model.qpos0[adr]
             if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_SLIDE:
-                x = x + _rot(q, axis) * u[:, None]
+                x = x + q_rotate(q, axis) * u[:, None]
             else:   # hinge
-                c = x + _rot(q, anchor)
+                c = x + q_rotate(q, anchor)
                 half = 0.5 * u[:, None]
-                q = _qmul(q, np.concatenate([np.cos(half), np.sin(half) * axis], axis=1))
-                x = c - _rot(q, anchor)
+                q = q_mult(q, np.concatenate([np.cos(half), np.sin(half) * axis], axis=1))
+                x = c - q_rotate(q, anchor)
         xpos[:, i] = x
         xquat[:, i] = q / np.linalg.norm(q, axis=1, keepdims=True)
     return xpos, xquat

@@ -30,8 +30,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from imurig.flights.earth import q_conj, q_mult
 from imurig.kernel.errors import OutputExistsError
+from imurig.kernel.quaternion import q_conj, q_mult, q_rotate
 from imurig.reports.rrd_layout import _VIEW_OF, MARKER, WIDTH, legend, role_color, uncovered, views_of
 from imurig.rigs.batch_kinematics import forward_kinematics, kinematics_by_row
 
@@ -198,12 +198,6 @@ def _xyzw(q_wxyz: np.ndarray) -> np.ndarray:
     return np.asarray(q_wxyz, dtype=float)[..., [1, 2, 3, 0]]
 
 
-def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate (..., 3) vectors by (..., 4) w,x,y,z unit quaternions."""
-    qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
-    return q_mult(q_mult(q, qv), q_conj(q))[..., 1:]
-
-
 def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, idx: int) -> str:
     return mujoco.mj_id2name(model, obj, idx) or ""
 
@@ -304,7 +298,7 @@ def log_body_poses(w: RrdWriter, model: mujoco.MjModel, time_s, qpos,
     xpos, xquat = fk if fk is not None else kinematics_by_row(model, qpos, overrides)
     parent = np.asarray(model.body_parentid)
     qp_inv = q_conj(xquat[:, parent])
-    rel_pos = _rotate(qp_inv, xpos - xpos[:, parent])
+    rel_pos = q_rotate(qp_inv, xpos - xpos[:, parent])
     rel_quat = q_mult(qp_inv, xquat)
     times = _time_column(time_s)
     for b in range(1, nb):

@@ -23,19 +23,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from imurig.kernel.quaternion import q_conj as quat_conj  # noqa: F401  (this module's names too)
+from imurig.kernel.quaternion import q_mult as quat_mul
 from imurig.scoring.interface import EstimatesError, NavFilter, NavSolution, NavStreams, fitted_solution
-
-
-def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product of scalar-first quaternions (..., 4)."""
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw], axis=-1)
-
-
-def quat_conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
