@@ -34,6 +34,7 @@ from imurig.calibration.regression import fit_gls, fit_ols
 from imurig.calibration.stepwise import backward_elimination, forward_selection
 from imurig.calibration.sensitivity import nominal_sensitivity
 from imurig.calibration.terms import TermLibrary, polynomial
+from imurig.calibration.triad_file import read_triad_dict, triad_dict, unit_word
 from imurig.kernel.errors import NotFittedError, RecordingError, UnidentifiableTermsError
 from imurig.kernel.estimator import Estimator
 from imurig.kernel.recording import Recording
@@ -295,7 +296,7 @@ class TriadCalibration(Estimator):
 
         q = spec.quantity_unit
         cu = getattr(self, "channel_unit_", "V")
-        labels = ([(f"sensitivity_{a}", f"{_unit_word(cu)}/({q})") for a in axes]
+        labels = ([(f"sensitivity_{a}", f"{unit_word(cu)}/({q})") for a in axes]
                   + [(f"misalignment_{axes[i]}{axes[j]}", "rad") for i in range(3) for j in range(3) if i != j]
                   + [(f"bias_{a}", q) for a in axes]
                   + [(f"nonlinearity_{a}", f"1/({q})") for a in axes])
@@ -316,52 +317,16 @@ class TriadCalibration(Estimator):
                          for names, coef in (self.models()[a] for a in self.SPEC.axes)], axis=1)
 
     def to_dict(self) -> dict:
-        """What is needed to apply the calibration elsewhere (JSON-ready)."""
-        spec = self.SPEC
-        return {"kind": spec.json_kind, "version": 1, "model": str(self.model),
-                "statistic": self.statistic,
-                "nominal_sensitivity": None if self.sensitivity_ is None else self.sensitivity_.tolist(),
-                "nominal_sensitivity_unit": f"{_unit_word(getattr(self, 'channel_unit_', 'V'))}/({spec.quantity_unit})",
-                "equation": f"ref_i [{spec.quantity_unit}] = sum_k coef_ik * term_k(u), u = volts / "
-                            "nominal_sensitivity",
-                "axes": {a: {"terms": n, "coef": c.tolist()} for a, (n, c) in self.models().items()}}
+        """What is needed to apply the calibration elsewhere (JSON-ready; :mod:`imurig.calibration.triad_file`)."""
+        return triad_dict(self.SPEC, str(self.model), self.statistic, self.sensitivity_,
+                          getattr(self, "channel_unit_", "V"), self.models())
 
     @classmethod
     def from_dict(cls, d: dict) -> "TriadCalibration":
         """The calibration a :meth:`to_dict` wrote, every part checked (a ValueError says which)."""
-        kind = cls.SPEC.json_kind
-        if not isinstance(d, dict) or d.get("kind") != kind:
-            got = d.get("kind") if isinstance(d, dict) else type(d).__name__
-            raise ValueError(f"not an imurig {cls.SPEC.kind} calibration (kind must be '{kind}', got "
-                             f"{got!r}); use the calibration.json of a report folder")
-        axes = d.get("axes")
-        if not isinstance(axes, dict) or sorted(axes) != sorted(cls.SPEC.axes):
-            raise ValueError(f"'axes' must map each of {list(cls.SPEC.axes)} to its terms and coefficients")
-        models = {}
-        for a in cls.SPEC.axes:
-            v = axes[a]
-            terms, coef = (v.get("terms"), v.get("coef")) if isinstance(v, dict) else (None, None)
-            if not isinstance(terms, list) or not isinstance(coef, list) or len(terms) != len(coef) or not terms:
-                raise ValueError(f"axis {a}: 'terms' and 'coef' must be lists of the same, non-zero length")
-            try:
-                lib = TermLibrary.from_names(terms)
-                c = np.asarray(coef, float)
-            except (TypeError, ValueError) as e:
-                raise ValueError(f"axis {a}: {e}") from None
-            unknown = sorted(set(lib.inputs) - set(cls.SPEC.inputs))
-            if unknown or not np.all(np.isfinite(c)):
-                raise ValueError(f"axis {a}: " + (f"unknown inputs {unknown} (known: {list(cls.SPEC.inputs)})"
-                                                  if unknown else "coefficients must be finite numbers"))
-            models[a] = (list(terms), c)
-        cal = cls(model=str(d.get("model", "loaded")), statistic=str(d.get("statistic", "median")))
-        s = d.get("nominal_sensitivity")
-        try:
-            cal.sensitivity_ = None if s is None else np.broadcast_to(np.asarray(s, float), (3,)).copy()
-        except (TypeError, ValueError):
-            raise ValueError(f"'nominal_sensitivity' must be three numbers, got {s!r}") from None
-        if cal.sensitivity_ is not None and not np.all(np.isfinite(cal.sensitivity_) & (cal.sensitivity_ != 0)):
-            raise ValueError("'nominal_sensitivity' must be finite and non-zero")
-        cal.models_ = models
+        models, model, statistic, sensitivity = read_triad_dict(d, cls.SPEC)
+        cal = cls(model=model, statistic=statistic)
+        cal.sensitivity_, cal.models_ = sensitivity, models
         return cal
 
     def apply(self, rec: Recording) -> Recording:
@@ -386,10 +351,6 @@ class TriadCalibration(Estimator):
         """Seed-style table: coefficients per axis and sigma_res, MS_res, R, R_adj."""
         self._require_results("table")
         return {a: self.results_[a].to_dict() for a in self.SPEC.axes}
-
-
-def _unit_word(unit: str) -> str:
-    return "counts" if unit == "1" else unit
 
 
 def forward_parameters(axes, sensitivity, bias, k2, misalignment) -> dict:

@@ -359,8 +359,7 @@ def test_rrd_opened_before_the_fits_leaves_no_file_when_they_fail(tmp_path):
     from imurig.reports.beside import Beside
 
     r = Beside(tmp_path, None, _open_rrd_early, _never, "writing campaign.rrd")
-    if r.child is None:
-        pytest.skip("no fork here: the .rrd is written after the fits, in this process")
+    child = r.child   # None where fork is missing: nothing is opened before the fits there
     r.cancel()
-    assert r.child.exitcode == 0
+    assert child is None or (not child.is_alive() and child.exitcode == 0)
     assert list(tmp_path.iterdir()) == []
