@@ -13,6 +13,8 @@ from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses
                                 log_scalars, log_text)
 
 DISPLAY_HZ = 10.0
+#: the specific-force series' units (truth and calibrated)
+F_UNITS = {f"f_{a}": "m/s^2" for a in AXES}
 
 
 def blueprint(model, residual_range=None) -> rrb.Blueprint:
@@ -65,8 +67,7 @@ def start_rrd(path, rec100: Recording, overwrite: bool = True) -> RrdWriter:
                     role="measured")
         if rec100.truth_signals.get("f_C_x") is not None:  # before the calibrated: drawn wide, underneath
             truth = {f"f_{a}": rec100.truth_signals[f"f_C_{a}"][idx] for a in AXES}
-            log_scalars(w, "signals/truth", *break_gaps(t, truth), {f"f_{a}": "m/s^2" for a in AXES},
-                        role="truth")
+            log_scalars(w, "signals/truth", *break_gaps(t, truth), F_UNITS, role="truth")
     except BaseException:
         w.abort()
         raise
@@ -88,7 +89,7 @@ def finish_rrd(w: RrdWriter, res: dict) -> None:
         calibrated = cal.apply(rec100)
         f_cal = {f"f_{a}": calibrated.channels[f"acc_cal_{a}"][idx] for a in AXES}
         log_scalars(w, "signals/calibrated", *break_gaps(t, f_cal),
-                    {f"f_{a}": "m/s^2" for a in AXES}, role="calibrated")
+                    F_UNITS, role="calibrated")
         mid = 0.5 * (rec100.segments["start_s"] + rec100.segments["stop_s"])
         log_scalars(w, "signals/residuals", mid, resid, {n: unit for n in resid}, role="residual", points=True)
         log_text(w, "summary", parameter_table("Tilt-table calibration", res["parameters"]))
