@@ -149,3 +149,60 @@ def test_a_recording_larger_than_the_free_disk_is_refused_before_writing(tmp_pat
     with pytest.raises(ConfigError, match=r"about 0.003 GB on disk, but only 0.002 GB are free there; shorten it"):
         check_disk(tmp_path / "new" / "r.h5", 3e6, "the recording", "shorten it", free_bytes=2e6)
     assert not (tmp_path / "new").exists()
+
+
+def _console(*args, **kw):
+    """The installed ``imurig`` command's entry point (imurig.cli.run) in a fresh process."""
+    import subprocess
+    import sys
+
+    code = "import sys; from imurig.cli import run; sys.argv = ['imurig', *sys.argv[1:]]; run()"
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120,
+                          env=_buffered_env(), **kw)
+
+
+def _buffered_env() -> dict:
+    """This environment with the standard streams block-buffered into a pipe, as a user's shell has them."""
+    import os
+
+    return {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+
+
+def test_console_command_ends_with_its_exit_code_and_all_its_output():
+    """The console entry ends the process without the interpreter's teardown when nothing is left running:
+    what the command printed to a pipe arrives whole, and the exit code is the command's (0, and 2 with a
+    message for a misuse)."""
+    from imurig.cli.main import main as in_process
+
+    ok = _console("concealed", "list")
+    assert ok.returncode == 0, ok.stderr
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert in_process(["concealed", "list"]) == 0
+    assert ok.stdout == buf.getvalue() and ok.stdout.strip()
+    bad = _console("info", "no-such-recording.h5")
+    assert bad.returncode == 2
+    assert bad.stderr.startswith("imurig: error:") and "Traceback" not in bad.stderr
+
+
+def test_console_entry_flushes_what_the_command_printed_before_it_ends():
+    """imurig.cli.run ends the process itself: output still in the pipe's buffer is written first, and the
+    exit code is the command's; with a thread still running it exits as usual (the thread is joined)."""
+    import subprocess
+    import sys
+
+    prog = ("import sys, threading, time; import imurig.cli as c\n"
+            "def fake():\n"
+            "    print('x' * 100)\n"
+            "    if sys.argv[1] == 'thread':\n"
+            "        threading.Thread(target=lambda: (time.sleep(0.3), print('joined', flush=True))).start()\n"
+            "    return 3\n"
+            "c.main = fake\n"
+            "c.run()\n")
+    for mode, tail in (("plain", ""), ("thread", "joined\n")):
+        r = subprocess.run([sys.executable, "-c", prog, mode], capture_output=True, text=True, timeout=60,
+                           env=_buffered_env())
+        assert r.returncode == 3 and r.stdout == "x" * 100 + "\n" + tail, (mode, r)
