@@ -53,7 +53,8 @@ class Beside:
         self._close_give()
 
     def cancel(self) -> None:
-        """No fits (an error in the parent): the child ends on the closed pipe, doing nothing."""
+        """No fits (an error in the parent): the child ends on the closed pipe, doing nothing (or, given them
+        before the error, when its work is done)."""
         if self.child is not None:
             self._close_give()
             self.child.join()

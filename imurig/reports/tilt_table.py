@@ -46,21 +46,25 @@ SEED_TABLE = {"linear": "4.4", "cross": "4.5", "seed_final": "4.6"}
 
 
 def analyse(rec: Recording, model: str = "physical", statistic: str = "huber",
-            processed: Recording | None = None) -> dict:
+            processed: Recording | None = None, on_main=None) -> dict:
     """All fits the report shows, on one recording (simulated or measured): the main model and the
     stepwise selections on the per-position ``statistic`` (huber, median or mean), the seed's
     models (Tables 4.4-4.6) on the seed's per-position medians. ``processed``: the low-passed 100 Hz
-    record when already made (e.g. by the streamed campaign), else made here from ``rec``."""
+    record when already made (e.g. by the streamed campaign), else made here from ``rec``.
+    ``on_main``: called with ``{"main", "parameters"}`` as soon as the main fit is made, before the others
+    (the figures and the .rrd need no more: their processes draw while the other fits run)."""
     # only the windows are analysed (bounded memory)
     rec100 = processed if processed is not None else lowpass_downsample(rec, windows_only=True, filtered=ANALYSED)
     with reuse_statistics():   # the fits share their per-position statistics: each computed once
-        return _analyse(rec, rec100, model, statistic)
+        return _analyse(rec, rec100, model, statistic, on_main)
 
 
-def _analyse(rec: Recording, rec100: Recording, model: str, statistic: str) -> dict:
+def _analyse(rec: Recording, rec100: Recording, model: str, statistic: str, on_main=None) -> dict:
     out = {"rec100": rec100}
     out["main"] = calibrate(rec, model=model, processed=rec100, statistic=statistic)
     out["parameters"] = compare_with_truth(out["main"], rec.truth)
+    if on_main is not None:
+        on_main({"main": out["main"], "parameters": out["parameters"]})
     out["coefficients"] = coefficient_table(out["main"], rec100)
     out["stepwise"] = calibrate(rec, model="stepwise", processed=rec100, statistic=statistic)
     out["backward"] = calibrate(rec, model="backward", processed=rec100, statistic=statistic)
@@ -353,8 +357,13 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             # and rerun while the fits run here, then draw and write beside each other
             figures = Beside(out, rec100, record_figures, _figures, "drawing the figures")
             rrd_writer = Beside(out, rec100, _load_rrd, _rrd, "writing campaign.rrd") if rrd else None
+            def give(fits):   # the main fit made: the figures and the .rrd drawn while the other fits run
+                figures.give(fits)
+                if rrd_writer is not None:
+                    rrd_writer.give(fits)
+
             try:
-                res = analyse(rec100, camp.model, camp.statistic, processed=rec100)
+                res = analyse(rec100, camp.model, camp.statistic, processed=rec100, on_main=give)
             except BaseException:
                 for b in (figures, rrd_writer):
                     if b is not None:
@@ -365,10 +374,7 @@ def run(camp: TiltTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
             files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
             out.write_json("calibration.json", res["main"].to_dict())
             stage("figures")
-            fits = {"main": res["main"], "parameters": res["parameters"]}
-            figures.give(fits)
             if rrd_writer is not None:
-                rrd_writer.give(fits)
                 stage("campaign.rrd")
             products = rrd_writer.wait() if rrd_writer is not None else {}
             figs = figures.wait()
