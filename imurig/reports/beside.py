@@ -1,9 +1,9 @@
 """A report's output made in a forked process (a core of its own), started before the fits.
 
 The child first runs ``early = load(out, rec100)`` (heavy imports: matplotlib for the figures, rerun for
-the .rrd; the figures, or the .rrd's entities, that need no fits) while the parent fits, then waits for the fits the parent gives
-(:meth:`Beside.give`), makes its output with ``work(out, rec100, fits, early)`` and sends back what that
-returns (e.g. name -> file). Two of them (the figures,
+the .rrd; the figures, or the .rrd's entities, that need no fits) while the parent fits, then waits for
+the fits the parent gives (:meth:`Beside.give`), makes its output with ``work(out, rec100, fits, early)``
+and sends back what that returns (e.g. name -> file). Two of them (the figures,
 the .rrd) and the parent's fits share the two cores. The child starts with what the parent had at the fork
 (the 100 Hz record: nothing pickled but the fits). Where fork is not available, ``work(out, rec100,
 fits, None)`` runs in :meth:`Beside.give`, here.
