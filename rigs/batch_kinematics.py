@@ -76,5 +76,4 @@ def kinematics_by_row(model: mujoco.MjModel, qpos: np.ndarray, overrides: dict):
             model.body_quat[bid] = q
     # the rows at rest take the poses of the last row computed before them (one gather, no Python per row)
     last = np.maximum.accumulate(np.where(same, 0, np.arange(T)))
-    xpos, xquat = xpos[last], xquat[last]
-    return xpos, xquat
+    return xpos[last], xquat[last]
