@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from imurig.kernel.recording import Recording
+from imurig.kernel.recording import Recording, TimeFrame
 
 
 def _windows(rec: Recording, block: slice, pad: int) -> list[tuple[int, int, int, int]]:
@@ -73,13 +73,14 @@ class WindowTap:
     :func:`imurig.sensors.stream.measure_stream`): the same decimated samples and the same filtered
     windows, in memory of the decimated record and one padded window.
 
-    ``frame``: a Recording with the record's ``time_s`` and ``segments`` (no channels; only its blocks,
-    sample rate and segment windows are used, and it may be dropped after construction); ``channels`` /
+    ``frame``: a Recording, or a :class:`imurig.kernel.recording.TimeFrame`, with the record's ``time_s`` and
+    ``segments`` (only its blocks, sample rate and segment windows are used, and it may be dropped after
+    construction); ``channels`` /
     ``truth``: the names in the order the decimated record lists them; ``filtered`` /
     ``filtered_truth``: those low-passed in the windows (truth constant over a padded window is kept
     as it is); ``quantum``: channels that arrive as converter codes, name -> volts per code."""
 
-    def __init__(self, frame: Recording, sos: np.ndarray, k: int, channels: list, filtered: list, truth: list,
+    def __init__(self, frame: Recording | TimeFrame, sos: np.ndarray, k: int, channels: list, filtered: list, truth: list,
                  filtered_truth: list, quantum: dict, pad_s: float = 1.0):
         self.sos, self.k, self.quantum = sos, k, dict(quantum)
         self.filtered, self.filtered_truth = list(filtered), list(filtered_truth)

@@ -8,7 +8,7 @@ from imurig.calibration.accelerometer import indicated
 from imurig.campaigns.tilt_table import calibrate
 from imurig.kernel.errors import OutputExistsError, RecordingError
 from imurig.kernel.labcsv import read_csv, write_csv
-from imurig.kernel.recording import Recording, load_h5, save_h5
+from imurig.kernel.recording import Recording, TimeFrame, load_h5, save_h5
 
 
 def test_hdf5_round_trip_is_bit_exact(small_recording, tmp_path):
@@ -145,3 +145,22 @@ def test_readme_csv_example_parses(tmp_path):
     assert rec.meta["table_survey"]["phi_zero_rad"]["z_down"] == 0.0233
     assert rec.meta["setpoints"] == ["theta", "phi"]
     assert rec.units["temp_box"] == "V" and rec.n_segments == 1
+
+
+def test_time_frame_gives_the_recordings_rate_blocks_and_windows():
+    """TimeFrame (the median step found once) gives what a Recording of the same time and segments gives:
+    the rate to the bit, the blocks (two gaps, one of them short of the 1.5-period threshold) and the
+    segment windows."""
+    dt = 1e-3
+    t = np.concatenate([np.arange(0, 2000) * dt, 2.5 + np.arange(0, 1500) * dt,
+                        2.5 + (1499 + 1.4) * dt + np.arange(800) * dt])
+    t = t + 1e-7 * np.random.default_rng(3).standard_normal(t.size)   # jitter: the median is a sample's
+    seg = {"start_s": np.array([0.2, 2.6, 4.1]), "stop_s": np.array([1.0, 3.0, 4.7])}
+    rec = Recording(time_s=t, channels={}, units={}, segments=seg)
+    frame = TimeFrame(t, seg)
+    assert frame.sample_rate_hz == rec.sample_rate_hz
+    assert frame.n == rec.n
+    for factor in (1.5, 1.3):
+        assert frame.blocks(factor) == rec.blocks(factor)
+    assert len(frame.blocks()) == 2 and len(frame.blocks(1.3)) == 3
+    assert frame.segment_slices() == rec.segment_slices()

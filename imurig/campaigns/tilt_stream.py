@@ -24,7 +24,7 @@ from imurig.calibration.window_filter import WindowTap
 from imurig.campaigns.tilt_rig import run_table
 from imurig.kernel.h5write import H5RowWriter
 from imurig.kernel.outputs import atomic_write, check_disk
-from imurig.kernel.recording import Recording, save_h5
+from imurig.kernel.recording import Recording, TimeFrame, save_h5
 from imurig.sensors.accelerometer import AXES
 from imurig.sensors.stream import measure_stream, unsupported
 
@@ -89,7 +89,7 @@ def stream_campaign(camp, h5_path=None, overwrite: bool = False, keep: bool = Fa
     why = unsupported(lab, run)
     if why:
         return _whole(camp, lab, run, ss, h5_path, overwrite, why)
-    frame = Recording(time_s=run.time_rows(0, run.n), channels={}, units={}, segments=run.segments)
+    frame = TimeFrame(run.time_rows(0, run.n), run.segments)   # the rate and blocks: one median of the steps
     k, sos, log = filter_design(frame.sample_rate_hz)
     scan = list(lab.adc.scan_list)
     setpoints = set(run.meta.get("setpoints", []))

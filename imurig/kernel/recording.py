@@ -127,10 +127,7 @@ class Recording:
     def blocks(self, max_gap_factor: float = 1.5) -> list[slice]:
         """Contiguous sample blocks: a gap longer than ``max_gap_factor`` sample periods splits."""
         dt = np.diff(self.time_s)
-        nominal = float(np.median(dt))
-        cuts = np.flatnonzero(dt > max_gap_factor * nominal) + 1
-        edges = np.concatenate(([0], cuts, [self.n]))
-        return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+        return time_blocks(dt, float(np.median(dt)), self.n, max_gap_factor)
 
     @property
     def sample_rate_hz(self) -> float:
@@ -154,6 +151,37 @@ class Recording:
         return self.replace(truth=None, truth_signals={}, truth_units={},
                             events={k: v for k, v in self.events.items()
                                     if not (k.startswith("true_") or k.endswith("_true"))})
+
+
+class TimeFrame:
+    """A record's time grid and segments without its signals: what a windowed filter reads of a
+    :class:`Recording` (``sample_rate_hz``, :meth:`blocks`, :meth:`segment_slices`), the same values,
+    with the median time step found once (on a long record each ``Recording`` call sorts its n steps)."""
+
+    def __init__(self, time_s: np.ndarray, segments: Mapping[str, np.ndarray]):
+        self.time_s, self.segments = time_s, segments
+        dt = np.diff(time_s)
+        median = np.median(dt)
+        self.sample_rate_hz = float(1.0 / median)
+        self._dt, self._median = dt, float(median)
+
+    @property
+    def n(self) -> int:
+        return int(self.time_s.shape[0])
+
+    def blocks(self, max_gap_factor: float = 1.5) -> list[slice]:
+        return time_blocks(self._dt, self._median, self.n, max_gap_factor)
+
+    segment_slices = Recording.segment_slices
+
+
+def time_blocks(dt: np.ndarray, nominal_s: float, n: int, max_gap_factor: float = 1.5) -> list[slice]:
+    """The contiguous blocks of a record of ``n`` samples whose time steps are ``dt`` = diff(time_s) and
+    whose sample period is ``nominal_s`` (the median step): a step longer than ``max_gap_factor`` periods
+    splits (:meth:`Recording.blocks`)."""
+    cuts = np.flatnonzero(dt > max_gap_factor * nominal_s) + 1
+    edges = np.concatenate(([0], cuts, [n]))
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 # ---------------------------------------------------------------------- HDF5
