@@ -34,9 +34,8 @@ from imurig.sensors.effects.table_backlash import TableBacklash
 from imurig.rigs.tilt_kinematics import (MOUNTS, TableSurvey, reference_specific_force,  # noqa: F401 (re-exported)
                                          reference_with_jacobian, rot_x, rot_y, rot_z, rotate_to_body,
                                          setting_error_covariance, specific_force_C)
-from imurig.rigs.tilt_schedule import CommandSchedule
 from imurig.rigs.tilt_schedule import command_profile as _command_profile  # noqa: F401 (imported from here too)
-from imurig.rigs.tilt_schedule import position_index as _position_index
+from imurig.rigs.tilt_schedule import position_counts as _position_counts, position_index as _position_index
 from imurig.rigs.tilt_truth import SIGNALS as SIGNAL_NAMES
 from imurig.rigs.tilt_truth import TruthPieces, full_truth, stitched_pieces
 
@@ -178,26 +177,33 @@ class TiltTable:
         off = b.offsets(np.tile(set_theta, len(runs)), np.tile(set_phi, len(runs)))
         return {r: off[i * m:(i + 1) * m] for i, r in enumerate(runs)}
 
-    def _run_commands(self, base_model, runs, R_WB, schedule, n_pos, rng, backlash=None):
-        """Per mounting: the model (base and mount attitudes), the servo commands (:class:`TableCommands`:
-        the schedule's with the table's zero errors, each position's setting error (uniform within +-res/2,
-        held from slew end to next slew) and the gear clearance's shift (``backlash``: per mounting, (m, 2)
-        rad, or None)), and its initial joint position."""
+    def _run_commands(self, base_model, runs, R_WB, cmd_nom, windows, n_pos, rng, backlash=None):
+        """Per mounting: the model (base and mount attitudes), the servo command (n, 2) rad (rows of one
+        (mountings, n, 2) array) with the
+        table's zero errors, each position's setting error (uniform within +-res/2, held from
+        slew end to next slew) and the gear clearance's shift (``backlash``: per mounting, (m, 2)
+        rad, or None), and its initial joint position."""
         bid_base = base_model.body("base").id
         bid_mount = base_model.body("imu_mount").id
-        models, offsets, errors, setting_err = [], [], [], {}
+        nstep = cmd_nom.shape[0]
+        counts = _position_counts(nstep, windows)   # a position's values over its steps: np.repeat
+        models, qpos0, setting_err = [], [], {}
+        ctrl = np.empty((len(runs), nstep, 2))   # filled in place: no list of copies
         res = self.errors.setting_resolution_rad
-        for r in runs:
+        for i, r in enumerate(runs):
             m = _copy_model(base_model)
             m.body_quat[bid_base] = _quat_wxyz(R_WB)
             m.body_quat[bid_mount] = _quat_wxyz(MOUNTS[r])
             models.append(m)
             err = rng.uniform(-res / 2, res / 2, size=(n_pos, 2)) if res > 0 else np.zeros((n_pos, 2))
             setting_err[r] = err
-            offsets.append(np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]]))
-            errors.append(err if backlash is None else (err, backlash[r]))
-        ctrl = TableCommands(schedule, offsets, errors)
-        qpos0 = [ctrl[i, 0] for i in range(len(runs))]
+            off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
+            c = ctrl[i]
+            np.add(cmd_nom, off, out=c)
+            c += np.repeat(err, counts, axis=0)
+            if backlash is not None:
+                c += np.repeat(backlash[r], counts, axis=0)
+            qpos0.append(c[0].copy())
         return models, ctrl, qpos0, setting_err
 
     @staticmethod
@@ -259,15 +265,16 @@ class TiltTable:
         nt, nphi = len(protocol.theta_deg), len(protocol.phi_deg)
         set_theta = np.repeat(np.asarray(protocol.theta_deg, float) * DEG, nphi)
         set_phi = np.tile(np.asarray(protocol.phi_deg, float) * DEG, nt)
-        schedule = CommandSchedule(protocol, set_theta, set_phi, dt)
-        nstep, windows = schedule.n, schedule.windows
+        cmd_nom, windows = _command_profile(protocol, set_theta, set_phi, dt)
+        nstep = cmd_nom.shape[0]
         backlash = self._backlash_offsets(set_theta, set_phi, runs)
-        models, ctrl, qpos0, setting_err = self._run_commands(base_model, runs, R_WB, schedule, set_theta.size,
-                                                               rng, backlash)
+        models, ctrl, qpos0, setting_err = self._run_commands(base_model, runs, R_WB, cmd_nom, windows,
+                                                               set_theta.size, rng, backlash)
+        del cmd_nom
         sl = sensor_slices(base_model)
         earth_W = self.site.earth_rate_W()
         if self.dwell_truth == "mujoco":
-            truth = full_truth(models, np.array(qpos0), ctrl.whole(), sl, earth_W)
+            truth = full_truth(models, np.array(qpos0), ctrl, sl, earth_W)
         else:
             truth = stitched_pieces(models, runs, R_WB, ctrl, windows, sl, self.site.gravity_m_s2,
                                     earth_W, B_W, self._move_substeps(dt, protocol.slew_rate_deg_s), defer)
@@ -295,42 +302,6 @@ class TiltTable:
         return TiltRun(nstep=nstep, nruns=len(runs), dt=dt, gap_s=gap, windows=windows, set_theta=set_theta,
                        set_phi=set_phi, truth_source=truth, segments=segments, segment_units=seg_units, meta=meta,
                        truth=truth_dict)
-
-
-class TableCommands:
-    """The servo commands (mountings, nstep, 2) rad of a run, made for the rows asked (the moves read a
-    tenth of them): c = cmd + off_b, then + the setting error of each sample's position, then + its gear
-    clearance's shift (when there is one): the values, operation by operation, of the whole array.
-
-    ``ctrl[b, i]`` is row i of mounting b (2,); ``ctrl[b, lo:hi]`` rows [lo, hi) (hi - lo, 2); :meth:`whole`
-    the array. ``errors``: per mounting, (n_pos, 2) setting errors, or (errors, shifts)."""
-
-    def __init__(self, schedule, offsets: list, errors: list):
-        self.schedule, self.offsets, self.errors = schedule, offsets, errors
-        self.shape = (len(offsets), schedule.n, 2)
-
-    def rows(self, b: int, lo: int, hi: int) -> np.ndarray:
-        c = self.schedule.rows(lo, hi)
-        np.add(c, self.offsets[b], out=c)
-        pos = _position_index(self.schedule.n, self.schedule.windows, np.arange(lo, hi))
-        err = self.errors[b]
-        for e in (err if isinstance(err, tuple) else (err,)):
-            c += e[pos]
-        return c
-
-    def __getitem__(self, key) -> np.ndarray:
-        b, i = key
-        if isinstance(i, slice):
-            if i.step not in (None, 1):
-                raise IndexError("TableCommands: rows with a step are not made")
-            lo, hi, _ = i.indices(self.shape[1])
-            return self.rows(b, lo, max(lo, hi))
-        i = range(self.shape[1])[i]
-        return self.rows(b, i, i + 1)[0]
-
-    def whole(self) -> np.ndarray:
-        """The whole array (mountings, nstep, 2)."""
-        return np.stack([self.rows(b, 0, self.shape[1]) for b in range(self.shape[0])])
 
 
 @dataclass
