@@ -46,6 +46,7 @@ import mujoco
 import numpy as np
 
 from imurig.flights.vehicle import Cmd, TyreModel, VehicleSim, Wheel, quat_to_C
+from imurig.rigs.mujoco_clock import untimed
 
 __all__ = ["G0", "CitationAero", "CitationSim", "Cmd", "isa_density", "modes", "wall_clock"]
 
@@ -188,6 +189,7 @@ class CitationSim(VehicleSim):
         (:mod:`imurig.flights.flight_kernel`: the same forces at every physics step, the same samples)."""
         if self._kernel is None:
             self._kernel = self._load_kernel()
+        untimed()   # steps without MuJoCo's profiling clock (imurig.rigs.mujoco_clock): the same samples
         if self._kernel is False:
             for _ in range(n):
                 self.step(cmd)

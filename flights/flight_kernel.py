@@ -24,13 +24,13 @@ link (:data:`AVAILABLE` False) the Python path steps the flight (same samples, s
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import llvmlite.binding as llb
-import mujoco
 import numba
 import numpy as np
 from numba import types
+
+from imurig.rigs.mujoco_clock import mujoco_library
 
 #: aerodynamic parameter vector (``aero_params``) layout
 AERO_FIELDS = ("S_m2", "c_m", "b_m", "CL0", "CLa", "CLq", "CLadot", "CLde", "CD0", "oswald", "CL_flaps",
@@ -49,16 +49,7 @@ ROW = 26          # t, qpos[0:7], qvel[0:6], dv/dt[0:6], controls de, da, dr, th
 IO_SIZE = 42      # commands [0:7], deflections [7:14], previous α [14], the state after the steps [15:42]
 
 
-def _mujoco_library() -> Path | None:
-    here = Path(mujoco.__file__).parent
-    for pattern in ("libmujoco.so*", "libmujoco*.dylib", "mujoco.dll"):
-        found = sorted(here.glob(pattern))
-        if found:
-            return found[0]
-    return None
-
-
-_LIB = _mujoco_library()
+_LIB = mujoco_library()
 AVAILABLE = _LIB is not None
 if AVAILABLE:
     llb.load_library_permanently(str(_LIB))

@@ -23,6 +23,7 @@ import numpy as np
 
 from imurig.flights.truth import BodyKinematics
 from imurig.kernel.errors import ConfigError
+from imurig.rigs.mujoco_clock import untimed
 from imurig.rigs.mujoco_rig import load_model
 
 ROW = 26   # a recorded sample: t, qpos[0:7], qvel[0:6], dv/dt[0:6], controls de, da, dr, thr, steer, brake
@@ -207,6 +208,7 @@ class VehicleSim:
     def step(self, cmd: Cmd):
         """Advance one sample with the commands held; record the sample's kinematics."""
         d, m = self.data, self.model
+        untimed()   # steps without MuJoCo's profiling clock (imurig.rigs.mujoco_clock): the same samples
         for k in range(self.substeps):
             if k:
                 self._update_state()
@@ -234,6 +236,7 @@ class VehicleSim:
 
     def settle(self, seconds: float = 3.0):
         """Let the struts settle without recording (initial condition at rest), then zero velocities."""
+        untimed()
         for _ in range(int(seconds * self.rate_hz * self.substeps)):
             self._apply_tyres(Cmd(brake=1.0))
             mujoco.mj_step(self.model, self.data)

@@ -13,6 +13,7 @@ from mujoco import rollout
 
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.progress import progress
+from imurig.rigs.mujoco_clock import untimed
 
 
 def load_model(asset: str) -> mujoco.MjModel:
@@ -60,6 +61,7 @@ def rollout_servo(models: list[mujoco.MjModel], qpos0: np.ndarray, ctrl: np.ndar
         mujoco.mj_forward(m, d)
         mujoco.mj_getState(m, d, state[b], spec)
     out = None if sink is not None else np.empty((nbatch, nstep, models[0].nsensordata))
+    untimed()   # after the MjData above (each installs the bindings' clock again): steps without timers
     with progress(total=nstep, desc=desc, unit="step") as bar:
         for a in range(0, nstep, chunk):
             b = min(nstep, a + chunk)

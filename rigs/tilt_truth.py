@@ -40,6 +40,7 @@ import numpy as np
 from mujoco import rollout
 
 from imurig.kernel.progress import progress
+from imurig.rigs.mujoco_clock import untimed
 from imurig.rigs.mujoco_rig import rollout_servo
 from imurig.rigs.tilt_kinematics import MOUNTS, rot_y, rot_z, rotate_to_body
 
@@ -303,6 +304,7 @@ def _step_batch(batch, coarse: dict, datas, length: int, slew_end: int, k: int):
     the time step k dt)."""
     state = np.stack([_rest_state(m, q0, c[0], datas[0]) for m, c, q0, _ in batch])
     nd = datas[:min(2, len(batch))]
+    untimed()   # steps without MuJoCo's profiling clock (imurig.rigs.mujoco_clock)
     rows, knots = [], []
     for lo, hi, step in _plan(length, slew_end, k):
         ms = [m if step == 1 else coarse[id(m)] for m, _, _, _ in batch]

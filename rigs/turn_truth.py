@@ -35,6 +35,7 @@ from scipy.signal import lfilter
 
 from imurig.kernel.errors import ConfigError
 from imurig.kernel.progress import progress
+from imurig.rigs.mujoco_clock import untimed
 from imurig.rigs.mujoco_rig import rollout_servo
 from imurig.rigs.tilt_kinematics import rotate_to_body
 
@@ -226,6 +227,7 @@ def stitched_states(models, ctrls, ramps, off, sl, earth_W) -> TurnStates:
             batch = [b for b, r in enumerate(ramps) if k < len(r)]
             state = np.stack([_state(models[b], *pos[b], ctrls[b][ramps[b][k]]) for b in batch])
             c = np.stack([ctrls[b][ramps[b][k]:ramps[b][k] + n_ramp] for b in batch])[:, :, None]
+            untimed()   # after _state's MjData: steps without MuJoCo's profiling clock (imurig.rigs.mujoco_clock)
             st, sd = rollout.rollout([models[b] for b in batch], datas[:len(batch)], state, c)
             done = 0
             for i, b in enumerate(batch):
