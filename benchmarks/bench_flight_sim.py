@@ -43,15 +43,18 @@ def peak_rss_mb() -> float:
 
 def mj_step_us(steps: int = 10_000, repeat: int = 5) -> float:
     """MuJoCo's own step for the Citation in the air as the flight takes it (contacts and constraint
-    solver off, 1 kHz): CPU microseconds per ``mj_step``, the best of ``repeat`` loops of ``steps`` steps
-    run inside MuJoCo (``nstep``: no Python call per step), no forces applied."""
+    solver off, 1 kHz, without the profiling clock: :mod:`imurig.rigs.mujoco_clock`): CPU microseconds
+    per ``mj_step``, the best of ``repeat`` loops of ``steps`` steps run inside MuJoCo (``nstep``: no
+    Python call per step), no forces applied."""
     import mujoco
     from imurig.flights.aircraft import _NO_CONTACT, CitationSim
+    from imurig.rigs.mujoco_clock import untimed
 
     sim = CitationSim(rate_hz=1000.0)
     sim.set_airborne(120.0, 1500.0)
     m, d = sim.model, sim.data
     m.opt.disableflags |= _NO_CONTACT
+    untimed()
     q0, v0, best = d.qpos.copy(), d.qvel.copy(), math.inf
     for _ in range(repeat):
         d.qpos[:], d.qvel[:] = q0, v0
