@@ -72,3 +72,39 @@ def test_a_job_returns_its_value_and_pyplot_loads_only_when_asked(tmp_path):
         drawing = FigureProcess(out, [("v", _value, ([4],))])
         assert bare.wait() == {"v": {"x": 3, "pyplot": loaded}}
         assert drawing.wait() == {"v": {"x": [4], "pyplot": True}}
+
+
+def _size(out, x):
+    """A job that returns the size of what it was sent."""
+    return int(x.size)
+
+
+def _unpicklable(out, x):
+    return x
+
+
+@needs_fork
+def test_a_job_sent_beside_arrives_whole_and_in_order(tmp_path):
+    """``beside``: a large job sent from a thread while this process goes on; the next job follows it on the
+    pipe, and ``wait`` has both."""
+    import numpy as np
+
+    with OutputFolder(tmp_path / "out") as out:
+        figures = FigureProcess(out, pyplot=False)
+        big = np.arange(8_000_000, dtype=np.int16)   # 16 MB: more than a pipe holds
+        figures.draw("big", _size, big, beside=True)
+        figures.draw("after", _write, "after.txt", "after")
+        assert figures.wait() == {"big": big.size, "after": "after.txt"}
+
+
+@needs_fork
+def test_a_job_that_cannot_be_sent_beside_fails_the_next_call(tmp_path):
+    out = OutputFolder(tmp_path / "out")
+    with pytest.raises(RuntimeError, match="sending a job to the figure process failed"):
+        with out:
+            figures = FigureProcess(out, pyplot=False)
+            figures.draw("lambda", _unpicklable, lambda: None, beside=True)   # a lambda cannot be pickled
+            try:
+                figures.wait()
+            finally:
+                figures.cancel()

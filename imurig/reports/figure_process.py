@@ -9,11 +9,13 @@ value. Where fork is not available, each job runs here when it is given.
     figures = FigureProcess(out, [("residuals", _fig_residuals, (res,))])  # fork: the child has res
     ...                                     # the .rrd, the studies
     figures.draw("timers", _fig_timers, ts) # a study's results: pickled to the child
+    writer.draw("rrd_start", _start, rows, beside=True)   # large: sent from a thread while this one works on
     files = figures.wait()                  # name -> file; raises if a figure failed
 """
 from __future__ import annotations
 
 import multiprocessing
+import threading
 import weakref
 
 #: the parent's ends of every live child's pipes: a child forked later closes its copies of them, so that no
@@ -29,6 +31,8 @@ class FigureProcess:
 
     def __init__(self, out, first=(), pyplot: bool = True):
         self.out, self.child, self.figs = out, None, {}
+        self._sending: threading.Thread | None = None   # a job being sent beside this process's work
+        self._send_error: BaseException | None = None
         if "fork" not in multiprocessing.get_all_start_methods():
             if pyplot:
                 import matplotlib  # heavy: loaded when figures are drawn
@@ -48,16 +52,42 @@ class FigureProcess:
         jobs.close()
         _PARENT_ENDS.update((self._jobs, self._answer))
 
-    def draw(self, name: str, fn, *args) -> None:
-        """Draw ``fn(out, *args)`` (a module-level function returning the file it wrote) as figure ``name``."""
+    def draw(self, name: str, fn, *args, beside: bool = False) -> None:
+        """Draw ``fn(out, *args)`` (a module-level function returning the file it wrote) as figure ``name``.
+        ``beside``: send the job (e.g. a record's rows, ~0.1 GB) from a thread, so that this process goes on
+        while the child reads it; the next job, :meth:`wait` and :meth:`cancel` wait for it to be sent."""
         if self.child is None:
             self.figs[name] = fn(self.out, *args)
+            return
+        self._sent()
+        if beside:
+            self._sending = threading.Thread(target=self._send, args=((name, fn, args),), name=f"send {name}",
+                                             daemon=True)
+            self._sending.start()
         else:
             self._jobs.send((name, fn, args))
+
+    def _send(self, job) -> None:
+        try:
+            self._jobs.send(job)
+        except BaseException as e:   # raised by the next draw, wait or cancel
+            self._send_error = e
+
+    def _sent(self) -> None:
+        """Wait for a job sent beside (:meth:`draw`); raise what sending it raised."""
+        if self._sending is not None:
+            self._sending.join()
+            self._sending = None
+        if self._send_error is not None:
+            e, self._send_error = self._send_error, None
+            raise RuntimeError(f"sending a job to the figure process failed: {e}") from e
 
     def cancel(self) -> None:
         """No more figures (an error in the parent): the child ends on the closed pipe."""
         if self.child is not None:
+            if self._sending is not None:
+                self._sending.join()
+                self._sending, self._send_error = None, None
             self._jobs.close()
             self.child.join()
             self.child = None
@@ -66,6 +96,7 @@ class FigureProcess:
         """The figures drawn: name -> file (raises if drawing failed)."""
         if self.child is None:
             return self.figs
+        self._sent()
         self._jobs.close()
         return answer(self.child, self._answer)
 

@@ -24,6 +24,7 @@ from imurig.kernel.recording import Recording
 from imurig.kernel.outputs import OutputFolder, clean_json
 from imurig.reports.figure_process import FigureProcess
 from imurig.reports.common import md_figures_and_run, md_table, published_figures
+from imurig.reports.display_means import calibrated_means
 
 SEED_ENVELOPE = {"adc": 0.1, "gps_mark": 0.06, "hp6700": 0.03}
 TIMER_LABEL = {"adc": "ADC (1 kHz pulse channel)", "gps_mark": "GPS board mark input", "hp6700": "HP 6700 counter"}
@@ -140,6 +141,29 @@ def _rrd(out, rec, res, rows):
     from imurig.reports.turn_table_rrd import write_rrd  # rerun: heavy, loaded for the .rrd only
 
     write_rrd(out.file("campaign.rrd"), rec, res, rows=rows)
+    return "campaign.rrd"
+
+
+#: the .rrd begun in this process by :func:`_rrd_start`, finished by :func:`_rrd_finish` (the .rrd's process)
+_RRD_STARTED: dict = {}
+
+
+def _rrd_start(out, rec, rows):
+    """The .rrd's parts that need no fits (:func:`imurig.reports.turn_table_rrd.start_rrd`), logged in the
+    .rrd's process while the campaign's process fits."""
+    from imurig.reports.turn_table_rrd import start_rrd
+
+    _RRD_STARTED["rrd"] = start_rrd(out.file("campaign.rrd"), rec, rows)
+
+
+def _rrd_finish(out, rec, res, calibrated=None):
+    """The rest of the .rrd begun by :func:`_rrd_start`, from the fits ``res`` (and the calibrated rates'
+    block means, :func:`imurig.reports.display_means.calibrated_means`, if made by the sender)."""
+    from imurig.reports.turn_table_rrd import finish_rrd
+
+    started = _RRD_STARTED.pop("rrd")
+    if started is not None:
+        finish_rrd(started, rec, res, calibrated)
     return "campaign.rrd"
 
 
@@ -291,25 +315,28 @@ def run(camp: TurnTableCampaign, out_dir, overwrite: bool = False, rrd: bool = T
                 rec = sim.rec
                 t_sim = time.perf_counter() - t0
                 figures.draw("slip_rings", _fig_slip_ring, sim.fig)   # needs no fit: drawn while this one fits
+                # the record's metadata, truth and events (not its windows' rows)
+                light = SimpleNamespace(n=rec.n, n_segments=rec.n_segments, meta=rec.meta, truth=rec.truth,
+                                        events=rec.events)
+                if rrd and sim.streamed:   # the .rrd's parts that need no fit (its rows sent: ~0.1 GB), beside the fits
+                    writer.draw("rrd_start", _rrd_start, light, sim.rows, beside=True)
                 stage("analyse")
                 res = analyse(rec, camp.timer, camp.model)
-                # keep the windows' segments, let go of their rows
-                rec = SimpleNamespace(n=rec.n, n_segments=rec.n_segments, meta=rec.meta, truth=rec.truth,
-                                      events=rec.events)
+                rec = light   # keep the windows' segments, let go of their rows
                 res["windows"] = SimpleNamespace(segments=res["windows"].segments)
                 for c in (res["main"], res["seed_final"]):
                     c.windows_ = res["windows"]
                 sim.rec = None
                 stage("figures")
-                # the .rrd in the second process (the kept rows sent: ~0.1 GB; the whole-record chain's rows are
-                # not sent, a process forked now has them), the campaign's figures in the studies' process
-                if rrd and sim.streamed:
-                    writer.draw("rrd", _rrd, rec, res, sim.rows)
+                # the campaign's figures in the studies' process; the .rrd finished in the second process (the
+                # whole-record chain's rows are not sent: a process forked now has them)
+                figures.draw("residuals", _fig_residuals, _residual_data(res))
+                figures.draw("truth_z", _fig_z, res["parameters"])
+                if rrd and sim.streamed:   # the calibrated rates' means made here (~0.5 CPU-s), the rest there
+                    writer.draw("rrd", _rrd_finish, rec, res, calibrated_means(sim.rows, rec, res["main"]))
                 elif rrd:
                     writer.wait()
                     writer = FigureProcess(out, [("rrd", _rrd, (rec, res, sim.rows))], pyplot=False)
-                figures.draw("residuals", _fig_residuals, _residual_data(res))
-                figures.draw("truth_z", _fig_z, res["parameters"])
                 out.write_json("calibration.json", res["main"].to_dict())
                 files = {"report": "report.md", "summary": "summary.json", "calibration": "calibration.json"}
                 if save_recording:
