@@ -186,7 +186,7 @@ class TiltTable:
         bid_base = base_model.body("base").id
         bid_mount = base_model.body("imu_mount").id
         nstep = cmd_nom.shape[0]
-        counts = _position_counts(nstep, windows)   # a position's values over its steps: np.repeat
+        bounds = np.concatenate(([0], np.cumsum(_position_counts(nstep, windows)))).tolist()   # a position's rows
         models, qpos0, setting_err = [], [], {}
         ctrl = np.empty((len(runs), nstep, 2))   # filled in place: no list of copies
         res = self.errors.setting_resolution_rad
@@ -200,9 +200,11 @@ class TiltTable:
             off = np.array([self.errors.theta_zero_rad, self.errors.phi_zero_rad[r]])
             c = ctrl[i]
             np.add(cmd_nom, off, out=c)
-            c += np.repeat(err, counts, axis=0)
-            if backlash is not None:
-                c += np.repeat(backlash[r], counts, axis=0)
+            # each position's constants over its rows, slice by slice: the sums of np.repeat's rows, without
+            # its (n, 2) temporary
+            for shift in (err,) if backlash is None else (err, backlash[r]):
+                for lo, hi, d in zip(bounds[:-1], bounds[1:], shift):
+                    c[lo:hi] += d
             qpos0.append(c[0].copy())
         return models, ctrl, qpos0, setting_err
 
