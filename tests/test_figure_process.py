@@ -4,6 +4,7 @@ from __future__ import annotations
 import multiprocessing
 import sys
 
+import numpy as np
 import pytest
 
 from imurig.kernel.outputs import OutputFolder
@@ -75,8 +76,8 @@ def test_a_job_returns_its_value_and_pyplot_loads_only_when_asked(tmp_path):
 
 
 def _size(out, x):
-    """A job that returns the size of what it was sent."""
-    return int(x.size)
+    """A job that returns the size and the sum of what it was sent, and whether it can write to it."""
+    return int(x.size), int(x.sum(dtype=np.int64)), bool(x.flags.writeable)
 
 
 def _unpicklable(out, x):
@@ -87,14 +88,12 @@ def _unpicklable(out, x):
 def test_a_job_sent_beside_arrives_whole_and_in_order(tmp_path):
     """``beside``: a large job sent from a thread while this process goes on; the next job follows it on the
     pipe, and ``wait`` has both."""
-    import numpy as np
-
     with OutputFolder(tmp_path / "out") as out:
         figures = FigureProcess(out, pyplot=False)
-        big = np.arange(8_000_000, dtype=np.int16)   # 16 MB: more than a pipe holds
+        big = np.arange(8_000_000, dtype=np.int16)   # 16 MB: more than a pipe holds; its bytes sent out of band
         figures.draw("big", _size, big, beside=True)
         figures.draw("after", _write, "after.txt", "after")
-        assert figures.wait() == {"big": big.size, "after": "after.txt"}
+        assert figures.wait() == {"big": (big.size, int(big.sum(dtype=np.int64)), True), "after": "after.txt"}
 
 
 @needs_fork

@@ -15,12 +15,16 @@ value. Where fork is not available, each job runs here when it is given.
 from __future__ import annotations
 
 import multiprocessing
+import pickle
 import threading
 import weakref
 
 #: the parent's ends of every live child's pipes: a child forked later closes its copies of them, so that no
 #: child holds another's job pipe open (that child would then never see the end of its jobs)
 _PARENT_ENDS: "weakref.WeakSet" = weakref.WeakSet()
+#: the first message of a job sent with its buffers out of band: (this, number of buffers), then the pickle,
+#: then each buffer (:meth:`FigureProcess._send`)
+_OUT_OF_BAND = "imurig.figure_process.out_of_band"
 
 
 class FigureProcess:
@@ -68,8 +72,16 @@ class FigureProcess:
             self._jobs.send((name, fn, args))
 
     def _send(self, job) -> None:
+        """Send ``job`` with its arrays' buffers out of band (pickle protocol 5): each array's bytes go to the
+        pipe from the array itself, not copied into one pickle first (~0.1 GB less in this process)."""
         try:
-            self._jobs.send(job)
+            buffers = []
+            head = pickle.dumps(job, protocol=5, buffer_callback=buffers.append)
+            raws = [b.raw() for b in buffers]
+            self._jobs.send((_OUT_OF_BAND, [r.nbytes for r in raws]))
+            self._jobs.send_bytes(head)
+            for r in raws:
+                self._jobs.send_bytes(r)
         except BaseException as e:   # raised by the next draw, wait or cancel
             self._send_error = e
 
@@ -128,9 +140,15 @@ def _child(jobs, parent_ends, send, out, first, pyplot: bool = True) -> None:
             figs[name] = fn(out, *args)
         while True:
             try:
-                name, fn, args = jobs.recv()
+                job = jobs.recv()
+                if job[0] == _OUT_OF_BAND:   # a job sent beside, its buffers out of band (FigureProcess._send)
+                    head, buffers = jobs.recv_bytes(), [bytearray(n) for n in job[1]]   # writable, as pickled arrays are
+                    for b in buffers:
+                        jobs.recv_bytes_into(b)
+                    job = pickle.loads(head, buffers=buffers)
             except EOFError:   # the parent's last job given (or the parent stopped)
                 break
+            name, fn, args = job
             figs[name] = fn(out, *args)
         send.send(figs)
     except Exception as e:  # reported by the parent, which fails the run
