@@ -179,6 +179,7 @@ class TruthPieces:
         self._hold_at: dict[int, dict] = {}
         self._cond = threading.Condition()
         self._filled_to, self._error = 0, None
+        self._relay, self._outbox = None, []
 
     def hold(self, a: int, b: int, values: dict) -> None:
         """Samples [a, b) hold the constants ``values`` (name -> float)."""
@@ -196,6 +197,9 @@ class TruthPieces:
     def move(self, a: int, b: int, knots: np.ndarray | None, values: dict) -> None:
         """Samples [a, b) of a move: ``values`` name -> rows (b - a,) (``knots`` None), or name -> values at
         the sample offsets ``knots`` plus the value at b (linear in between)."""
+        if self._relay is not None:   # filled in another process's copy (:meth:`relay`)
+            self._outbox.append((a, b, knots, values))
+            return
         slot = self._slots.setdefault(a, [a, b, None, None])
         slot[2], slot[3] = knots, values
 
@@ -207,15 +211,44 @@ class TruthPieces:
 
     def filled(self, upto: int) -> None:
         """Every sample before ``upto`` is filled."""
+        if self._relay is not None:
+            moves, self._outbox = self._outbox, []
+            self._relay(("moves", moves, int(upto)))
+            return
         with self._cond:
             self._filled_to = max(self._filled_to, int(upto))
             self._cond.notify_all()
 
     def fail(self, error: BaseException) -> None:
         """Filling the moves failed: :meth:`rows` raises it."""
+        if self._relay is not None:
+            self._relay(("failed", f"{type(error).__name__}: {error}"))
+            return
         with self._cond:
             self._error = error
             self._cond.notify_all()
+
+    def relay(self, send) -> None:
+        """Make this copy (in a forked process that steps the moves) fill the original in the process it was
+        forked from: each :meth:`move` is kept, and each :meth:`filled` sends ``("moves", [(a, b, knots,
+        values), ...], upto)`` through ``send``, each :meth:`fail` ``("failed", message)``, for
+        :meth:`receive` there."""
+        self._relay, self._outbox = send, []
+
+    def receive(self, recv) -> None:
+        """Fill these pieces from a relaying copy (:meth:`relay`): ``recv()`` gives its messages until the last
+        move is filled; its failure, or its end before then, fails these pieces (:meth:`fail`)."""
+        try:
+            while self._filled_to < self.n:
+                msg = recv()
+                if msg[0] == "failed":
+                    self.fail(RuntimeError(msg[1]))
+                    return
+                for a, b, knots, values in msg[1]:
+                    self.move(a, b, knots, values)
+                self.filled(msg[2])
+        except (EOFError, OSError) as e:
+            self.fail(RuntimeError(f"the process stepping the moves ended before the last one ({e!r})"))
 
     def rows(self, a: int, b: int) -> dict:
         """Truth signals over samples [a, b): name -> (b - a,) float64 (waiting for their moves)."""

@@ -6,17 +6,21 @@ table's errors and the lab's inclinometer survey, drawn from the campaign's seed
 the sensor chain and the calibration (scipy: ~2 CPU-s of imports), so the command line can start the run
 before it loads them:
 
-    ahead = RigAhead.start(seed=..., protocol=..., start_time=..., lab=...)   # a thread: the table's run
+    ahead = RigAhead.start(seed=..., protocol=..., start_time=..., lab=...)   # the run; its moves forked
     from imurig.campaigns.tilt_table import TiltTableCampaign                # imports, beside MuJoCo
     run = ahead.take(camp)   # the run, if made for this campaign's settings, else None
 
-MuJoCo's rollouts run without the interpreter lock, so the imports (which hold it) and the moves share
-the two cores; the moves go on, in record order, while the stream starts (its truth rows wait for the
-moves they read). The run is what ``table.run(protocol, start_time, generator("campaign/tilt-table/rig",
-seed))`` gives in the campaign itself: the same streams, the same data bit for bit.
+The run is made in the caller's thread (the servo commands, ~0.3 CPU-s); its MuJoCo moves are stepped in a
+forked process, with an interpreter lock of its own, so that the imports (which hold this one's) and the
+moves use the two cores; the moves go on, in record order, while the stream starts, their rows sent back
+and filled in here (its truth rows wait for the moves they read). Where fork is missing (or with
+``process=False``) a thread makes the run and steps the moves, taking turns with the imports for the lock.
+The run is what ``table.run(protocol, start_time, generator("campaign/tilt-table/rig", seed))`` gives in the
+campaign itself: the same streams, the same data bit for bit.
 """
 from __future__ import annotations
 
+import multiprocessing
 import threading
 from dataclasses import replace
 
@@ -65,27 +69,64 @@ class RigAhead:
         self._thread = threading.Thread(target=self._work, name="tilt-rig-ahead", daemon=True)
 
     @classmethod
-    def start(cls, wait_s: float = PYTHON_WAIT_S, **settings) -> "RigAhead":
+    def start(cls, wait_s: float = PYTHON_WAIT_S, process: bool = True, **settings) -> "RigAhead":
         """Start the run of the campaign with these settings (:data:`RIG_FIELDS`; the defaults of
         :class:`imurig.campaigns.tilt_table.TiltTableCampaign` for those not given). Returns when the run is
-        made and MuJoCo starts stepping its moves (or after ``wait_s``): the run's own Python work (the
-        commands, ~0.5 CPU-s) is done before the caller's imports, which would otherwise take turns with it
-        for the interpreter lock."""
+        made and MuJoCo starts stepping its moves: in a forked process (``process``, where fork exists), else
+        in a thread (then after ``wait_s`` at most). The run's own Python work (the commands) is done before
+        the caller's imports, which would otherwise take turns with it for the interpreter lock."""
         d = {"start_time": "2005-06-14T18:00:00+02:00", "draw_table_errors": True, "survey_accuracy_arcsec": 2.0,
              "site": Site(), "lab": "quiet", **settings}
         ahead = cls(d)
+        if process and "fork" in multiprocessing.get_all_start_methods():
+            ahead._fork()
+            return ahead
         ahead._thread.start()
         ahead._ready.wait(wait_s)
         return ahead
 
-    def _work(self) -> None:
-        s, jobs = self.settings, []
+    def _fork(self) -> None:
+        """The run made here (the caller's thread), its moves stepped in a forked process (its own interpreter
+        lock: beside the caller's imports and the stream, not taking turns with them), their rows sent back
+        and filled in by a thread here (:meth:`imurig.rigs.tilt_truth.TruthPieces.receive`)."""
+        jobs = []
+        try:
+            self._run(jobs)
+        finally:
+            self._ready.set()
+        pieces = getattr(self._result[1], "truth_source", None) if self._result else None
+        if not jobs or not hasattr(pieces, "relay"):
+            for job in jobs:
+                job()
+            return
+        ctx = multiprocessing.get_context("fork")
+        recv, send = ctx.Pipe(duplex=False)
+        child = ctx.Process(target=_step_moves, args=(jobs, pieces, send), name="tilt-rig-moves", daemon=True)
+        child.start()
+        send.close()
+
+        def receive():
+            try:
+                pieces.receive(recv.recv)
+            finally:
+                recv.close()
+                child.join()
+
+        threading.Thread(target=receive, name="tilt-rig-moves-received", daemon=True).start()
+
+    def _run(self, jobs: list) -> None:
+        s = self.settings
         try:
             table = build_table(s["seed"], s["protocol"], s["draw_table_errors"], s["survey_accuracy_arcsec"],
                                 s["site"], s["lab"])
             self._result = (table, run_table(table, s["protocol"], s["start_time"], s["seed"], jobs.append))
         except BaseException as e:   # given to the caller of take()
             self._error = e
+
+    def _work(self) -> None:
+        jobs = []
+        try:
+            self._run(jobs)
         finally:
             self._ready.set()
         for job in jobs:   # the moves, in record order; a failure reaches the truth's reader (TruthPieces.rows)
@@ -104,3 +145,14 @@ class RigAhead:
         if self._error is not None:
             raise self._error
         return self._result
+
+
+def _step_moves(jobs, pieces, conn) -> None:
+    """The forked process of :meth:`RigAhead._fork`: MuJoCo's moves, their rows sent to the parent's pieces."""
+    pieces.relay(conn.send)
+    for job in jobs:   # a failure is sent by the job (TruthPieces.fail)
+        try:
+            job()
+        except BaseException:
+            pass
+    conn.close()
