@@ -95,6 +95,10 @@ def _pump_on(pump, run) -> bool:
     the time: a piece whose [first, last] hours miss the working hours has no sample in them (a piece
     across midnight is checked sample by sample)."""
     start, t0 = parse_time(run.meta["start_time"]), float(run.time_rows(0, 1)[0])
+    t1 = float(run.time_rows(run.n - 1, run.n)[0])
+    h0, h1 = _hours(start, np.array([t0, t1]), t0)
+    if t1 - t0 < 86400.0 and h1 >= h0 and (h1 < pump.work_start_h or h0 >= pump.work_stop_h):
+        return False   # the whole record, within one day, is outside the working hours
     for a in range(0, run.n, STREAM_CHUNK):
         b = min(run.n, a + STREAM_CHUNK)
         h0, h1 = _hours(start, run.time_rows(a, a + 1), t0)[0], _hours(start, run.time_rows(b - 1, b), t0)[0]

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from imurig.calibration.accelerometer import indicated
 from imurig.campaigns.tilt_table import calibrate
@@ -164,3 +166,28 @@ def test_time_frame_gives_the_recordings_rate_blocks_and_windows():
         assert frame.blocks(factor) == rec.blocks(factor)
     assert len(frame.blocks()) == 2 and len(frame.blocks(1.3)) == 3
     assert frame.segment_slices() == rec.segment_slices()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(4096, 30_000), st.integers(0, 2**32 - 1), st.sampled_from(["grid", "jitter", "two", "gaps", "nan"]))
+def test_median_step_is_numpys_median(n, seed, kind):
+    """The median time step found from a subsample and checked by counts is np.median's, bit for bit, on
+    grids with rounding, jitter, two values in near-equal shares, gaps and NaNs."""
+    from imurig.kernel.recording import median_step
+
+    rng = np.random.default_rng(seed)
+    if kind == "grid":
+        dt = np.diff(np.arange(n + 1) * 1e-3 + rng.uniform(0, 1e4))
+    elif kind == "jitter":
+        dt = 1e-3 + rng.normal(0, 1e-6, n)
+    elif kind == "two":
+        dt = np.where(rng.random(n) < 0.5, 1e-3, 2e-3)
+    elif kind == "gaps":
+        dt = np.diff(np.arange(n + 1) * 1e-3)
+        dt[rng.integers(0, n, 5)] = 900.0
+    else:
+        dt = np.full(n, 1e-3)
+        dt[rng.integers(0, n)] = np.nan
+    want, got = np.median(dt), median_step(dt)
+    assert (np.isnan(want) and np.isnan(got)) or got == want
+    assert type(got) is np.float64

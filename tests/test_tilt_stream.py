@@ -154,3 +154,29 @@ def test_streamed_cable_spikes_one_line_only():
     starts = int(np.count_nonzero(d[1:] & ~d[:-1]) + d[0])
     lam = b.build()[1].cable.rate_hz * ra.n / ra.sample_rate_hz
     assert abs(starts - lam) < 4 * np.sqrt(lam), (starts, lam)
+
+
+class _Clock:
+    """A record of ``hours`` at 1 Hz from ``start``: what _pump_on reads of a rig's run."""
+
+    def __init__(self, start: str, hours: float):
+        self.meta = {"start_time": start}
+        self.n = int(hours * 3600)
+
+    def time_rows(self, a, b):
+        return np.arange(a, b, dtype=float)
+
+
+@pytest.mark.parametrize("start, hours, on", [
+    ("2005-06-14T18:00:00+02:00", 2.2, False),    # the seed's evening campaign: decided from its two ends
+    ("2005-06-14T06:00:00+02:00", 1.0, False),    # before the working day
+    ("2005-06-14T17:00:00+02:00", 2.0, True),     # into the last half hour of it
+    ("2005-06-14T22:00:00+02:00", 4.0, False),    # across midnight, asleep: piece by piece
+    ("2005-06-14T23:00:00+02:00", 9.0, True),     # across midnight into the morning
+    ("2005-06-14T18:00:00+02:00", 30.0, True),    # longer than a day
+])
+def test_pump_hours_over_a_record(start, hours, on):
+    from imurig.sensors.effects.building_vibration import PumpVibration
+    from imurig.sensors.stream import _pump_on
+
+    assert _pump_on(PumpVibration(), _Clock(start, hours)) is on

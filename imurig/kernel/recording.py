@@ -127,11 +127,11 @@ class Recording:
     def blocks(self, max_gap_factor: float = 1.5) -> list[slice]:
         """Contiguous sample blocks: a gap longer than ``max_gap_factor`` sample periods splits."""
         dt = np.diff(self.time_s)
-        return time_blocks(dt, float(np.median(dt)), self.n, max_gap_factor)
+        return time_blocks(dt, float(median_step(dt)), self.n, max_gap_factor)
 
     @property
     def sample_rate_hz(self) -> float:
-        return float(1.0 / np.median(np.diff(self.time_s)))
+        return float(1.0 / median_step(np.diff(self.time_s)))
 
     def segment_slices(self) -> list[slice]:
         """Sample index range of each segment's acquisition window [start_s, stop_s)."""
@@ -161,7 +161,7 @@ class TimeFrame:
     def __init__(self, time_s: np.ndarray, segments: Mapping[str, np.ndarray]):
         self.time_s, self.segments = time_s, segments
         dt = np.diff(time_s)
-        median = np.median(dt)
+        median = median_step(dt)
         self.sample_rate_hz = float(1.0 / median)
         self._dt, self._median = dt, float(median)
 
@@ -173,6 +173,25 @@ class TimeFrame:
         return time_blocks(self._dt, self._median, self.n, max_gap_factor)
 
     segment_slices = Recording.segment_slices
+
+
+def median_step(dt: np.ndarray) -> np.float64:
+    """np.median(dt), the same value, without sorting a copy of all n time steps where one value holds the
+    middle (a record's steps repeat the sample period and a few rounding neighbours; np.median copies and
+    partitions them: 0.1 s for a 7.4 M-sample record).
+
+    A subsample's median c is the median if the sorted steps' middle element(s), ranks (n-1)//2 and n//2,
+    are among those equal to c: #{dt < c} <= (n-1)//2 < n//2 < #{dt <= c} (np.median's mean of two equal
+    middles is c). Else, or with NaNs, np.median itself."""
+    dt = np.asarray(dt)
+    n = dt.size
+    if n < 4096 or dt.dtype.kind != "f":
+        return np.median(dt)
+    c = np.median(dt[:: n // 2048])
+    below, upto = np.count_nonzero(dt < c), np.count_nonzero(dt <= c)
+    if upto + np.count_nonzero(dt > c) == n and below <= (n - 1) // 2 and n // 2 < upto:
+        return np.float64(c)
+    return np.median(dt)
 
 
 def time_blocks(dt: np.ndarray, nominal_s: float, n: int, max_gap_factor: float = 1.5) -> list[slice]:
