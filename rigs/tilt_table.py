@@ -37,7 +37,8 @@ from imurig.rigs.tilt_kinematics import (MOUNTS, TableSurvey, reference_specific
 from imurig.rigs.tilt_schedule import command_profile as _command_profile  # noqa: F401 (imported from here too)
 from imurig.rigs.tilt_schedule import position_counts as _position_counts, position_index as _position_index
 from imurig.rigs.tilt_truth import SIGNALS as SIGNAL_NAMES
-from imurig.rigs.tilt_truth import TruthPieces, full_truth, stitched_pieces
+from imurig.rigs.tilt_truth import full_truth, stitched_pieces
+from imurig.rigs.truth_pieces import TruthPieces
 
 
 def _quat_wxyz(R: np.ndarray) -> np.ndarray:
@@ -313,7 +314,7 @@ class TiltRun:
     The runs follow one another with the remount time as a gap: sample i of run r is at
     t = i dt + r (nstep dt + gap_s). Channels ``theta``, ``phi``: the set-points (rad) of the position
     each sample belongs to (a slew belongs to the position it goes to); truth signals from
-    ``truth_source`` (:class:`imurig.rigs.tilt_truth.TruthPieces`, or whole arrays)."""
+    ``truth_source`` (:class:`imurig.rigs.truth_pieces.TruthPieces`, or whole arrays)."""
 
     nstep: int
     nruns: int

@@ -31,7 +31,6 @@ itself differs from a 0.25 ms one by 3e-3 m/s^2 in the same moves. MuJoCo steps 
 from __future__ import annotations
 
 import copy
-import threading
 from contextlib import nullcontext
 from types import SimpleNamespace
 
@@ -43,6 +42,7 @@ from imurig.kernel.progress import progress
 from imurig.rigs.mujoco_clock import untimed
 from imurig.rigs.mujoco_rig import rollout_servo
 from imurig.rigs.tilt_kinematics import MOUNTS, rot_y, rot_z, rotate_to_body
+from imurig.rigs.truth_pieces import TruthPieces
 
 #: truth signals of the rig, name -> (sensor name in the MJCF, component)
 SIGNALS = {"theta_true": ("theta_true", 0), "phi_true": ("phi_true", 0),
@@ -117,7 +117,7 @@ def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
     ``defer(job)`` is given the job that steps them (in record order, :data:`EPOCH_MOVES` moves at a time;
     :meth:`TruthPieces.rows` waits for the moves it reads). The same values either way."""
     nb, nstep, _ = ctrl.shape
-    out = TruthPieces(nb * nstep)
+    out = TruthPieces(nb * nstep, tuple(SIGNALS))
     up = np.array([0.0, 0.0, g])
     moves = []  # (model, commands, initial qpos, first sample of the record)
     for b in range(nb):
@@ -162,118 +162,6 @@ def stitched_pieces(models, mounts, R_WB, ctrl, windows, sl, g, earth_W, B_W,
 #: moves stepped together when MuJoCo runs beside the stream (``defer``): in record order, so the first
 #: pieces of the record are ready after the first few batches
 EPOCH_MOVES = 24
-
-
-class TruthPieces:
-    """The tilt table's truth signals (:data:`SIGNALS`) over ``n`` samples as pieces: constants in the
-    windows, MuJoCo rows (every sample stepped) or knots (linear between them, module doc) in the
-    moves. :meth:`rows` gives any sample range, the same values as the whole arrays would hold.
-
-    The moves may be filled after :meth:`done` (in another thread, in record order): :meth:`rows` waits
-    until every sample it reads is filled (:meth:`filled`), or raises what the filling raised."""
-
-    def __init__(self, n: int):
-        self.n = n
-        self._holds: list[tuple[int, int, dict]] = []
-        self._slots: dict[int, list] = {}  # move start -> [start, stop, knots (None: rows), values]
-        self._hold_at: dict[int, dict] = {}
-        self._cond = threading.Condition()
-        self._filled_to, self._error = 0, None
-        self._relay, self._outbox = None, []
-
-    def hold(self, a: int, b: int, values: dict) -> None:
-        """Samples [a, b) hold the constants ``values`` (name -> float)."""
-        self._holds.append((a, b, values))
-        self._hold_at[a] = values
-
-    def value_at(self, i: int, name: str) -> float:
-        """The held value of ``name`` at sample ``i`` (a window's first sample)."""
-        return self._hold_at[i][name]
-
-    def expect(self, a: int, b: int) -> None:
-        """Samples [a, b) are a move, filled later by :meth:`move`."""
-        self._slots[a] = [a, b, None, None]
-
-    def move(self, a: int, b: int, knots: np.ndarray | None, values: dict) -> None:
-        """Samples [a, b) of a move: ``values`` name -> rows (b - a,) (``knots`` None), or name -> values at
-        the sample offsets ``knots`` plus the value at b (linear in between)."""
-        if self._relay is not None:   # filled in another process's copy (:meth:`relay`)
-            self._outbox.append((a, b, knots, values))
-            return
-        slot = self._slots.setdefault(a, [a, b, None, None])
-        slot[2], slot[3] = knots, values
-
-    def done(self) -> "TruthPieces":
-        self._pieces = sorted([(a, b, None, v) for a, b, v in self._holds] + list(self._slots.values()),
-                              key=lambda p: p[0])
-        self._starts = np.array([p[0] for p in self._pieces], dtype=np.int64)
-        return self
-
-    def filled(self, upto: int) -> None:
-        """Every sample before ``upto`` is filled."""
-        if self._relay is not None:
-            moves, self._outbox = self._outbox, []
-            self._relay(("moves", moves, int(upto)))
-            return
-        with self._cond:
-            self._filled_to = max(self._filled_to, int(upto))
-            self._cond.notify_all()
-
-    def fail(self, error: BaseException) -> None:
-        """Filling the moves failed: :meth:`rows` raises it."""
-        if self._relay is not None:
-            self._relay(("failed", f"{type(error).__name__}: {error}"))
-            return
-        with self._cond:
-            self._error = error
-            self._cond.notify_all()
-
-    def relay(self, send) -> None:
-        """Make this copy (in a forked process that steps the moves) fill the original in the process it was
-        forked from: each :meth:`move` is kept, and each :meth:`filled` sends ``("moves", [(a, b, knots,
-        values), ...], upto)`` through ``send``, each :meth:`fail` ``("failed", message)``, for
-        :meth:`receive` there."""
-        self._relay, self._outbox = send, []
-
-    def receive(self, recv) -> None:
-        """Fill these pieces from a relaying copy (:meth:`relay`): ``recv()`` gives its messages until the last
-        move is filled; its failure, or its end before then, fails these pieces (:meth:`fail`)."""
-        try:
-            while self._filled_to < self.n:
-                msg = recv()
-                if msg[0] == "failed":
-                    self.fail(RuntimeError(msg[1]))
-                    return
-                for a, b, knots, values in msg[1]:
-                    self.move(a, b, knots, values)
-                self.filled(msg[2])
-        except (EOFError, OSError) as e:
-            self.fail(RuntimeError(f"the process stepping the moves ended before the last one ({e!r})"))
-
-    def rows(self, a: int, b: int) -> dict:
-        """Truth signals over samples [a, b): name -> (b - a,) float64 (waiting for their moves)."""
-        if self._filled_to < b:
-            with self._cond:
-                self._cond.wait_for(lambda: self._error is not None or self._filled_to >= b)
-        if self._error is not None:
-            raise RuntimeError(f"the tilt table's moves (MuJoCo) failed: {self._error}") from self._error
-        out = {k: np.empty(b - a) for k in SIGNALS}
-        first = max(int(np.searchsorted(self._starts, a, side="right")) - 1, 0)
-        for lo, hi, knots, vals in self._pieces[first:]:
-            if lo >= b:
-                break
-            s, e = max(lo, a), min(hi, b)
-            if s >= e:
-                continue
-            for k in SIGNALS:
-                v = vals[k]
-                if np.ndim(v) == 0:
-                    out[k][s - a:e - a] = v
-                elif knots is None:
-                    out[k][s - a:e - a] = v[s - lo:e - lo]
-                else:
-                    out[k][s - a:e - a] = np.interp(np.arange(s - lo, e - lo, dtype=float), knots, v)
-        return out
 
 
 def _coarse_models(models, k: int) -> list:

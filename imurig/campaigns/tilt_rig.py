@@ -88,7 +88,7 @@ class RigAhead:
     def _fork(self) -> None:
         """The run made here (the caller's thread), its moves stepped in a forked process (its own interpreter
         lock: beside the caller's imports and the stream, not taking turns with them), their rows sent back
-        and filled in by a thread here (:meth:`imurig.rigs.tilt_truth.TruthPieces.receive`)."""
+        and filled in by a thread here (:meth:`imurig.rigs.truth_pieces.TruthPieces.receive`)."""
         jobs = []
         try:
             self._run(jobs)
