@@ -94,11 +94,9 @@ class RigAhead:
             self._run(jobs)
         finally:
             self._ready.set()
-        pieces = getattr(self._result[1], "truth_source", None) if self._result else None
-        if not jobs or not hasattr(pieces, "relay"):
-            for job in jobs:
-                job()
+        if not jobs:   # no run (its error is kept for take()), or no moves
             return
+        pieces = self._result[1].truth_source   # the pieces the moves fill (TruthPieces)
         ctx = multiprocessing.get_context("fork")
         recv, send = ctx.Pipe(duplex=False)
         child = ctx.Process(target=_step_moves, args=(jobs, pieces, send), name="tilt-rig-moves", daemon=True)

@@ -8,7 +8,7 @@ import rerun.blueprint as rrb
 
 from imurig.kernel.recording import Recording
 from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
-from imurig.reports.turn_table_rrd import block_means
+from imurig.reports.display_means import block_means
 from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
                                 log_scalars, log_text)
 from imurig.rigs.mujoco_rig import load_model
