@@ -203,11 +203,23 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
             f.params = {c: (v[0], se[c]) for c, v in f.params.items()}
             f.std_error_model = "noise model's covariance"
     # what is left: is the remaining residual white and at the noise floor?
-    r = after.residuals_
-    lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1]) if r.size > 3 else float("nan")
-    unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1,
-                   "white": bool(abs(lag1) < 2.5 / np.sqrt(max(r.size, 1)))}
+    lag1, white = residual_whiteness(after.residuals_)
+    unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1, "white": white}
     return Diagnosis(names0, findings, before, after, unexplained)
+
+
+def residual_whiteness(r: np.ndarray) -> tuple[float, bool]:
+    """(lag-1 autocorrelation rho of the residual r, white): white when |rho| < 2.5 / sqrt(n), the
+    2.5-sigma bound of rho for n white values. With no spread left (a model as large as the data, an axis
+    not excited: r[:-1] or r[1:] constant) rho is undefined (NaN) and nothing is unexplained: white, as
+    the summary reads it (:mod:`imurig.diagnose.summary`). Fewer than 4 values: NaN, not called white."""
+    r = np.asarray(r, float)
+    if r.size <= 3:
+        return float("nan"), False
+    if np.ptp(r[:-1]) == 0 or np.ptp(r[1:]) == 0:
+        return float("nan"), True
+    lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1])
+    return lag1, bool(abs(lag1) < 2.5 / np.sqrt(r.size))
 
 
 def _model_std_errors(X: np.ndarray, y: np.ndarray, S: np.ndarray) -> np.ndarray:
