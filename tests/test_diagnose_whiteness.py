@@ -1,4 +1,4 @@
-"""imurig.diagnose.engine.residual_whiteness: is what a diagnosis leaves white, and at the edges (no spread
+"""imurig.diagnose.whiteness.residual_whiteness: is what a diagnosis leaves white, and at the edges (no spread
 left, too few values) a defined answer without a numpy warning."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
-from imurig.diagnose.engine import residual_whiteness
+from imurig.diagnose.whiteness import residual_whiteness
 
 
 def _quiet(r):

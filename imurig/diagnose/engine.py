@@ -31,6 +31,7 @@ import numpy as np
 import scipy.linalg
 
 from imurig.calibration.regression import RegressionResult, fit_ols
+from imurig.diagnose.whiteness import residual_whiteness
 from imurig.kernel.errors import UnidentifiableTermsError
 from imurig.sensors.effects.base import Candidate  # noqa: F401  (the engine's candidates are the effect library's)
 
@@ -206,20 +207,6 @@ def select_effects(y: np.ndarray, X0: np.ndarray, names0: list[str], candidates:
     lag1, white = residual_whiteness(after.residuals_)
     unexplained = {"sigma_res": after.sigma_res, "lag1_autocorrelation": lag1, "white": white}
     return Diagnosis(names0, findings, before, after, unexplained)
-
-
-def residual_whiteness(r: np.ndarray) -> tuple[float, bool]:
-    """(lag-1 autocorrelation rho of the residual r, white): white when |rho| < 2.5 / sqrt(n), the
-    2.5-sigma bound of rho for n white values. With no spread left (a model as large as the data, an axis
-    not excited: r[:-1] or r[1:] constant) rho is undefined (NaN) and nothing is unexplained: white, as
-    the summary reads it (:mod:`imurig.diagnose.summary`). Fewer than 4 values: NaN, not called white."""
-    r = np.asarray(r, float)
-    if r.size <= 3:
-        return float("nan"), False
-    if np.ptp(r[:-1]) == 0 or np.ptp(r[1:]) == 0:
-        return float("nan"), True
-    lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1])
-    return lag1, bool(abs(lag1) < 2.5 / np.sqrt(r.size))
 
 
 def _model_std_errors(X: np.ndarray, y: np.ndarray, S: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from imurig.diagnose.whiteness import residual_whiteness
 from imurig.sensors import effects as library
 
 #: the unit of a scatter finding's value, from the suffix of its key
@@ -186,11 +187,13 @@ def unexplained(d: dict) -> list[dict]:
         res = e.get("residuals") or {}
         r = np.asarray(res.get("after", []), float)
         white = (e.get("unexplained") or {}).get("white")
-        if r.size >= 4 and (not np.all(np.isfinite(r)) or np.ptp(r[:-1]) == 0 or np.ptp(r[1:]) == 0):
+        if r.size >= 4 and not np.all(np.isfinite(r)):
+            continue
+        lag1, white_here = residual_whiteness(r)
+        if r.size >= 4 and np.isnan(lag1):
             continue   # no spread left (a model as large as the data, an axis not excited): nothing unexplained
         if r.size >= 4 and white is None:
-            lag1 = float(np.corrcoef(r[:-1], r[1:])[0, 1])
-            white = bool(abs(lag1) < 2.5 / np.sqrt(r.size))
+            white = white_here
         if white is not False:
             continue
         setpoint = next((np.asarray(res[k], float) for k in ("reading_m_s2", "table_rate_rad_s", "temperature_K")
