@@ -9,10 +9,10 @@ from imurig.kernel.recording import Recording
 from imurig.rigs.mujoco_rig import load_model
 from imurig.rigs.tilt_table import MOUNTS, _quat_wxyz
 from imurig.reports.rrd_layout import layout, readable, rig_view, series_view, summary_view, symmetric_range
+from imurig.reports.display_means import DISPLAY_HZ   # the .rrds' display rate, one value
 from imurig.reports.viz import (RrdWriter, body_path, break_gaps, log_body_poses, log_frame_axes, log_mujoco_model,
                                 log_scalars, log_text)
 
-DISPLAY_HZ = 10.0
 #: the specific-force series' units (truth and calibrated)
 F_UNITS = {f"f_{a}": "m/s^2" for a in AXES}
 
