@@ -15,6 +15,14 @@ the ratio imurig / peer of samples per wall second (and per CPU second). Medians
     python benchmarks/bench_tilt_table.py --quick        # 4 x 6 x 2 positions, 4 s each
     python benchmarks/bench_tilt_table.py --repeat 3 --with-outputs
     python benchmarks/bench_tilt_table.py --no-peer      # imurig alone
+    python benchmarks/bench_tilt_table.py --command --repeat 8   # the whole command, in pairs with the peer
+
+``--command`` times what a user waits for: ``imurig campaign tilt-table`` in a fresh process (the
+interpreter's start, the imports, recording.h5 written as it streams, the figures, campaign.rrd, the report),
+into a temporary folder, and the peer's whole process beside it, in turn (peer, imurig, peer, imurig, ...):
+each pair's ratio of samples per wall second is taken pair by pair, so that the machine's speed drifting
+over the call moves both sides of a pair alike. Both sides' wall, CPU and peak memory are those of their
+whole processes (the operating system's accounting, ``wait4``), the peer's imports included.
 """
 from __future__ import annotations
 
@@ -28,6 +36,7 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import re
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -89,11 +98,12 @@ def imurig_once(quick: bool, with_outputs: bool) -> dict:
     return res
 
 
-def _child(cmd: list[str]) -> tuple[str, float, float, float]:
-    """Run ``cmd``; its stdout, wall time, CPU time and peak memory (MB, from wait4)."""
+def _child(cmd: list[str], env: dict | None = None) -> tuple[str, float, float, float]:
+    """Run ``cmd`` (in ``env``, default this one's); its stdout, wall time, CPU time and peak memory (MB, from
+    wait4)."""
     with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:  # no pipe to fill up
         t0 = time.perf_counter()
-        p = subprocess.Popen(cmd, stdout=fo, stderr=fe, text=True, cwd=ROOT)
+        p = subprocess.Popen(cmd, stdout=fo, stderr=fe, text=True, cwd=ROOT, env=env)
         _, status, ru = os.wait4(p.pid, 0)
         wall = time.perf_counter() - t0
         p.returncode = os.waitstatus_to_exitcode(status)
@@ -117,6 +127,59 @@ def peer_once(rate_hz: float) -> dict:
             "cpu_s": cpu, "peak_rss_MB": rss, "samples_per_s": n / inner_wall}
 
 
+def command_once(quick: bool) -> dict:
+    """``imurig campaign tilt-table`` as a user runs it, in a fresh process, into a temporary folder: its
+    wall, CPU and peak memory (the whole process: start, imports, HDF5, figures, .rrd), and its samples."""
+    exe = shutil.which("imurig", path=str(Path(sys.executable).parent))
+    cmd = [exe] if exe else [sys.executable, "-c", "from imurig.cli import run; run()"]
+    with tempfile.TemporaryDirectory() as d:
+        cmd += ["campaign", "tilt-table", "--out", f"{d}/out"]
+        if quick:
+            cmd += ["--theta", "0,30,60,90", "--phi", "0,60,120,180,240,300", "--dwell", "4"]
+        _, wall, cpu, rss = _child(cmd, env={**os.environ, "IMURIG_PROGRESS": "0"})   # no bar on a file
+        with open(f"{d}/out/summary.json") as f:
+            summary = json.load(f)
+    checked = [p["within_bound"] for p in summary["parameters"] if p["within_bound"] is not None]
+    return {"wall_s": wall, "cpu_s": cpu, "peak_rss_MB": rss, "samples": summary["n_samples"],
+            "within_4se": f"{sum(checked)}/{len(checked)}"}
+
+
+def command_pairs(a) -> dict:
+    """``--command``: the whole command and the peer's whole process in turn, ``a.repeat`` pairs."""
+    load0 = os.getloadavg()
+    pairs = []
+    for _ in range(a.repeat):
+        peer = peer_once(a.peer_rate)
+        im = command_once(a.quick)
+        ratio = (im["samples"] / im["wall_s"]) / (peer["samples"] / peer["process_wall_s"])
+        ratio_cpu = (im["samples"] / im["cpu_s"]) / (peer["samples"] / peer["cpu_s"])
+        pairs.append({"imurig": im, "peer": peer, "ratio_samples_per_s": ratio, "ratio_samples_per_cpu_s": ratio_cpu})
+        print(json.dumps(pairs[-1]), flush=True)
+    med = statistics.median
+    summary = {"pairs": len(pairs), "load_before": [round(x, 2) for x in load0],
+               "load_after": [round(x, 2) for x in os.getloadavg()],
+               "imurig_command_samples": pairs[-1]["imurig"]["samples"],
+               "imurig_command_within_4se": pairs[-1]["imurig"]["within_4se"]}
+    for k in ("wall_s", "cpu_s", "peak_rss_MB"):
+        vals = [p["imurig"][k] for p in pairs]
+        summary[f"imurig_command_{k}"] = med(vals)
+        summary[f"imurig_command_{k}_min_max"] = [min(vals), max(vals)]
+    for k, src in (("process_wall_s", "process_wall_s"), ("cpu_s", "cpu_s"), ("peak_rss_MB", "peak_rss_MB")):
+        summary[f"peer_{k}"] = med([p["peer"][src] for p in pairs])
+    summary["peer_samples"] = pairs[-1]["peer"]["samples"]
+    summary["peer_samples_per_s"] = med([p["peer"]["samples"] / p["peer"]["process_wall_s"] for p in pairs])
+    for k in ("ratio_samples_per_s", "ratio_samples_per_cpu_s"):
+        vals = [p[k] for p in pairs]
+        summary[k] = med(vals)
+        summary[f"{k}_min_max"] = [min(vals), max(vals)]
+    summary = {k: (round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v] if isinstance(v, list) else v)
+               for k, v in summary.items()}
+    for k, v in summary.items():
+        print(f"{k:34s} {v}")
+    print(json.dumps(summary))
+    return summary
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
@@ -124,6 +187,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--no-peer", action="store_true", help="skip gnss-ins-sim")
     ap.add_argument("--peer-rate", type=float, default=1000.0)
+    ap.add_argument("--command", action="store_true",
+                    help="the whole `imurig campaign tilt-table` process in pairs with the peer's whole process")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
@@ -131,6 +196,10 @@ def main(argv=None) -> dict:
         return {}
     if not a.no_peer and not PEER.exists():
         raise SystemExit(f"{PEER} not found; give --no-peer or put the peers next to the repository")
+    if a.command:
+        if a.no_peer:
+            raise SystemExit("--command pairs the command with the peer: leave out --no-peer")
+        return command_pairs(a)
     load0 = os.getloadavg()
     runs = []
     for _ in range(a.repeat):
