@@ -172,8 +172,13 @@ def command_pairs(a) -> dict:
         vals = [p[k] for p in pairs]
         summary[k] = med(vals)
         summary[f"{k}_min_max"] = [min(vals), max(vals)]
-    summary = {k: (round(v, 3) if isinstance(v, float) else [round(x, 3) for x in v] if isinstance(v, list) else v)
-               for k, v in summary.items()}
+    return _report(summary)
+
+
+def _report(summary: dict) -> dict:
+    """The summary rounded (floats, and lists of floats, to 3 decimals), printed a line a figure, then as JSON."""
+    r3 = lambda v: round(v, 3) if isinstance(v, float) else v  # noqa: E731
+    summary = {k: [r3(x) for x in v] if isinstance(v, list) else r3(v) for k, v in summary.items()}
     for k, v in summary.items():
         print(f"{k:34s} {v}")
     print(json.dumps(summary))
@@ -229,11 +234,7 @@ def main(argv=None) -> dict:
         # per CPU second (less sensitive to the load; the peer's CPU includes its interpreter and imports)
         summary["ratio_samples_per_cpu_s"] = med([(r["imurig"]["samples_1kHz"] / r["imurig"]["campaign_cpu_s"])
                                                   / (r["peer"]["samples"] / r["peer"]["cpu_s"]) for r in runs])
-    summary = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in summary.items()}
-    for k, v in summary.items():
-        print(f"{k:34s} {v}")
-    print(json.dumps(summary))
-    return summary
+    return _report(summary)
 
 
 if __name__ == "__main__":
